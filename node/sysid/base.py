@@ -1,0 +1,184 @@
+"""What every identification method shares: snapshot pairs, the least-squares
+fit (eq. 4.13), the optional output-error refinement, seeding and free run.
+
+A method only says how it lifts measurements into (pseudo-)states: ``_lift``
+turns one trajectory's outputs (K, p) and inputs (K, m) into states (K, n);
+the state at the last sample of a measured history is its last row.
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+
+import numpy as np
+
+from node.sysid.lstsq import pod_basis, truncated_lstsq
+from node.sysid.refine import refit_bd
+from node.sysid.statespace import StateSpace
+from node.sysid.validation import as_matrix, as_trajectories
+
+
+class Estimator(str, Enum):
+    """How (A, B, C, D) are estimated from the snapshots."""
+
+    LS = "ls"  # plain least squares, eq. 4.13 (biased by output noise)
+    OE = "oe"  # least squares, then (B, D) re-estimated on the free-run output error
+
+
+class LinearDMD:
+    """Base of IODMD, DelayDMD and WDMD (scikit-learn style: fit returns self).
+
+    Args:
+        rcond: relative singular-value tolerance of the pseudo-inverse (beta).
+        rank: optional POD truncation of the (pseudo-)state, None keeps all.
+        estimator: ``"ls"`` or ``"oe"`` (see :class:`Estimator`).
+        dt: sample time in seconds (for frequency responses).
+        warmup: leading samples of each trajectory used only to fill the
+            lifting's memory, not as snapshot pairs (0: the signal is taken
+            as constant before its first sample).
+
+    Learned attributes: ``model_`` (:class:`StateSpace`), ``rank_`` (rank kept
+    by the pseudo-inverse), ``basis_`` (POD basis or None), ``n_inputs_``,
+    ``n_outputs_``, ``refined_`` (whether the OE step ran).
+    """
+
+    min_samples = 3
+
+    def __init__(self, rcond: float = 1e-12, rank: int | None = None,
+                 estimator: str = "oe", dt: float = 1.0, warmup: int = 0) -> None:
+        self.rcond = rcond
+        self.rank = rank
+        self.estimator = estimator
+        self.dt = dt
+        self.warmup = warmup
+
+    # --- what a method defines ------------------------------------------
+    def _lift(self, Y: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """(Pseudo-)states of one trajectory: Y (K, p), U (K, m) -> (K, n_lift).
+
+        Row k may use samples up to k only (except non-causal variants).
+        """
+        raise NotImplementedError
+
+    def memory(self) -> int:
+        """Samples of past a lifted state depends on (its warm-up length)."""
+        return 0
+
+    # --- fit ---------------------------------------------------------------
+    def _check_params(self) -> Estimator:
+        if not (isinstance(self.rcond, (int, float)) and self.rcond > 0):
+            raise ValueError(f"rcond must be a positive number, got {self.rcond!r}")
+        if self.rank is not None and (int(self.rank) != self.rank or self.rank < 1):
+            raise ValueError(f"rank must be a positive integer or None, got {self.rank!r}")
+        if not self.dt > 0:
+            raise ValueError(f"dt must be positive, got {self.dt!r}")
+        if int(self.warmup) != self.warmup or self.warmup < 0:
+            raise ValueError(f"warmup must be a non-negative integer, got {self.warmup!r}")
+        try:
+            return Estimator(self.estimator)
+        except ValueError:
+            raise ValueError(f"estimator must be one of {[e.value for e in Estimator]}, "
+                             f"got {self.estimator!r}") from None
+
+    def _fit_lifted(self, Zs: list[np.ndarray], Ys: list[np.ndarray], Us: list[np.ndarray]):
+        estimator = self._check_params()
+        w = int(self.warmup)
+        for i, y in enumerate(Ys):
+            if y.shape[0] < self.min_samples + w:
+                raise ValueError(f"trajectory {i} has {y.shape[0]} samples; at least "
+                                 f"{self.min_samples + w} are needed (warmup {w})")
+        Zs, Ys, Us = [z[w:] for z in Zs], [y[w:] for y in Ys], [u[w:] for u in Us]
+        self.basis_ = pod_basis(np.vstack(Zs), self.rank)
+        Xs = [z if self.basis_ is None else z @ self.basis_ for z in Zs]
+        # snapshot pairs inside each trajectory only (eq. 5.22): never across the seam
+        R = np.vstack([np.hstack([x[:-1], u[:-1]]) for x, u in zip(Xs, Us)])
+        T = np.vstack([np.hstack([x[1:], y[:-1]]) for x, y in zip(Xs, Ys)])
+        W, self.rank_ = truncated_lstsq(R, T, self.rcond)
+        n = Xs[0].shape[1]
+        G = W.T  # [[A, B], [C, D]]
+        A, B, C, D = G[:n, :n], G[:n, n:], G[n:, :n], G[n:, n:]
+        self.refined_ = False
+        if estimator is Estimator.OE and Us[0].shape[1] > 0:
+            if np.max(np.abs(np.linalg.eigvals(A))) < 1.0:
+                B, D = refit_bd(A, C, Ys, Us, [x[0] for x in Xs])
+                self.refined_ = True
+        self.model_ = StateSpace(A.copy(), B.copy(), C.copy(), D.copy(), float(self.dt))
+        self.n_inputs_ = Us[0].shape[1]
+        self.n_outputs_ = Ys[0].shape[1]
+        return self
+
+    def fit(self, Y, U=None):
+        """Fit on outputs Y (K, p) and inputs U (K, m), or lists of such (one per trajectory)."""
+        self._check_params()
+        Ys, Us = as_trajectories(Y, U)
+        Zs = [self._lift(y, u) for y, u in zip(Ys, Us)]
+        return self._fit_lifted(Zs, Ys, Us)
+
+    # --- the fitted model ----------------------------------------------------
+    def _require_fit(self) -> StateSpace:
+        model = getattr(self, "model_", None)
+        if model is None:
+            raise ValueError(f"{type(self).__name__} is not fitted yet: call fit first")
+        return model
+
+    @property
+    def A(self) -> np.ndarray:
+        return self._require_fit().A
+
+    @property
+    def B(self) -> np.ndarray:
+        return self._require_fit().B
+
+    @property
+    def C(self) -> np.ndarray:
+        return self._require_fit().C
+
+    @property
+    def D(self) -> np.ndarray:
+        return self._require_fit().D
+
+    def _project(self, z: np.ndarray) -> np.ndarray:
+        return z if self.basis_ is None else z @ self.basis_
+
+    def initial_state(self, history, u_next: np.ndarray | None = None) -> np.ndarray:
+        """State at the first sample after ``history`` (see :meth:`simulate`).
+
+        ``u_next`` (m,) stands in for the last history input when the history
+        has no inputs.
+        """
+        model = self._require_fit()
+        if history is None:
+            return np.zeros(model.n_states)
+        if isinstance(history, tuple):
+            if len(history) != 2:
+                raise ValueError("history must be Y1, (Y1, U1) or None")
+            Y1, U1 = history
+        else:
+            Y1, U1 = history, None
+        Y1 = as_matrix(Y1, "history outputs Y1", cols=self.n_outputs_, min_rows=1)
+        if U1 is not None:
+            U1 = as_matrix(U1, "history inputs U1", cols=self.n_inputs_)
+            if U1.shape[0] != Y1.shape[0]:
+                raise ValueError(f"history Y1 has {Y1.shape[0]} samples but U1 has {U1.shape[0]}")
+        else:
+            guess = np.zeros(self.n_inputs_) if u_next is None else np.asarray(u_next, float)
+            U1 = np.tile(guess, (Y1.shape[0], 1))
+        keep = self.memory() + 1
+        x_last = self._project(self._lift(Y1[-keep:], U1[-keep:])[-1])
+        u_last = U1[-1]
+        return model.A @ x_last + model.B @ u_last
+
+    def simulate(self, U, history=None, x0: np.ndarray | None = None) -> np.ndarray:
+        """Free-run prediction (len(U), p) driven by U (K, m).
+
+        The state is seeded from ``history``: (Y1, U1) measured just before U
+        starts, or Y1 alone (the last unknown input taken equal to U[0]), or
+        None to start from rest. ``x0`` overrides the seed with a state.
+        """
+        model = self._require_fit()
+        U = as_matrix(U, "U", cols=self.n_inputs_)
+        if x0 is None:
+            x0 = self.initial_state(history, U[0] if len(U) else None)
+        else:
+            x0 = np.asarray(x0, dtype=float).reshape(model.n_states)
+        return model.simulate(U, x0)

@@ -1,0 +1,36 @@
+"""Least squares through a truncated pseudo-inverse (the dissertation's beta)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def truncated_lstsq(R: np.ndarray, T: np.ndarray, rcond: float) -> tuple[np.ndarray, int]:
+    """Solve min ||R W - T||_F with singular values of R below ``rcond * s_max`` cut.
+
+    Args:
+        R: (K, q) regressors, one row per snapshot.
+        T: (K, r) targets.
+        rcond: relative singular-value tolerance (beta in eq. 4.13).
+
+    Returns:
+        W (q, r) and the rank kept.
+    """
+    if not rcond > 0:
+        raise ValueError(f"rcond must be positive, got {rcond}")
+    U, s, Vh = np.linalg.svd(R, full_matrices=False)
+    if s.size == 0 or s[0] == 0:
+        return np.zeros((R.shape[1], T.shape[1])), 0
+    keep = int(np.sum(s > rcond * s[0]))
+    W = (Vh[:keep].T / s[:keep]) @ (U[:, :keep].T @ T)
+    return W, keep
+
+
+def pod_basis(X: np.ndarray, rank: int | None) -> np.ndarray | None:
+    """Leading ``rank`` right singular vectors of snapshots X (K, n) as (n, rank), or None."""
+    if rank is None or rank >= X.shape[1]:
+        return None
+    if rank < 1:
+        raise ValueError(f"rank must be at least 1, got {rank}")
+    _, _, Vh = np.linalg.svd(X, full_matrices=False)
+    return Vh[:rank].T

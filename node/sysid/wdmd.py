@@ -1,0 +1,68 @@
+"""Wavelet-based DMD (eq. 4.26-4.36): MODWT coefficients of the outputs as pseudo-states."""
+
+from __future__ import annotations
+
+from enum import Enum
+
+import numpy as np
+
+from node.sysid.base import LinearDMD
+from node.sysid.wavelets import CausalMODWT, modwt_mra
+
+
+class Components(str, Enum):
+    """Which MODWT quantities form the pseudo-state."""
+
+    CAUSAL = "causal"  # coefficients W_1..W_J, V_J from past samples only (online)
+    MRA = "mra"        # the dissertation's MRA details D_1..D_J, S_J (look ahead)
+
+
+class WDMD(LinearDMD):
+    """WDMD with ``levels`` (J) of the ``wavelet`` MODWT: state dimension p (J + 1).
+
+    Args:
+        levels: J.
+        wavelet: PyWavelets orthogonal wavelet (Haar by default).
+        components: ``"causal"`` (default, computable sample by sample) or
+            ``"mra"`` (eq. 4.26, circular and non-causal; for comparison).
+        rcond, rank, estimator, dt, warmup: as :class:`LinearDMD`.
+
+    Pseudo-state order: channel-major, [W_1 .. W_J, V_J] of output 1, then
+    output 2, ... (eq. 4.30).
+    """
+
+    def __init__(self, levels: int = 4, wavelet: str = "haar", components: str = "causal",
+                 rcond: float = 1e-12, rank: int | None = None, estimator: str = "oe",
+                 dt: float = 1.0, warmup: int = 0) -> None:
+        super().__init__(rcond=rcond, rank=rank, estimator=estimator, dt=dt, warmup=warmup)
+        self.levels = levels
+        self.wavelet = wavelet
+        self.components = components
+
+    def _components(self) -> Components:
+        try:
+            return Components(self.components)
+        except ValueError:
+            raise ValueError(f"components must be one of {[c.value for c in Components]}, "
+                             f"got {self.components!r}") from None
+
+    def _check_params(self):
+        if int(self.levels) != self.levels or self.levels < 1:
+            raise ValueError(f"levels must be a positive integer, got {self.levels!r}")
+        self._components()
+        return super()._check_params()
+
+    def memory(self) -> int:
+        return sum(CausalMODWT(int(self.levels), self.wavelet).spans())
+
+    def _lift(self, Y: np.ndarray, U: np.ndarray) -> np.ndarray:
+        K, p = Y.shape
+        if self._components() is Components.MRA:
+            Z = modwt_mra(Y, int(self.levels), self.wavelet)
+        else:
+            Z = CausalMODWT(int(self.levels), self.wavelet, p).transform(Y)
+        return Z.reshape(K, p * (int(self.levels) + 1))
+
+    def filter_bank(self) -> CausalMODWT:
+        """A fresh causal filter bank matching this model (for online stepping)."""
+        return CausalMODWT(int(self.levels), self.wavelet, self.n_outputs_)
