@@ -1,0 +1,27 @@
+"""Order tracking from a raw vibration signal and a shaft speed.
+
+- :func:`cot_orders`: computed order tracking (angular resampling, block DFT).
+- :func:`vkf_orders`: joint second-generation Vold-Kalman filter.
+- :func:`rpm_from_tacho`, :func:`tacho_pulse_times`: speed from a tacho signal.
+
+Both trackers return an :class:`OrderTrack` with time-major arrays; amplitudes are
+peak amplitudes of ``a*cos(p*theta + phi)`` and phases ``phi`` refer to the shaft
+angle integrated from the speed, zero at the first sample. Invalid input raises
+ValueError.
+"""
+
+from .angle import rpm_from_tacho, shaft_revolutions, tacho_pulse_times
+from .cot import cot_orders
+from .result import OrderTrack
+from .vkf import DEFAULT_BANDWIDTH_HZ, vkf_orders, weighting_factor
+
+__all__ = [
+    "DEFAULT_BANDWIDTH_HZ",
+    "OrderTrack",
+    "cot_orders",
+    "rpm_from_tacho",
+    "shaft_revolutions",
+    "tacho_pulse_times",
+    "vkf_orders",
+    "weighting_factor",
+]
