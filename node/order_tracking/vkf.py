@@ -116,8 +116,9 @@ def assemble_normal_equations(x: np.ndarray, phi: np.ndarray,
 
 def _lower_band(matrix: sp.spmatrix, half_bandwidth: int) -> np.ndarray:
     """Lower banded storage ab[i - j, j] = A[i, j] for solveh_banded."""
-    lower = sp.tril(matrix, format="coo")
-    lower.sum_duplicates()
+    lower = sp.tril(matrix, format="csr")
+    lower.sum_duplicates()  # no-op on canonical CSR; guarantees unique entries
+    lower = lower.tocoo()
     ab = np.zeros((half_bandwidth + 1, matrix.shape[0]))
     ab[lower.row - lower.col, lower.col] = lower.data
     return ab
