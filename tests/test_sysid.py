@@ -227,3 +227,34 @@ def test_simulate_checks_its_inputs():
         m.simulate(np.zeros((10, 1)), history=np.zeros((5, 7)))
     with pytest.raises(ValueError, match="not fitted"):
         WDMD().simulate(np.zeros((10, 1)))
+
+
+def test_output_error_refit_paths_agree_and_beat_least_squares_under_noise():
+    from node.sysid import refine
+    rng = np.random.default_rng(15)
+    sys = random_system(rng, 4, 2, 2, rho=0.9)
+    U = rng.standard_normal((800, 2))
+    Y = sys.simulate(U)
+    Yn = Y + 0.05 * Y.std(0) * rng.standard_normal(Y.shape)
+    x0 = np.zeros(4)
+    modal = refine._normal_equations_modal(sys.A, sys.C, [Yn], [U], [x0])
+    markov = refine._normal_equations_markov(sys.A, sys.C, [Yn], [U], [x0])
+    np.testing.assert_allclose(modal[0], markov[0], rtol=1e-8, atol=1e-8 * np.abs(markov[0]).max())
+    np.testing.assert_allclose(modal[1], markov[1], rtol=1e-8, atol=1e-8 * np.abs(markov[1]).max())
+    # the OE estimator gives a smaller free-run error than plain least squares on noisy data
+    ls = DelayDMD(delays=4, input_delays=4, warmup=4, estimator="ls").fit(Yn, U)
+    oe = DelayDMD(delays=4, input_delays=4, warmup=4, estimator="oe").fit(Yn, U)
+    assert oe.refined_
+    assert eps_td(Y, oe.simulate(U)) < eps_td(Y, ls.simulate(U))
+
+
+def test_seeding_observer_averages_measurement_noise():
+    rng = np.random.default_rng(16)
+    sys = lightly_damped_system(rng, p=2)
+    Y = sys.simulate(np.zeros((600, 1)), x0=rng.standard_normal(4))
+    Yn = Y + 0.05 * Y.std(0) * rng.standard_normal(Y.shape)
+    m = DelayDMD(delays=2, estimator="ls").fit(Y)  # exact model from clean data
+    lifted = DelayDMD(delays=2, estimator="ls", seed_window=0).fit(Y)
+    err_window = eps_td(Y[400:], m.simulate(np.zeros((200, 0)), history=Yn[:400]))
+    err_lift = eps_td(Y[400:], lifted.simulate(np.zeros((200, 0)), history=Yn[:400]))
+    assert err_window < 0.5 * err_lift

@@ -11,6 +11,7 @@ from node.sysid.base import Estimator, LinearDMD
 from node.sysid.delay_dmd import DelayDMD, delay_embed
 from node.sysid.iodmd import IODMD
 from node.sysid.metrics import eps_fd, eps_td, mac
+from node.sysid.observer import estimate_state
 from node.sysid.statespace import PoleResidue, StateSpace
 from node.sysid.wavelets import CausalMODWT, causal_modwt, modwt_mra
 from node.sysid.wdmd import WDMD, Components
@@ -18,5 +19,5 @@ from node.sysid.wdmd import WDMD, Components
 __all__ = [
     "IODMD", "DelayDMD", "WDMD", "LinearDMD", "Estimator", "Components", "StateSpace",
     "PoleResidue", "CausalMODWT", "causal_modwt", "modwt_mra", "delay_embed",
-    "eps_td", "eps_fd", "mac",
+    "eps_td", "eps_fd", "mac", "estimate_state",
 ]

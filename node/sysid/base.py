@@ -13,6 +13,7 @@ from enum import Enum
 import numpy as np
 
 from node.sysid.lstsq import pod_basis, truncated_lstsq
+from node.sysid.observer import estimate_state
 from node.sysid.refine import refit_bd
 from node.sysid.statespace import StateSpace
 from node.sysid.validation import as_matrix, as_trajectories
@@ -36,6 +37,11 @@ class LinearDMD:
         warmup: leading samples of each trajectory used only to fill the
             lifting's memory, not as snapshot pairs (0: the signal is taken
             as constant before its first sample).
+        seed_window: samples of a history used to seed a free run: the
+            lifted state at the window start is corrected by least squares
+            so that the model's free run fits the window's outputs (which
+            averages measurement noise out). None: 20 n / p, at least 100;
+            0: the lifted state of the last history sample alone.
 
     Learned attributes: ``model_`` (:class:`StateSpace`), ``rank_`` (rank kept
     by the pseudo-inverse), ``basis_`` (POD basis or None), ``n_inputs_``,
@@ -43,14 +49,17 @@ class LinearDMD:
     """
 
     min_samples = 3
+    seed_rcond = 1e-4  # relative tolerance of the seeding observer
 
     def __init__(self, rcond: float = 1e-12, rank: int | None = None,
-                 estimator: str = "oe", dt: float = 1.0, warmup: int = 0) -> None:
+                 estimator: str = "oe", dt: float = 1.0, warmup: int = 0,
+                 seed_window: int | None = None) -> None:
         self.rcond = rcond
         self.rank = rank
         self.estimator = estimator
         self.dt = dt
         self.warmup = warmup
+        self.seed_window = seed_window
 
     # --- what a method defines ------------------------------------------
     def _lift(self, Y: np.ndarray, U: np.ndarray) -> np.ndarray:
@@ -72,6 +81,10 @@ class LinearDMD:
             raise ValueError(f"rank must be a positive integer or None, got {self.rank!r}")
         if not self.dt > 0:
             raise ValueError(f"dt must be positive, got {self.dt!r}")
+        if self.seed_window is not None and (int(self.seed_window) != self.seed_window
+                                             or self.seed_window < 0):
+            raise ValueError(f"seed_window must be a non-negative integer or None, "
+                             f"got {self.seed_window!r}")
         if int(self.warmup) != self.warmup or self.warmup < 0:
             raise ValueError(f"warmup must be a non-negative integer, got {self.warmup!r}")
         try:
@@ -100,8 +113,10 @@ class LinearDMD:
         self.refined_ = False
         if estimator is Estimator.OE and Us[0].shape[1] > 0:
             if np.max(np.abs(np.linalg.eigvals(A))) < 1.0:
-                B, D = refit_bd(A, C, Ys, Us, [x[0] for x in Xs])
-                self.refined_ = True
+                bd = refit_bd(A, C, Ys, Us, [x[0] for x in Xs])
+                if bd is not None:
+                    B, D = bd
+                    self.refined_ = True
         self.model_ = StateSpace(A.copy(), B.copy(), C.copy(), D.copy(), float(self.dt))
         self.n_inputs_ = Us[0].shape[1]
         self.n_outputs_ = Ys[0].shape[1]
@@ -163,10 +178,25 @@ class LinearDMD:
         else:
             guess = np.zeros(self.n_inputs_) if u_next is None else np.asarray(u_next, float)
             U1 = np.tile(guess, (Y1.shape[0], 1))
-        keep = self.memory() + 1
-        x_last = self._project(self._lift(Y1[-keep:], U1[-keep:])[-1])
-        u_last = U1[-1]
-        return model.A @ x_last + model.B @ u_last
+        K1 = Y1.shape[0]
+        W = self.seed_window_length(K1)
+        if W <= 1:
+            keep = self.memory() + 1
+            x_last = self._project(self._lift(Y1[-keep:], U1[-keep:])[-1])
+            return model.A @ x_last + model.B @ U1[-1]
+        # lifted state at the window start, corrected by least squares on the window's outputs
+        start = K1 - W
+        lo = max(0, start - self.memory())
+        x_s = self._project(self._lift(Y1[lo:start + 1], U1[lo:start + 1])[-1])
+        return estimate_state(model, Y1[start:], U1[start:], x_s, rcond=self.seed_rcond)
+
+    def seed_window_length(self, n_history: int) -> int:
+        """Samples of history the seeding observer uses (0 or 1: the lifted state alone)."""
+        if self.seed_window is not None:
+            return min(int(self.seed_window), n_history)
+        model = self._require_fit()
+        auto = max(100, 20 * -(-model.n_states // model.n_outputs))
+        return min(auto, n_history)
 
     def simulate(self, U, history=None, x0: np.ndarray | None = None) -> np.ndarray:
         """Free-run prediction (len(U), p) driven by U (K, m).

@@ -5,25 +5,30 @@ from __future__ import annotations
 import numpy as np
 
 
-def truncated_lstsq(R: np.ndarray, T: np.ndarray, rcond: float) -> tuple[np.ndarray, int]:
+def truncated_lstsq(R: np.ndarray, T: np.ndarray, rcond: float,
+                    scale_columns: bool = True) -> tuple[np.ndarray, int]:
     """Solve min ||R W - T||_F with singular values of R below ``rcond * s_max`` cut.
 
     Args:
         R: (K, q) regressors, one row per snapshot.
         T: (K, r) targets.
         rcond: relative singular-value tolerance (beta in eq. 4.13).
+        scale_columns: scale every regressor to unit norm before the SVD, so
+            that the cut does not depend on the units of states and inputs.
 
     Returns:
         W (q, r) and the rank kept.
     """
     if not rcond > 0:
         raise ValueError(f"rcond must be positive, got {rcond}")
-    U, s, Vh = np.linalg.svd(R, full_matrices=False)
+    scale = np.linalg.norm(R, axis=0) if scale_columns else np.ones(R.shape[1])
+    scale[scale == 0] = 1.0
+    U, s, Vh = np.linalg.svd(R / scale, full_matrices=False)
     if s.size == 0 or s[0] == 0:
         return np.zeros((R.shape[1], T.shape[1])), 0
     keep = int(np.sum(s > rcond * s[0]))
     W = (Vh[:keep].T / s[:keep]) @ (U[:, :keep].T @ T)
-    return W, keep
+    return W / scale[:, None], keep
 
 
 def pod_basis(X: np.ndarray, rank: int | None) -> np.ndarray | None:

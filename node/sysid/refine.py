@@ -7,14 +7,20 @@ D (the initial states being fixed):
     y[k] = C A^k x0 + sum_{i<k} C A^(k-1-i) B u[i] + D u[k]
 
 so minimising the free-run output error over (B, D) is a linear least-squares
-problem. The regressors are built from the Markov parameters C A^i with FFT
-convolutions: O(K p n log K) per input, no per-parameter simulation.
+problem. Its normal equations are assembled in modal coordinates
+(A = V diag(lam) V^-1): each mode filters each input by a first-order
+recursion, and the Gram matrix is a Hadamard product, O(K n^2) in time and
+O(K n) in memory. When A is not safely diagonalizable the design matrix is
+built from the Markov parameters C A^i instead (O(K p n) memory).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy import signal
+
+MAX_EIGVEC_COND = 1e8
+MAX_DESIGN_ENTRIES = 60_000_000
 
 
 def markov_parameters(A: np.ndarray, C: np.ndarray, K: int) -> np.ndarray:
@@ -28,43 +34,104 @@ def markov_parameters(A: np.ndarray, C: np.ndarray, K: int) -> np.ndarray:
     return H
 
 
+def _modal_filter(lam: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """xi[k, l, j] = sum_{i<k} lam_l^(k-1-i) u_j[i]: (K, n, m) complex."""
+    K, m = U.shape
+    xi = np.zeros((K, lam.size, m), dtype=complex)
+    for k in range(1, K):
+        xi[k] = lam[:, None] * xi[k - 1] + U[k - 1][None, :]
+    return xi
+
+
+def _normal_equations_modal(A, C, Ys, Us, x0s):
+    n, p, m = A.shape[0], C.shape[0], Us[0].shape[1]
+    lam, V = np.linalg.eig(A)
+    if not np.isfinite(np.linalg.cond(V)) or np.linalg.cond(V) > MAX_EIGVEC_COND:
+        return None
+    Vinv = np.linalg.inv(V)
+    CV = C @ V
+    CVhCV = CV.conj().T @ CV
+    q = n * m + p * m
+    G = np.zeros((q, q), dtype=complex)
+    g = np.zeros(q, dtype=complex)
+    for Y, U, x0 in zip(Ys, Us, x0s):
+        K = Y.shape[0]
+        powers = lam[None, :] ** np.arange(K)[:, None]  # (K, n)
+        R = Y - (powers * (Vinv @ x0)[None, :]) @ CV.T  # residual after the free response
+        R = R.real
+        xi = _modal_filter(lam, U)  # (K, n, m)
+        RCV = R @ CV.conj()  # (K, n): (CV^H r(k))^T
+        for j in range(m):
+            bj = slice(j * n, (j + 1) * n)
+            g[bj] += Vinv.conj().T @ np.sum(xi[:, :, j].conj() * RCV, axis=0)
+            for jj in range(m):
+                bjj = slice(jj * n, (jj + 1) * n)
+                G[bj, bjj] += Vinv.conj().T @ (CVhCV * (xi[:, :, j].conj().T @ xi[:, :, jj])) @ Vinv
+                c = xi[:, :, j].conj().T @ U[:, jj]  # (n,)
+                dj = slice(n * m + jj * p, n * m + (jj + 1) * p)
+                G[bj, dj] += Vinv.conj().T @ (c[:, None] * CV.conj().T)
+            dj = slice(n * m + j * p, n * m + (j + 1) * p)
+            g[dj] += R.T @ U[:, j]
+            for jj in range(m):
+                djj = slice(n * m + jj * p, n * m + (jj + 1) * p)
+                G[dj, djj] += np.eye(p) * (U[:, j] @ U[:, jj])
+    upper = np.triu_indices(q, 1)
+    G[(upper[1], upper[0])] = G[upper].conj()  # fill the D-B blocks by symmetry
+    return G.real, g.real
+
+
+def _normal_equations_markov(A, C, Ys, Us, x0s):
+    n, p, m = A.shape[0], C.shape[0], Us[0].shape[1]
+    K_max = max(y.shape[0] for y in Ys)
+    if K_max * p * n * max(m, 1) > MAX_DESIGN_ENTRIES:
+        return None
+    H = markov_parameters(A, C, K_max).reshape(K_max, p * n)
+    q = n * m + p * m
+    G = np.zeros((q, q))
+    g = np.zeros(q)
+    eye_p = np.eye(p)
+    for Y, U, x0 in zip(Ys, Us, x0s):
+        K = Y.shape[0]
+        free = H[:K].reshape(K, p, n) @ x0
+        cols = []
+        for j in range(m):
+            u_shift = np.concatenate([[0.0], U[:K - 1, j]])
+            conv = signal.fftconvolve(H[:K], u_shift[:, None], mode="full", axes=0)[:K]
+            cols.append(conv.reshape(K * p, n))
+        cols += [(U[:, j][:, None, None] * eye_p[None]).reshape(K * p, p) for j in range(m)]
+        X = np.hstack(cols)
+        G += X.T @ X
+        g += X.T @ (Y - free).reshape(K * p)
+    return G, g
+
+
 def refit_bd(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np.ndarray],
-             x0s: list[np.ndarray], rcond: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
+             x0s: list[np.ndarray], rcond: float = 1e-12) -> tuple[np.ndarray, np.ndarray] | None:
     """(B, D) minimising sum over trajectories of ||Y - free_run(A, B, C, D, x0, U)||^2.
 
     Args:
         A: (n, n), C: (p, n) fixed.
         Ys, Us: per-trajectory outputs (K_i, p) and inputs (K_i, m).
         x0s: per-trajectory initial states (n,).
-        rcond: relative singular-value cut of the (B, D) regression.
+        rcond: relative eigenvalue cut of the (scaled) normal equations.
 
     Returns:
-        B (n, m), D (p, m).
+        B (n, m), D (p, m), or None when neither assembly applies (A defective
+        and the problem too large for the Markov design matrix).
     """
     n, p, m = A.shape[0], C.shape[0], Us[0].shape[1]
-    K_max = max(y.shape[0] for y in Ys)
-    H = markov_parameters(A, C, K_max).reshape(K_max, p * n)
-    rows_x, rows_y = [], []
-    for Y, U, x0 in zip(Ys, Us, x0s):
-        K = Y.shape[0]
-        free = np.einsum("kpn,n->kp", H[:K].reshape(K, p, n), x0)
-        blocks = []
-        for j in range(m):
-            u_shift = np.concatenate([[0.0], U[:K - 1, j]])  # u[k-1]: the response starts one step later
-            conv = signal.fftconvolve(H[:K], u_shift[:, None], mode="full", axes=0)[:K]
-            blocks.append(conv.reshape(K, p, n))
-        # design: rows (k, output), columns: B[:, j] entries for each j, then D[out, j]
-        cols_b = [b.reshape(K * p, n) for b in blocks]  # (K p, n) each
-        eye_p = np.eye(p)
-        cols_d = [(U[:, j][:, None, None] * eye_p[None]).reshape(K * p, p) for j in range(m)]
-        rows_x.append(np.hstack(cols_b + cols_d))
-        rows_y.append((Y - free).reshape(K * p))
-    X = np.vstack(rows_x)
-    y = np.concatenate(rows_y)
-    scale = np.linalg.norm(X, axis=0)
-    scale[scale == 0] = 1.0
-    theta, *_ = np.linalg.lstsq(X / scale, y, rcond=rcond)
-    theta = theta / scale
+    eq = _normal_equations_modal(A, C, Ys, Us, x0s)
+    if eq is None:
+        eq = _normal_equations_markov(A, C, Ys, Us, x0s)
+    if eq is None:
+        return None
+    G, g = eq
+    d = np.sqrt(np.clip(np.diag(G), 0, None))
+    d[d == 0] = 1.0
+    Gs = G / d[:, None] / d[None, :]
+    w, Q = np.linalg.eigh((Gs + Gs.T) / 2)
+    keep = w > rcond * w.max()
+    theta = (Q[:, keep] @ ((Q[:, keep].T @ (g / d)) / w[keep])) / d
     B = theta[: n * m].reshape(m, n).T
     D = theta[n * m:].reshape(m, p).T
     return B, D

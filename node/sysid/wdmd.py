@@ -25,7 +25,7 @@ class WDMD(LinearDMD):
         wavelet: PyWavelets orthogonal wavelet (Haar by default).
         components: ``"causal"`` (default, computable sample by sample) or
             ``"mra"`` (eq. 4.26, circular and non-causal; for comparison).
-        rcond, rank, estimator, dt, warmup: as :class:`LinearDMD`.
+        rcond, rank, estimator, dt, warmup, seed_window: as :class:`LinearDMD`.
 
     Pseudo-state order: channel-major, [W_1 .. W_J, V_J] of output 1, then
     output 2, ... (eq. 4.30).
@@ -33,8 +33,9 @@ class WDMD(LinearDMD):
 
     def __init__(self, levels: int = 4, wavelet: str = "haar", components: str = "causal",
                  rcond: float = 1e-12, rank: int | None = None, estimator: str = "oe",
-                 dt: float = 1.0, warmup: int = 0) -> None:
-        super().__init__(rcond=rcond, rank=rank, estimator=estimator, dt=dt, warmup=warmup)
+                 dt: float = 1.0, warmup: int = 0, seed_window: int | None = None) -> None:
+        super().__init__(rcond=rcond, rank=rank, estimator=estimator, dt=dt, warmup=warmup,
+                         seed_window=seed_window)
         self.levels = levels
         self.wavelet = wavelet
         self.components = components
