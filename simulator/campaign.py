@@ -1,0 +1,264 @@
+"""A campaign: several pass-off runs of one engine with shutdown gaps, faults, noise.
+
+Pure numerics: returns arrays and a ground-truth dictionary; writing files is
+``simulator.export``'s job. Randomness: engine from child 0 of the seed, run r
+from child r + 1 and faults from a separate child, so the first N runs of a
+longer campaign equal an N-run campaign with the same seed, fault or not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from node.recording import SENSOR_CHANNELS
+from simulator import gaspath, rotor, thermal
+from simulator.engine import SHAFTS, Engine, build_engine
+from simulator.schedule import DEFAULT_OCS, DT, OC, Profile, make_profile
+
+FAULTS = ("imbalance", "stiffness", "stuck-sensor", "drift")
+CAMPAIGN_START = 1767600000.0  # 2026-01-05 08:00:00 UTC, epoch seconds
+OFF_FRACTION = 0.05  # contract: engine off when every shaft speed is below 5 % of its maximum
+MAX_SPEEDS = {"nA": gaspath.NA_TOP, "nB": gaspath.NB_TOP, "nC": gaspath.NC_TOP}
+
+# Sensor noise: sigma = absolute + relative * |value|; then rounded to `decimals`.
+NOISE: dict[str, tuple[float, float, int]] = {
+    #        absolute  relative  decimals
+    "n": (1.0, 3e-4, 0),
+    "y": (0.03, 0.02, 2),
+    "t": (0.4, 0.0, 1),
+    "p": (0.05, 5e-4, 1),
+    "M1": (0.005, 0.0, 3),
+    "M2": (0.05, 0.0, 1),
+}
+DROPOUT_RATE = 2e-4  # isolated dropouts per sample and channel
+BURSTS_PER_RUN = 0.5  # mean number of dropout bursts (5-60 samples) per channel and run
+STIFFNESS_FAULT = 0.90  # stiffness factor of the 0.95 mode after a stiffness fault
+STIFFNESS_RAMP = 20.0  # s
+DRIFT_RATE = 0.5 / 60.0  # yB drift, mm/s per second
+IMBALANCE_FAULT = 0.9  # added imbalance, times the base imbalance of plane 1
+
+
+@dataclass
+class SimRun:
+    """One simulated run: measured data on the 40 Hz grid and its ground truth."""
+
+    t: np.ndarray  # (K,) epoch seconds, on the grid (no jitter)
+    data: np.ndarray  # (K, len(SENSOR_CHANNELS)) measured values, NaN at dropouts
+    truth: dict = field(default_factory=dict)
+
+
+@dataclass
+class Campaign:
+    """All runs of one simulated engine, in time order."""
+
+    runs: list[SimRun]
+    channels: tuple[str, ...] = SENSOR_CHANNELS
+    ocs: tuple[OC, ...] = DEFAULT_OCS
+
+
+def _noise_spec(channel: str) -> tuple[float, float, int]:
+    return NOISE.get(channel) or NOISE[channel[0]]
+
+
+def _first_on(speeds: dict[str, np.ndarray]) -> tuple[int, int]:
+    """Indices of the first and last sample where some shaft speed is >= 5 % of its maximum."""
+    on = np.zeros(len(speeds["nB"]), dtype=bool)
+    for name, top in MAX_SPEEDS.items():
+        on |= speeds[name] >= OFF_FRACTION * top
+    idx = np.flatnonzero(on)
+    return int(idx[0]), int(idx[-1])
+
+
+def _measure(
+    rng: np.random.Generator, clean: dict[str, np.ndarray], channels: tuple[str, ...]
+) -> np.ndarray:
+    """Add noise, quantise, clip amplitudes, insert dropouts: (K, C) float with NaN."""
+    k = len(clean["nB"])
+    data = np.empty((k, len(channels)))
+    for j, name in enumerate(channels):
+        absolute, relative, decimals = _noise_spec(name)
+        x = clean[name]
+        noisy = x + rng.standard_normal(k) * (absolute + relative * np.abs(x))
+        if name[0] in "ny":
+            noisy = np.clip(noisy, 0.0, None)
+        data[:, j] = np.round(noisy, decimals)
+    drop = rng.random(data.shape) < DROPOUT_RATE
+    for j in range(len(channels)):
+        for _ in range(rng.poisson(BURSTS_PER_RUN)):
+            start = rng.integers(0, k)
+            drop[start : start + rng.integers(5, 61), j] = True
+    data[drop] = np.nan
+    return data
+
+
+def _fault_onset(rng: np.random.Generator, profile: Profile) -> tuple[float, str]:
+    """Onset (s from run start) inside the plateau of one of OC6..OC10, and that OC."""
+    candidates = [s for s in profile.segments if s.name in ("OC6", "OC7", "OC8", "OC9", "OC10")]
+    seg = candidates[rng.integers(len(candidates))]
+    return seg.steady_start + rng.uniform(0.2, 0.6) * (seg.end - seg.steady_start), seg.name
+
+
+def simulate_run(
+    engine: Engine,
+    rng: np.random.Generator,
+    shutdown: float,
+    history: dict,
+    fault: str | None = None,
+    fault_rng: np.random.Generator | None = None,
+    plateau_scale: float = 1.0,
+) -> tuple[dict[str, np.ndarray], Profile, dict, dict]:
+    """Simulate one run's clean signals.
+
+    shutdown: seconds since the previous run stopped (inf for a cold engine);
+    history: the previous run's end state ({"metal", "slow", "ambient"}), or {}.
+    Returns (clean signals by channel, profile, run truth, end state).
+    """
+    profile = make_profile(rng, plateau_scale=plateau_scale)
+    ambient = gaspath.Ambient(
+        temperature=float(np.clip(rng.normal(12.0, 7.0), -15.0, 35.0)),
+        pressure=float(rng.normal(101.3, 1.2)),
+    )
+    fuel_off_index = int(np.searchsorted(profile.t, profile.fuel_off))
+    sig = gaspath.spools(profile.command, fuel_off_index)
+    amb = ambient.temperature
+    if history:
+        metal0 = thermal.cooled(history["metal"], amb, shutdown, thermal.TAU_COOL_METAL)
+        slow0 = {
+            k: thermal.cooled(v, amb, shutdown, gaspath.TAU_COOL_GAS)
+            for k, v in history["slow"].items()
+        }
+    else:
+        metal0, slow0 = amb, {}
+    sig.update(gaspath.gas_path(profile.command, sig["nB"], ambient, slow0))
+    metal = thermal.metal_temperature(gaspath.metal_drive(sig), metal0)
+
+    k = len(profile.t)
+    heal = thermal.bow_decay(sig["nB"] / gaspath.NB_TOP)
+    truth_run: dict = {
+        "ambient_temperature_C": round(ambient.temperature, 3),
+        "ambient_pressure_kPa": round(ambient.pressure, 3),
+        "metal_temperature_start_C": round(metal0, 3),
+        "metal_temperature_end_C": round(float(metal[-1]), 3),
+        "imbalance": {},
+        "bow_start_mm": {},
+    }
+    onset = None
+    if fault is not None:
+        assert fault_rng is not None
+        onset, onset_oc = _fault_onset(fault_rng, profile)
+        truth_run["fault"] = {"kind": fault, "onset_s": onset, "oc": onset_oc, "channel": "yB"}
+    after = profile.t >= onset if onset is not None else np.zeros(k, dtype=bool)
+
+    for shaft in SHAFTS:
+        base = engine.unbalance[shaft.out]
+        # Run-to-run: components re-seat, the imbalance of each plane shifts by ~25 %.
+        spread = 0.25 * np.abs(base) * (rng.standard_normal(2) + 1j * rng.standard_normal(2))
+        u_run = base + spread
+        unbalance = np.broadcast_to(u_run, (k, 2)).copy()
+        b0 = thermal.bow_at_start(engine.bow_max[shaft.out], shutdown) * rng.uniform(0.7, 1.3)
+        bow = b0 * np.exp(1j * rng.uniform(0, 2 * np.pi)) * heal
+        stiffness = None
+        if fault == "imbalance" and shaft.out == "yB":
+            extra = IMBALANCE_FAULT * abs(base[0]) * np.exp(1j * fault_rng.uniform(0, 2 * np.pi))
+            unbalance[after, 0] += extra
+        if fault == "stiffness" and shaft.out == "yB":
+            ramp = np.clip((profile.t - onset) / STIFFNESS_RAMP, 0.0, 1.0)
+            stiffness = {2: 1.0 - (1.0 - STIFFNESS_FAULT) * ramp}
+        sig[shaft.out] = rotor.amplitude(
+            shaft, sig[shaft.speed], metal, unbalance, bow, stiffness
+        )
+        truth_run["imbalance"][shaft.out] = [
+            [round(abs(u), 7), round(float(np.degrees(np.angle(u))), 2)] for u in u_run
+        ]
+        truth_run["bow_start_mm"][shaft.out] = round(abs(b0), 7)
+    sig["metal"] = metal
+    end_state = {
+        "metal": float(metal[-1]),
+        "slow": {name: float(sig[name][-1]) for name in gaspath.SLOW_TEMPS},
+    }
+    return sig, profile, truth_run, end_state
+
+
+def _sensor_fault(data: np.ndarray, t: np.ndarray, kind: str | None, onset: float | None) -> None:
+    """Apply a yB sensor fault in place (stuck value or drift) from ``onset`` (s from run start)."""
+    if kind not in ("stuck-sensor", "drift") or onset is None:
+        return
+    j = SENSOR_CHANNELS.index("yB")
+    after = t >= onset
+    col = data[:, j]
+    if kind == "stuck-sensor":
+        first = int(np.argmax(after))
+        held = col[:first][~np.isnan(col[:first])]
+        value = held[-1] if held.size else 0.0
+        col[after] = value
+    else:
+        col[after] = np.round(col[after] + DRIFT_RATE * (t[after] - onset), 2)
+
+
+def simulate_campaign(
+    runs: int,
+    seed: int,
+    fault: str | None = None,
+    plateau_scale: float = 1.0,
+) -> Campaign:
+    """Simulate ``runs`` consecutive pass-off runs of one engine; the fault hits the last run."""
+    if runs < 1:
+        raise ValueError("runs must be >= 1")
+    if fault is not None and fault not in FAULTS:
+        raise ValueError(f"unknown fault {fault!r}")
+    seq = np.random.SeedSequence(seed)
+    engine_ss, fault_ss, *run_ss = seq.spawn(2 + runs)
+    engine_rng = np.random.default_rng(engine_ss)
+    engine = build_engine(engine_rng)
+    clock = CAMPAIGN_START + float(engine_rng.integers(0, 4 * 3600))
+    history: dict = {}
+    last_stop: float | None = None
+    out: list[SimRun] = []
+    for r in range(runs):
+        rng = np.random.default_rng(run_ss[r])
+        # Shutdown (cooling) time before this run: 10 min to 12 h, log-uniform.
+        gap = float(np.exp(rng.uniform(np.log(600.0), np.log(12 * 3600.0))))
+        shutdown = np.inf if r == 0 else gap
+        is_faulty = fault is not None and r == runs - 1
+        sig, profile, truth_run, history = simulate_run(
+            engine,
+            rng,
+            shutdown,
+            history,
+            fault if is_faulty else None,
+            np.random.default_rng(fault_ss) if is_faulty else None,
+            plateau_scale,
+        )
+        on_first, on_last = _first_on(sig)
+        start = clock if last_stop is None else last_stop + gap - on_first * DT
+        t = start + profile.t
+        data = _measure(rng, sig, SENSOR_CHANNELS)
+        onset = truth_run.get("fault", {}).get("onset_s")
+        _sensor_fault(data, profile.t, fault if is_faulty else None, onset)
+        truth_run.update(
+            {
+                "index": r,
+                "start": float(t[0]),
+                "end": float(t[-1]),
+                "engine_start": float(t[on_first]),
+                "engine_stop": float(t[on_last] + DT),
+                "shutdown_before_s": None if r == 0 else gap,
+                "ocs": [
+                    {
+                        "name": s.name,
+                        "speed": s.speed,
+                        "transition_start": float(start + s.transition_start),
+                        "steady_start": float(start + s.steady_start),
+                        "end": float(start + s.end),
+                    }
+                    for s in profile.segments
+                ],
+            }
+        )
+        if "fault" in truth_run:
+            truth_run["fault"]["onset"] = float(start + truth_run["fault"]["onset_s"])
+        out.append(SimRun(t=t, data=data, truth=truth_run))
+        last_stop = float(t[on_last] + DT)
+    return Campaign(runs=out)
