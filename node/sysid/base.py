@@ -51,7 +51,7 @@ class LinearDMD:
     min_samples = 3
     seed_rcond = 1e-4  # relative tolerance of the seeding observer
 
-    def __init__(self, rcond: float = 1e-12, rank: int | None = None,
+    def __init__(self, rcond: float = 1e-10, rank: int | None = None,
                  estimator: str = "oe", dt: float = 1.0, warmup: int = 0,
                  seed_window: int | None = None) -> None:
         self.rcond = rcond

@@ -23,11 +23,18 @@ def truncated_lstsq(R: np.ndarray, T: np.ndarray, rcond: float,
         raise ValueError(f"rcond must be positive, got {rcond}")
     scale = np.linalg.norm(R, axis=0) if scale_columns else np.ones(R.shape[1])
     scale[scale == 0] = 1.0
-    U, s, Vh = np.linalg.svd(R / scale, full_matrices=False)
+    Rs = R / scale
+    if Rs.shape[0] > 2 * Rs.shape[1]:  # tall: SVD of the triangular factor only
+        Q, Rt = np.linalg.qr(Rs)
+        Ut, s, Vh = np.linalg.svd(Rt)
+        QtT = Ut.T @ (Q.T @ T)
+    else:
+        Ut, s, Vh = np.linalg.svd(Rs, full_matrices=False)
+        QtT = Ut.T @ T
     if s.size == 0 or s[0] == 0:
         return np.zeros((R.shape[1], T.shape[1])), 0
     keep = int(np.sum(s > rcond * s[0]))
-    W = (Vh[:keep].T / s[:keep]) @ (U[:, :keep].T @ T)
+    W = (Vh[:keep].T / s[:keep]) @ QtT[:keep]
     return W / scale[:, None], keep
 
 

@@ -32,7 +32,7 @@ class WDMD(LinearDMD):
     """
 
     def __init__(self, levels: int = 4, wavelet: str = "haar", components: str = "causal",
-                 rcond: float = 1e-12, rank: int | None = None, estimator: str = "oe",
+                 rcond: float = 1e-10, rank: int | None = None, estimator: str = "oe",
                  dt: float = 1.0, warmup: int = 0, seed_window: int | None = None) -> None:
         super().__init__(rcond=rcond, rank=rank, estimator=estimator, dt=dt, warmup=warmup,
                          seed_window=seed_window)
