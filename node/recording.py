@@ -235,7 +235,7 @@ def iter_messages(
 
 # --- fast path: a linear scan of the raw records, without per-record objects
 
-_OP_HEADER, _OP_FOOTER, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x01, 0x02, 0x04, 0x05, 0x06
+_OP_FOOTER, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_DATA_END = 0x02, 0x04, 0x05, 0x06, 0x0F
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 _REC = struct.Struct("<BQ")
 
@@ -303,8 +303,8 @@ def _scan(
             tlen = u32(buf, start + 4)[0]
             topic = buf[start + 8 : start + 8 + tlen].decode()
             topics[cid] = topic
-            sink[cid] = []
-        elif op == _OP_FOOTER:
+            sink.setdefault(cid, [])
+        elif op == _OP_DATA_END or op == _OP_FOOTER:  # the summary section repeats channels
             return True
         pos = end
     return True
@@ -401,13 +401,32 @@ def _align(
     return t0 + k.min() / FS, data
 
 
+def _ffill(x: np.ndarray) -> np.ndarray:
+    """Fill NaN rows of each column with the last value before them (then the first after)."""
+    out = x.copy()
+    for j in range(x.shape[1]):
+        col = out[:, j]
+        ok = ~np.isnan(col)
+        if not ok.any():
+            continue
+        idx = np.where(ok, np.arange(len(col)), 0)
+        np.maximum.accumulate(idx, out=idx)
+        first = int(np.argmax(ok))
+        idx[:first] = first
+        out[:, j] = col[idx]
+    return out
+
+
 def _split_on(data: np.ndarray, speed_cols: list[int], tops: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) row ranges where the engine is on (some speed >= 5 % of its maximum)."""
+    """[start, stop) row ranges where the engine is on (some speed >= 5 % of its maximum).
+
+    A dropout of a speed holds its last value, so it cannot fake a shutdown.
+    """
     if not speed_cols:
         return [(0, len(data))]
-    speeds = data[:, speed_cols]
+    speeds = _ffill(data[:, speed_cols])
     off = np.all((speeds < OFF_FRACTION * tops) | np.isnan(speeds), axis=1)
-    off &= ~np.all(np.isnan(speeds), axis=1)  # a row with no speed at all is not "off"
+    off &= ~np.all(np.isnan(speeds), axis=1)  # no speed at all: not known to be off
     on = np.concatenate([[False], ~off, [False]])
     edges = np.flatnonzero(np.diff(on.astype(np.int8)))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]

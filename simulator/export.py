@@ -52,14 +52,17 @@ def write_recording(
     first_run: int = 0,
     progress: Callable[[float], None] | None = None,
     message_index: bool = False,
+    channels: tuple[str, ...] | None = None,
 ) -> int:
     """Write the runs from ``first_run`` on to an MCAP file; returns the message count.
 
     Without message indexes by default: they would double the file (16 bytes per
     message); readers seek by the chunk index and sort inside a chunk.
     """
-    keys = [sensor_key(bed, ch) for ch in campaign.channels]
-    runs = campaign.runs[first_run:]
+    channels = campaign.channels if channels is None else channels
+    cols = [campaign.channels.index(ch) for ch in channels]
+    keys = [sensor_key(bed, ch) for ch in channels]
+    runs = [SimRun(r.t, r.data[:, cols], r.truth) for r in campaign.runs[first_run:]]
     total = sum(r.data.size for r in runs)
     done = 0
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7E57BED]))
@@ -67,7 +70,7 @@ def write_recording(
         for key in keys:  # register every channel up front, in table order
             writer.channel_id(key)
         for run in runs:
-            col, t, value, publish = run_messages(run, rng, campaign.channels)
+            col, t, value, publish = run_messages(run, rng, channels)
             ts = t.tolist()
             vs = [None if x != x else x for x in value.tolist()]
             ps = publish.tolist()
@@ -83,13 +86,19 @@ def write_recording(
     return done
 
 
-def truth_document(campaign: Campaign, bed: str, seed: int, first_run: int = 0) -> dict:
+def truth_document(
+    campaign: Campaign,
+    bed: str,
+    seed: int,
+    first_run: int = 0,
+    channels: tuple[str, ...] | None = None,
+) -> dict:
     """The ground truth of the written runs, as a JSON-ready dict."""
     return {
         "generator": "ordervib simulate",
         "seed": seed,
         "bed": bed,
-        "channels": list(campaign.channels),
+        "channels": list(campaign.channels if channels is None else channels),
         "sample_rate_hz": 40.0,
         "notes": (
             "times are seconds since the Unix epoch; shutdown_before_s is the time from the "
@@ -100,13 +109,20 @@ def truth_document(campaign: Campaign, bed: str, seed: int, first_run: int = 0) 
     }
 
 
-def write_sidecars(campaign: Campaign, mcap_path: str, bed: str, seed: int, first_run: int = 0):
+def write_sidecars(
+    campaign: Campaign,
+    mcap_path: str,
+    bed: str,
+    seed: int,
+    first_run: int = 0,
+    channels: tuple[str, ...] | None = None,
+) -> tuple[str, str]:
     """Write REC.schedule.toml and REC.truth.json beside REC.mcap; returns their paths."""
     stem = mcap_path[:-5] if mcap_path.endswith(".mcap") else mcap_path
     schedule_path, truth_path = stem + ".schedule.toml", stem + ".truth.json"
     with open(schedule_path, "w", encoding="utf-8") as f:
         f.write(schedule_toml(campaign.ocs))
     with open(truth_path, "w", encoding="utf-8") as f:
-        json.dump(truth_document(campaign, bed, seed, first_run), f, indent=1)
+        json.dump(truth_document(campaign, bed, seed, first_run, channels), f, indent=1)
         f.write("\n")
     return schedule_path, truth_path

@@ -46,7 +46,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="K",
         help="simulate all runs but write only those after the first K (same engine history)",
     )
+    p.add_argument(
+        "--channels",
+        default=None,
+        metavar="LIST",
+        help="publish only these channels, comma-separated (default: all 21 of the contract)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def _channels(arg: str | None) -> tuple[str, ...] | None:
+    from node.recording import SENSOR_CHANNELS
+
+    if arg is None:
+        return None
+    names = tuple(c.strip() for c in arg.split(",") if c.strip())
+    unknown = [c for c in names if c not in SENSOR_CHANNELS]
+    if unknown or not names or len(set(names)) != len(names):
+        raise OrdervibError(
+            f"--channels must be distinct names among {','.join(SENSOR_CHANNELS)}, got {arg!r}"
+        )
+    return names
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -88,6 +108,7 @@ class _Progress:
 
 def run(args: argparse.Namespace) -> int:
     _check(args)
+    channels = _channels(args.channels)
     from simulator.campaign import simulate_campaign
     from simulator.export import write_recording, write_sidecars
 
@@ -96,12 +117,16 @@ def run(args: argparse.Namespace) -> int:
     part = args.out + ".part"
     progress = _Progress(not args.quiet)
     try:
-        count = write_recording(campaign, part, args.bed, args.seed, args.skip, progress)
+        count = write_recording(
+            campaign, part, args.bed, args.seed, args.skip, progress, channels=channels
+        )
         os.replace(part, args.out)
     finally:
         if os.path.exists(part):
             os.remove(part)
-    schedule, truth = write_sidecars(campaign, args.out, args.bed, args.seed, args.skip)
+    schedule, truth = write_sidecars(
+        campaign, args.out, args.bed, args.seed, args.skip, channels
+    )
     if not args.quiet:
         print(
             f"simulate: {args.runs - args.skip} runs, {count} messages -> {args.out} "
