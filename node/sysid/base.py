@@ -40,8 +40,8 @@ class LinearDMD:
         seed_window: samples of a history used to seed a free run: the
             lifted state at the window start is corrected by least squares
             so that the model's free run fits the window's outputs (which
-            averages measurement noise out). None: 20 n / p, at least 100;
-            0: the lifted state of the last history sample alone.
+            averages measurement noise out). None: automatic (see
+            :meth:`seed_window_length`); 0: the lifted state alone.
 
     Learned attributes: ``model_`` (:class:`StateSpace`), ``rank_`` (rank kept
     by the pseudo-inverse), ``basis_`` (POD basis or None), ``n_inputs_``,
@@ -191,11 +191,18 @@ class LinearDMD:
         return estimate_state(model, Y1[start:], U1[start:], x_s, rcond=self.seed_rcond)
 
     def seed_window_length(self, n_history: int) -> int:
-        """Samples of history the seeding observer uses (0 or 1: the lifted state alone)."""
+        """Samples of history the seeding observer uses (0 or 1: the lifted state alone).
+
+        Auto (``seed_window=None``): at least 20 n / p samples and one time
+        constant of the slowest pole (capped at 10,000), at least 100.
+        """
         if self.seed_window is not None:
             return min(int(self.seed_window), n_history)
         model = self._require_fit()
         auto = max(100, 20 * -(-model.n_states // model.n_outputs))
+        rho = model.spectral_radius()
+        if rho < 1.0:
+            auto = max(auto, min(10_000, int(np.ceil(1.0 / (1.0 - rho)))))
         return min(auto, n_history)
 
     def simulate(self, U, history=None, x0: np.ndarray | None = None) -> np.ndarray:

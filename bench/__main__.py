@@ -1,0 +1,23 @@
+"""Run a benchmark: ``python -m bench NAME [options]`` (``python -m bench`` lists them)."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+BENCHMARKS = {
+    "beam": "bench.beam",
+    "read-speed": "bench.read_speed",
+}
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] not in BENCHMARKS:
+        print("usage: python -m bench {" + "|".join(BENCHMARKS) + "} [options]", file=sys.stderr)
+        return 2
+    mod = importlib.import_module(BENCHMARKS[argv[0]])
+    return int(mod.main(argv[1:]) or 0)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
