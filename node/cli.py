@@ -15,7 +15,6 @@ from node.errors import OrdervibError
 
 # Sub-command modules, in the order they appear in ``ordervib --help``.
 COMMAND_MODULES: tuple[str, ...] = (
-    "node.commands.bench_beam",
     "node.commands.simulate",
 )
 
