@@ -82,6 +82,8 @@ def _check(args: argparse.Namespace) -> None:
         raise OrdervibError(f"--skip must be between 0 and runs - 1, got {args.skip}")
     if not args.out.endswith(".mcap"):
         raise OrdervibError(f"--out must name a .mcap file, got {args.out!r}")
+    if os.path.isdir(args.out):
+        raise OrdervibError(f"--out is a directory: {args.out}")
     parent = os.path.dirname(os.path.abspath(args.out))
     if not os.path.isdir(parent):
         raise OrdervibError(f"output directory does not exist: {parent}")
