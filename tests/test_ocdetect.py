@@ -1,0 +1,126 @@
+"""OC detection from the switch speed: the schedule's sequence, and its edge cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from node.errors import OrdervibError
+from node.ocdetect import OCDetector, Phase
+from node.schedule import OperatingCondition, Schedule, load_schedule
+
+FS = 40.0
+SCHED = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0),
+                  OperatingCondition("C", 5000.0), OperatingCondition("D", 8000.0)))
+
+
+def profile(points: list[tuple[float, float]], noise: float = 0.0, seed: int = 0) -> np.ndarray:
+    """Piecewise-linear speed through (duration s, speed rpm) points from 0 rpm, at 40 Hz."""
+    speed, out = 0.0, []
+    for dur, target in points:
+        n = int(dur * FS)
+        out.append(np.linspace(speed, target, n, endpoint=False) if n else np.zeros(0))
+        speed = target
+    x = np.concatenate(out + [np.full(1, speed)])
+    return x + noise * np.random.default_rng(seed).standard_normal(x.size)
+
+
+def events(speed: np.ndarray, schedule: Schedule = SCHED) -> list[str]:
+    oc, ph = OCDetector(schedule, FS).label(speed)
+    change = np.flatnonzero((np.diff(oc) != 0) | (np.diff(ph) != 0)) + 1
+    out = []
+    for k in change:
+        out.append("off" if ph[k] == 0 else schedule.names[oc[k]] + ("T" if ph[k] == 1 else "S"))
+    return out
+
+
+NORMAL = [(10, 2500), (15, 2500), (10, 4000), (20, 4000), (10, 6000), (20, 6000),
+          (8, 5000), (20, 5000), (15, 8000), (20, 8000), (10, 2500), (10, 2500), (5, 0), (5, 0)]
+
+
+def test_schedule_sequence_with_speed_noise():
+    # 0.2 % speed noise, as a real pick-up gives, must not flicker at plateau edges
+    ev = events(profile(NORMAL, noise=8.0))
+    assert ev == ["AT", "AS", "BT", "BS", "CT", "CS", "DT", "DS", "off"]
+
+
+def test_switch_times_follow_the_speed():
+    speed = profile(NORMAL)
+    oc, ph = OCDetector(SCHED, FS).label(speed)
+    k_leave_a = int((10 + 15 + 10 + 20) * FS)  # B's ramp begins here
+    first_bt = np.flatnonzero((oc == 1) & (ph == 1))[0]
+    assert 0 < first_bt - k_leave_a <= 2 * FS  # within 2 s of the speed leaving A
+    k_reach_b = k_leave_a + int(10 * FS)
+    first_bs = np.flatnonzero((oc == 1) & (ph == 2))[0]
+    assert 0 < first_bs - k_reach_b <= 2 * FS
+
+
+def test_noise_at_a_plateau_edge_does_not_toggle():
+    # the speed holds exactly at the edge of A's band (4000 * 1.019) with noise
+    speed = profile([(10, 2500), (10, 2500), (10, 4076), (60, 4076)], noise=15.0, seed=3)
+    ev = events(speed)
+    assert ev.count("AS") == 1
+    assert ev[-1] == "AS"
+
+
+def test_ramp_through_other_plateaus_is_not_steady():
+    # D is reached from C through B's band (6000) at 100 rpm/s: no B steady on the way
+    assert "BS" not in events(profile([(10, 2500), (10, 2500), (8, 4000), (10, 4000),
+                                        (10, 5000), (10, 5000), (30, 8000), (10, 8000)]))
+
+
+def test_aborted_run_then_resumed():
+    # after A and B the speed falls back to idle, holds, then the run resumes with C.
+    # Causally the fall first looks like the transition into C (the next OC down);
+    # once it goes past C's band it is "off", and the resumed run enters C.
+    speed = profile([(10, 2500), (10, 2500), (10, 4000), (20, 4000), (10, 6000), (20, 6000),
+                     (10, 2500), (20, 2500), (10, 5000), (20, 5000)])
+    assert events(speed) == ["AT", "AS", "BT", "BS", "CT", "off", "CT", "CS"]
+    oc, ph = OCDetector(SCHED, FS).label(speed)
+    wrong = np.flatnonzero((oc == 2) & (ph == 1) & (np.arange(speed.size) < 90 * FS))
+    assert wrong.size < 6 * FS  # the mistaken C transition lasts only while passing C
+
+
+def test_repeated_oc_is_recognised():
+    # B is run twice: after B the speed returns to A's plateau, then goes to B again
+    ev = events(profile([(10, 2500), (10, 2500), (10, 4000), (20, 4000), (10, 6000), (20, 6000),
+                         (10, 4000), (20, 4000), (10, 6000), (20, 6000)]))
+    assert ev[:4] == ["AT", "AS", "BT", "BS"]
+    assert ev[-1] == "BS" and ev.count("AS") == 2
+
+
+def test_dropouts_hold_the_state_and_shutdown_resets():
+    speed = profile(NORMAL)
+    speed[int(40 * FS): int(42 * FS)] = np.nan
+    assert events(speed) == ["AT", "AS", "BT", "BS", "CT", "CS", "DT", "DS", "off"]
+    # a second run in the same stream starts again at the first OC
+    twice = np.concatenate([profile(NORMAL), profile(NORMAL)])
+    assert events(twice) == ["AT", "AS", "BT", "BS", "CT", "CS", "DT", "DS", "off"] * 2
+
+
+def test_step_equals_label():
+    speed = profile(NORMAL, noise=8.0)
+    det = OCDetector(SCHED, FS)
+    stepped = [det.step(v) for v in speed]
+    oc, ph = OCDetector(SCHED, FS).label(speed)
+    codes = {Phase.OFF: 0, Phase.TRANSITION: 1, Phase.STEADY: 2}
+    assert [(-1 if s.oc is None else s.oc) for s in stepped] == oc.tolist()
+    assert [codes[s.phase] for s in stepped] == ph.tolist()
+
+
+def test_schedule_file_errors(tmp_path):
+    with pytest.raises(OrdervibError, match="not found"):
+        load_schedule(tmp_path / "none.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("switch = [")
+    with pytest.raises(OrdervibError, match="TOML"):
+        load_schedule(bad)
+    bad.write_text('[[oc]]\nname = "A"\n')
+    with pytest.raises(OrdervibError, match="speed"):
+        load_schedule(bad)
+    bad.write_text('[[oc]]\nname = "A"\nspeed = 1.0\n[[oc]]\nname = "A"\nspeed = 2.0\n')
+    with pytest.raises(OrdervibError, match="repeats"):
+        load_schedule(bad)
+    good = tmp_path / "good.toml"
+    good.write_text(SCHED.to_toml())
+    assert load_schedule(good) == SCHED
