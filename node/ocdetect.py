@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from enum import Enum
+from enum import StrEnum
 from typing import NamedTuple
 
 import numpy as np
@@ -32,7 +32,7 @@ import numpy as np
 from node.schedule import Schedule
 
 
-class Phase(str, Enum):
+class Phase(StrEnum):
     TRANSITION = "transition"
     STEADY = "steady"
     OFF = "off"

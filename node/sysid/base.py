@@ -8,7 +8,7 @@ the state at the last sample of a measured history is its last row.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 
@@ -19,7 +19,7 @@ from node.sysid.statespace import StateSpace
 from node.sysid.validation import as_matrix, as_trajectories
 
 
-class Estimator(str, Enum):
+class Estimator(StrEnum):
     """How (A, B, C, D) are estimated from the snapshots."""
 
     LS = "ls"  # plain least squares, eq. 4.13 (biased by output noise)

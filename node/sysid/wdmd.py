@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 
@@ -10,7 +10,7 @@ from node.sysid.base import LinearDMD
 from node.sysid.wavelets import CausalMODWT, modwt_mra
 
 
-class Components(str, Enum):
+class Components(StrEnum):
     """Which MODWT quantities form the pseudo-state."""
 
     CAUSAL = "causal"  # coefficients W_1..W_J, V_J from past samples only (online)
