@@ -130,6 +130,23 @@ class LinearDMD:
         return self._fit_lifted(Zs, Ys, Us)
 
     # --- the fitted model ----------------------------------------------------
+    def restore(self, model: StateSpace, refined: bool = False):
+        """Install a model identified earlier (e.g. loaded from a bundle); returns self.
+
+        The method's own parameters must be those it was fitted with, so that
+        lifting and seeding work as at fit time.
+        """
+        self._check_params()
+        if self.rank is not None:
+            raise ValueError("a model with a POD rank cannot be restored from (A, B, C, D) alone")
+        self.model_ = model
+        self.basis_ = None
+        self.rank_ = None
+        self.refined_ = refined
+        self.n_inputs_ = model.n_inputs
+        self.n_outputs_ = model.n_outputs
+        return self
+
     def _require_fit(self) -> StateSpace:
         model = getattr(self, "model_", None)
         if model is None:

@@ -38,8 +38,9 @@ def _modal_filter(lam: np.ndarray, U: np.ndarray) -> np.ndarray:
     """xi[k, l, j] = sum_{i<k} lam_l^(k-1-i) u_j[i]: (K, n, m) complex."""
     K, m = U.shape
     xi = np.zeros((K, lam.size, m), dtype=complex)
-    for k in range(1, K):
-        xi[k] = lam[:, None] * xi[k - 1] + U[k - 1][None, :]
+    Uc = U.astype(complex)
+    for l, lam_l in enumerate(lam):
+        xi[:, l, :] = signal.lfilter([0.0, 1.0], [1.0, -lam_l], Uc, axis=0)
     return xi
 
 
@@ -49,32 +50,43 @@ def _normal_equations_modal(A, C, Ys, Us, x0s):
     if not np.isfinite(np.linalg.cond(V)) or np.linalg.cond(V) > MAX_EIGVEC_COND:
         return None
     Vinv = np.linalg.inv(V)
+    Vh = Vinv.conj().T
     CV = C @ V
     CVhCV = CV.conj().T @ CV
-    q = n * m + p * m
-    G = np.zeros((q, q), dtype=complex)
-    g = np.zeros(q, dtype=complex)
+    nb = n * m
+    Gxx = np.zeros((nb, nb), dtype=complex)  # sum_k conj(xi) xi^T, blocks (j, jj) of (n, n)
+    Gxu = np.zeros((nb, m), dtype=complex)  # sum_k conj(xi) u^T
+    Guu = np.zeros((m, m))
+    gB = np.zeros(nb, dtype=complex)
+    gD = np.zeros((p, m))
     for Y, U, x0 in zip(Ys, Us, x0s):
         K = Y.shape[0]
         powers = lam[None, :] ** np.arange(K)[:, None]  # (K, n)
-        R = Y - (powers * (Vinv @ x0)[None, :]) @ CV.T  # residual after the free response
-        R = R.real
-        xi = _modal_filter(lam, U)  # (K, n, m)
+        R = (Y - ((powers * (Vinv @ x0)[None, :]) @ CV.T).real)  # residual after the free response
+        xi = _modal_filter(lam, U).transpose(0, 2, 1).reshape(K, nb)  # columns (j, l)
+        xic = xi.conj()
+        Gxx += xic.T @ xi
+        Gxu += xic.T @ U
+        Guu += U.T @ U
         RCV = R @ CV.conj()  # (K, n): (CV^H r(k))^T
-        for j in range(m):
-            bj = slice(j * n, (j + 1) * n)
-            g[bj] += Vinv.conj().T @ np.sum(xi[:, :, j].conj() * RCV, axis=0)
-            for jj in range(m):
-                bjj = slice(jj * n, (jj + 1) * n)
-                G[bj, bjj] += Vinv.conj().T @ (CVhCV * (xi[:, :, j].conj().T @ xi[:, :, jj])) @ Vinv
-                c = xi[:, :, j].conj().T @ U[:, jj]  # (n,)
-                dj = slice(n * m + jj * p, n * m + (jj + 1) * p)
-                G[bj, dj] += Vinv.conj().T @ (c[:, None] * CV.conj().T)
-            dj = slice(n * m + j * p, n * m + (j + 1) * p)
-            g[dj] += R.T @ U[:, j]
-            for jj in range(m):
-                djj = slice(n * m + jj * p, n * m + (jj + 1) * p)
-                G[dj, djj] += np.eye(p) * (U[:, j] @ U[:, jj])
+        gB += np.einsum("kjl,kl->jl", xic.reshape(K, m, n), RCV).reshape(nb)
+        gD += R.T @ U
+    q = nb + p * m
+    G = np.zeros((q, q), dtype=complex)
+    g = np.zeros(q, dtype=complex)
+    for j in range(m):
+        bj = slice(j * n, (j + 1) * n)
+        g[bj] = Vh @ gB[bj]
+        for jj in range(m):
+            bjj = slice(jj * n, (jj + 1) * n)
+            G[bj, bjj] = Vh @ (CVhCV * Gxx[bj, bjj]) @ Vinv
+            dj = slice(nb + jj * p, nb + (jj + 1) * p)
+            G[bj, dj] = Vh @ (Gxu[bj, jj][:, None] * CV.conj().T)
+        dj = slice(nb + j * p, nb + (j + 1) * p)
+        g[dj] = gD[:, j]
+        for jj in range(m):
+            djj = slice(nb + jj * p, nb + (jj + 1) * p)
+            G[dj, djj] = np.eye(p) * Guu[j, jj]
     upper = np.triu_indices(q, 1)
     G[(upper[1], upper[0])] = G[upper].conj()  # fill the D-B blocks by symmetry
     return G.real, g.real
