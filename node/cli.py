@@ -16,6 +16,9 @@ from node.errors import OrdervibError
 # Sub-command modules, in the order they appear in ``ordervib --help``.
 COMMAND_MODULES: tuple[str, ...] = (
     "node.commands.simulate",
+    "node.commands.train",
+    "node.commands.evaluate",
+    "node.commands.schedule",
 )
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from node.sysid.lstsq import pod_basis, truncated_lstsq
 from node.sysid.observer import estimate_state
-from node.sysid.refine import refit_bd
+from node.sysid.refine import refine_poles, refit_bd
 from node.sysid.statespace import StateSpace
 from node.sysid.validation import as_matrix, as_trajectories
 
@@ -24,6 +24,8 @@ class Estimator(StrEnum):
 
     LS = "ls"  # plain least squares, eq. 4.13 (biased by output noise)
     OE = "oe"  # least squares, then (B, D) re-estimated on the free-run output error
+    IV = "iv"  # instrumental variables (delayed states, inputs), then the OE (B, D) step
+    PEM = "pem"  # least squares, then poles and (B, D) refined on the free-run output error
 
 
 class LinearDMD:
@@ -104,14 +106,22 @@ class LinearDMD:
         self.basis_ = pod_basis(np.vstack(Zs), self.rank)
         Xs = [z if self.basis_ is None else z @ self.basis_ for z in Zs]
         # snapshot pairs inside each trajectory only (eq. 5.22): never across the seam
-        R = np.vstack([np.hstack([x[:-1], u[:-1]]) for x, u in zip(Xs, Us)])
-        T = np.vstack([np.hstack([x[1:], y[:-1]]) for x, y in zip(Xs, Ys)])
-        W, self.rank_ = truncated_lstsq(R, T, self.rcond)
+        if estimator is Estimator.IV:
+            W, self.rank_ = self._iv_solve(Xs, Ys, Us)
+        else:
+            R = np.vstack([np.hstack([x[:-1], u[:-1]]) for x, u in zip(Xs, Us)])
+            T = np.vstack([np.hstack([x[1:], y[:-1]]) for x, y in zip(Xs, Ys)])
+            W, self.rank_ = truncated_lstsq(R, T, self.rcond)
         n = Xs[0].shape[1]
         G = W.T  # [[A, B], [C, D]]
         A, B, C, D = G[:n, :n], G[:n, n:], G[n:, :n], G[n:, n:]
         self.refined_ = False
-        if estimator is Estimator.OE and Us[0].shape[1] > 0:
+        if estimator is Estimator.PEM and Us[0].shape[1] > 0:
+            abd = refine_poles(A, C, Ys, Us, [x[0] for x in Xs])
+            if abd is not None:
+                A, B, D = abd
+                self.refined_ = True
+        if estimator in (Estimator.OE, Estimator.IV) and Us[0].shape[1] > 0:
             if np.max(np.abs(np.linalg.eigvals(A))) < 1.0:
                 bd = refit_bd(A, C, Ys, Us, [x[0] for x in Xs])
                 if bd is not None:
@@ -121,6 +131,30 @@ class LinearDMD:
         self.n_inputs_ = Us[0].shape[1]
         self.n_outputs_ = Ys[0].shape[1]
         return self
+
+    def _iv_solve(self, Xs, Ys, Us) -> tuple[np.ndarray, int]:
+        """Two-stage least squares with instruments the lifted state d = ``memory() + 1``
+        samples earlier and the inputs since then: their noise is independent of the noise in
+        the regressors and targets of sample k, so the estimate is not biased by it, and
+        without noise they determine the regressors exactly."""
+        d = self.memory() + 1
+        input_lags = d + 1
+        Rs, Ts, Ws = [], [], []
+        for x, y, u in zip(Xs, Ys, Us):
+            K = x.shape[0]
+            lo = max(d, input_lags - 1)
+            if K - 1 - lo < 2:
+                continue
+            k = np.arange(lo, K - 1)
+            Rs.append(np.hstack([x[k], u[k]]))
+            Ts.append(np.hstack([x[k + 1], y[k]]))
+            Ws.append(np.hstack([x[k - d]] + [u[k - i] for i in range(input_lags)]))
+        if not Rs:
+            raise ValueError(f"trajectories too short for instrumental variables (need more than "
+                             f"{d + 2} samples each)")
+        R, T, Wi = np.vstack(Rs), np.vstack(Ts), np.vstack(Ws)
+        P, _ = truncated_lstsq(Wi, R, self.rcond)  # first stage: R projected on the instruments
+        return truncated_lstsq(Wi @ P, T, self.rcond)
 
     def fit(self, Y, U=None):
         """Fit on outputs Y (K, p) and inputs U (K, m), or lists of such (one per trajectory)."""

@@ -59,10 +59,12 @@ def _normal_equations_modal(A, C, Ys, Us, x0s):
     Guu = np.zeros((m, m))
     gB = np.zeros(nb, dtype=complex)
     gD = np.zeros((p, m))
+    rr = 0.0
     for Y, U, x0 in zip(Ys, Us, x0s):
         K = Y.shape[0]
         powers = lam[None, :] ** np.arange(K)[:, None]  # (K, n)
         R = (Y - ((powers * (Vinv @ x0)[None, :]) @ CV.T).real)  # residual after the free response
+        rr += float(np.sum(R ** 2))
         xi = _modal_filter(lam, U).transpose(0, 2, 1).reshape(K, nb)  # columns (j, l)
         xic = xi.conj()
         Gxx += xic.T @ xi
@@ -89,7 +91,7 @@ def _normal_equations_modal(A, C, Ys, Us, x0s):
             G[dj, djj] = np.eye(p) * Guu[j, jj]
     upper = np.triu_indices(q, 1)
     G[(upper[1], upper[0])] = G[upper].conj()  # fill the D-B blocks by symmetry
-    return G.real, g.real
+    return G.real, g.real, rr
 
 
 def _normal_equations_markov(A, C, Ys, Us, x0s):
@@ -101,6 +103,7 @@ def _normal_equations_markov(A, C, Ys, Us, x0s):
     q = n * m + p * m
     G = np.zeros((q, q))
     g = np.zeros(q)
+    rr = 0.0
     eye_p = np.eye(p)
     for Y, U, x0 in zip(Ys, Us, x0s):
         K = Y.shape[0]
@@ -113,8 +116,10 @@ def _normal_equations_markov(A, C, Ys, Us, x0s):
         cols += [(U[:, j][:, None, None] * eye_p[None]).reshape(K * p, p) for j in range(m)]
         X = np.hstack(cols)
         G += X.T @ X
-        g += X.T @ (Y - free).reshape(K * p)
-    return G, g
+        r = (Y - free).reshape(K * p)
+        g += X.T @ r
+        rr += float(r @ r)
+    return G, g, rr
 
 
 def refit_bd(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np.ndarray],
@@ -137,13 +142,100 @@ def refit_bd(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np.nda
         eq = _normal_equations_markov(A, C, Ys, Us, x0s)
     if eq is None:
         return None
-    G, g = eq
+    theta = _solve_normal(eq[0], eq[1], rcond)
+    B = theta[: n * m].reshape(m, n).T
+    D = theta[n * m:].reshape(m, p).T
+    return B, D
+
+
+def _solve_normal(G: np.ndarray, g: np.ndarray, rcond: float) -> np.ndarray:
+    """Minimum-norm solution of the Jacobi-scaled normal equations G theta = g."""
     d = np.sqrt(np.clip(np.diag(G), 0, None))
     d[d == 0] = 1.0
     Gs = G / d[:, None] / d[None, :]
     w, Q = np.linalg.eigh((Gs + Gs.T) / 2)
+    if w.max() <= 0:
+        return np.zeros_like(g)
     keep = w > rcond * w.max()
-    theta = (Q[:, keep] @ ((Q[:, keep].T @ (g / d)) / w[keep])) / d
-    B = theta[: n * m].reshape(m, n).T
-    D = theta[n * m:].reshape(m, p).T
-    return B, D
+    return (Q[:, keep] @ ((Q[:, keep].T @ (g / d)) / w[keep])) / d
+
+
+def stabilise(A: np.ndarray) -> tuple[np.ndarray, int]:
+    """Reflect poles on or outside the unit circle to 1 / conj(pole), keeping the eigenvectors.
+
+    Returns the new A (real) and the number of poles moved. A defective A is returned as is.
+    """
+    lam, V = np.linalg.eig(A)
+    bad = np.abs(lam) >= 1.0
+    if not bad.any() or np.linalg.cond(V) > MAX_EIGVEC_COND:
+        return A, 0
+    lam = np.where(bad, 1.0 / np.conj(np.where(bad, lam, 1.0)) * 0.999, lam)
+    return (V @ np.diag(lam) @ np.linalg.inv(V)).real, int(bad.sum())
+
+
+def refine_poles(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np.ndarray],
+                 x0s: list[np.ndarray], maxiter: int = 60, rcond: float = 1e-12
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Output-error refinement of the poles too (variable projection).
+
+    A = V diag(lam) V^-1 keeps the eigenvectors of the starting A (so the
+    state keeps its meaning and C stays); the poles are the free parameters,
+    each stable by construction (a complex pair as (1 - e^s) e^(i w), a real
+    pole as tanh(a)), and for every trial (B, D) are the linear least-squares
+    optimum. Returns (A, B, D), or None when A is not safely diagonalizable.
+    """
+    from scipy.optimize import minimize
+
+    A0, _ = stabilise(A)
+    lam, V = np.linalg.eig(A0)
+    if np.any(np.abs(lam) >= 1.0) or np.linalg.cond(V) > MAX_EIGVEC_COND:
+        return None
+    Vinv = np.linalg.inv(V)
+    n, p, m = A.shape[0], C.shape[0], Us[0].shape[1]
+    # group poles: real ones, and one representative (positive imaginary part) per pair
+    real_idx = [i for i in range(n) if abs(lam[i].imag) <= 1e-12 * max(1.0, abs(lam[i]))]
+    pos_idx = [i for i in range(n) if i not in real_idx and lam[i].imag > 0]
+    partner = {}
+    for i in pos_idx:
+        cand = [j for j in range(n) if j not in real_idx and lam[j].imag < 0 and j not in partner.values()]
+        partner[i] = min(cand, key=lambda j: abs(lam[j] - np.conj(lam[i])))
+    if len(real_idx) + 2 * len(pos_idx) != n:
+        return None
+
+    def poles(theta: np.ndarray) -> np.ndarray:
+        out = np.empty(n, dtype=complex)
+        nr = len(real_idx)
+        out[real_idx] = np.tanh(theta[:nr])
+        for k, i in enumerate(pos_idx):
+            s, w = theta[nr + 2 * k], theta[nr + 2 * k + 1]
+            z = (1.0 - np.exp(s)) * np.exp(1j * w)
+            out[i], out[partner[i]] = z, np.conj(z)
+        return out
+
+    start = [np.arctanh(np.clip(lam[i].real, -0.999999, 0.999999)) for i in real_idx]
+    for i in pos_idx:
+        start += [np.log(max(1.0 - abs(lam[i]), 1e-12)), float(np.angle(lam[i]))]
+    theta0 = np.array(start)
+    scale = float(sum(np.sum(y ** 2) for y in Ys)) or 1.0
+
+    def system(theta):
+        Ai = (V @ np.diag(poles(theta)) @ Vinv).real
+        eq = _normal_equations_modal(Ai, C, Ys, Us, x0s)
+        return Ai, eq
+
+    def cost(theta):
+        _, eq = system(theta)
+        if eq is None:
+            return np.inf
+        G, g, rr = eq
+        th = _solve_normal(G, g, rcond)
+        return (rr - 2 * g @ th + th @ G @ th) / scale
+
+    c0 = cost(theta0)
+    res = minimize(cost, theta0, method="L-BFGS-B", options={"maxiter": maxiter})
+    theta = res.x if np.isfinite(res.fun) and res.fun <= c0 else theta0
+    Ai, eq = system(theta)
+    if eq is None:
+        return None
+    th = _solve_normal(eq[0], eq[1], rcond)
+    return Ai, th[: n * m].reshape(m, n).T, th[n * m:].reshape(m, p).T

@@ -1,0 +1,124 @@
+"""``ordervib evaluate``: a trained model on held-out recordings: per-OC errors, false alarms, PNG."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+NAME = "evaluate"
+HELP = "evaluate a trained model on held-out recordings (table, false alarms, PNG)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("model", metavar="MODEL", help="model bundle directory")
+    p.add_argument("recordings", nargs="+", metavar="REC.mcap", help="held-out recordings")
+    p.add_argument("--png", default=None, metavar="OUT.png",
+                   help="plot of predicted against measured per OC (default MODEL/evaluation.png)")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def run(args: argparse.Namespace) -> int:
+    from node.baseline import CharacteristicCurve
+    from node.bundle import load_bundle
+    from node.commands.train import load_runs
+    from node.dataset import run_arrays
+    from node.evaluation import evaluate
+
+    bundle = load_bundle(args.model)
+    runs = load_runs(args.recordings, args.quiet)
+    evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target)
+    curve = None
+    if bundle.curve is not None:
+        curve = CharacteristicCurve()
+        curve.centres_, curve.means_ = bundle.curve
+    sw = bundle.schedule.switch
+    arrays = [run_arrays(r, bundle.target, [sw]) for r in runs]
+    rows = [["OC", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td", "alarm s"]]
+    hold, base = [], []
+    for e in evals:
+        res = bundle.oc(e.name)
+        b = float("nan")
+        if curve is not None and e.n_segments:
+            mine = [p for p in preds if bundle.schedule.names[p.oc] == e.name]
+            num = sum(float(np.sum((p.measured - curve.predict(_speed(arrays, runs, p))) ** 2)) for p in mine)
+            den = sum(float(np.sum(p.measured ** 2)) for p in mine)
+            b = float(np.sqrt(num / den)) if den else float("nan")
+        rows.append([e.name, str(e.n_segments), _f(e.eps), _f(res.cv_eps if res else float("nan")),
+                     _f(b), f"{e.alarm_samples / 40.0:.1f}"])
+        if np.isfinite(e.eps):
+            hold.append(e.eps)
+            base.append(b)
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    for i, r in enumerate(rows):
+        print("  ".join(c.ljust(w) for c, w in zip(r, widths)))
+        if i == 0:
+            print("  ".join("-" * w for w in widths))
+    hours = sum(p.t.size for p in preds) / 40.0 / 3600.0
+    alarm_s = sum(e.alarm_samples for e in evals) / 40.0
+    episodes = _alarm_episodes(bundle, preds)
+    if hold:
+        print(f"mean held-out eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
+              f"(characteristic-curve baseline {np.nanmean(base):.3f})")
+    print(f"alarms: {episodes} episode(s), {alarm_s:.1f} s flagged in {hours * 60:.1f} min of OC data "
+          f"({episodes / hours if hours else 0:.2f} per hour)")
+    png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
+    if _plot(bundle, preds, png):
+        print(f"plot written to {png}")
+    return 0
+
+
+def _speed(arrays, runs, p) -> np.ndarray:
+    r = runs[p.run]
+    k0 = int(np.searchsorted(r.t, p.t[0]))
+    return arrays[p.run].U[k0:k0 + p.t.size, 0]
+
+
+def _alarm_episodes(bundle, preds) -> int:
+    from node.evaluation import alarm_mask
+    n = 0
+    for p in preds:
+        res = bundle.ocs[p.oc] if p.oc < len(bundle.ocs) else None
+        res = bundle.oc(bundle.schedule.names[p.oc])
+        if res is None or res.calibration is None:
+            continue
+        m = alarm_mask(p.measured - p.predicted, res)
+        n += int(np.sum(np.diff(np.concatenate([[0], m.astype(np.int8)])) == 1))
+    return n
+
+
+def _f(x: float) -> str:
+    return f"{x:.3f}" if np.isfinite(x) else "-"
+
+
+def _plot(bundle, preds, png: Path) -> bool:
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("(matplotlib not installed: no plot)", file=sys.stderr)
+        return False
+    names = bundle.schedule.names
+    present = sorted({p.oc for p in preds})
+    cols = 3
+    rows = -(-len(present) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 2.6 * rows), squeeze=False)
+    for ax, oc in zip(axes.ravel(), present):
+        for p in [q for q in preds if q.oc == oc]:
+            t = p.t - p.t[0]
+            line, = ax.plot(t, p.measured, lw=1.0)
+            ax.plot(t, p.predicted, "--", lw=1.0, color=line.get_color())
+        ax.set_title(f"{names[oc]} (solid measured, dashed predicted)", fontsize=9)
+        ax.set_xlabel("s since the OC switch", fontsize=8)
+        ax.set_ylabel(f"{bundle.target} (mm/s)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in axes.ravel()[len(present):]:
+        ax.axis("off")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
+    return True

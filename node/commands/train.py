@@ -1,0 +1,116 @@
+"""``ordervib train``: learn the switching model of every OC from recordings."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from node.errors import OrdervibError
+
+NAME = "train"
+HELP = "train the per-OC switching model from pass-off recordings"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recordings", nargs="+", metavar="REC.mcap", help="training recordings")
+    p.add_argument("--schedule", required=True, metavar="S.toml", help="pass-off schedule (TOML)")
+    p.add_argument("--out", required=True, metavar="MODEL", help="model bundle directory to write")
+    p.add_argument("--target", default="yB", help="modelled channel (default yB)")
+    p.add_argument("--method", default="wdmd", choices=["wdmd", "delay-dmd", "lasso"],
+                   help="per-OC model (default wdmd)")
+    p.add_argument("--estimator", default=None, choices=["ls", "oe", "pem"],
+                   help="state-space estimator (default: chosen by cross-validation among oe, pem)")
+    p.add_argument("--inputs", default="auto", metavar="LIST|auto",
+                   help="input channels, comma-separated, or auto: MS-DPCCA top-k per OC (default)")
+    p.add_argument("--n-inputs", type=int, default=4, metavar="K", help="k for --inputs auto (default 4)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="parallel processes (default: up to 2)")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def load_runs(paths: list[str], quiet: bool = False) -> list:
+    """Runs of every recording, in order; one line per file on stderr."""
+    from node.recording import ReadStats, read_runs
+    runs = []
+    for path in paths:
+        stats = ReadStats()
+        found = read_runs(path, stats=stats)
+        if not quiet:
+            extra = f", {stats.malformed} malformed payloads skipped" if stats.malformed else ""
+            extra += ", unfinished file" if stats.truncated else ""
+            print(f"read {path}: {len(found)} run(s){extra}", file=sys.stderr)
+        runs += found
+    if not runs:
+        raise OrdervibError("the recordings hold no pass-off run")
+    return runs
+
+
+def print_table(results, file=sys.stdout) -> None:
+    rows = [["OC", "inputs", "states", "hyper-parameters", "train eps_td", "CV eps_td", "sigma",
+             "note"]]
+    for r in results:
+        if r.model is None:
+            rows.append([r.name, "-", "-", "-", "-", "-", "-", r.note or "no model"])
+            continue
+        states = "0" if r.model.ss is None else str(r.model.ss.n_states)
+        hp = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.params.items())
+        rows.append([r.name, ",".join(r.inputs), states, hp, f"{r.train_eps:.3f}", f"{r.cv_eps:.3f}",
+                     f"{r.calibration.sigma:.3g}" if r.calibration else "-", r.note])
+    cv = [r.cv_eps for r in results if r.model is not None and np.isfinite(r.cv_eps)]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    for i, row in enumerate(rows):
+        print("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip(), file=file)
+        if i == 0:
+            print("  ".join("-" * w for w in widths), file=file)
+    if cv:
+        print(f"mean cross-validated eps_td over {len(cv)} OCs: {np.mean(cv):.3f}", file=file)
+
+
+def run(args: argparse.Namespace) -> int:
+    from node.baseline import CharacteristicCurve
+    from node.bundle import Bundle, save_bundle, sha256_file
+    from node.dataset import run_arrays
+    from node.schedule import load_schedule
+    from node.training import DEFAULT_GRIDS, HISTORY_S, Method, train
+
+    if args.n_inputs < 1:
+        raise OrdervibError("--n-inputs must be at least 1")
+    schedule = load_schedule(args.schedule)
+    t0 = time.perf_counter()
+    runs = load_runs(args.recordings, args.quiet)
+    inputs = None if args.inputs == "auto" else [c.strip() for c in args.inputs.split(",") if c.strip()]
+    grid = dict(DEFAULT_GRIDS[Method(args.method)])
+    if args.method != "lasso":
+        grid["estimator"] = [args.estimator] if args.estimator else ["oe", "pem"]
+    if not args.quiet:
+        print(f"training {args.method} for {args.target} on {len(runs)} run(s), {len(schedule.ocs)} OCs, "
+              f"leave-one-run-out CV over {_count(grid)} candidates per OC", file=sys.stderr)
+
+    def progress(r, done, total):
+        if not args.quiet:
+            cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
+            print(f"  [{done}/{total}] {r.name}: {cv} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+
+    results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
+                    n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress)
+    arrays = [run_arrays(r, args.target, [schedule.switch]) for r in runs]
+    curve = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
+                                      np.concatenate([a.y for a in arrays]))
+    training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
+                "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
+    bundle = Bundle(args.method, args.target, schedule, results, HISTORY_S, training,
+                    (curve.centres_, curve.means_))
+    out = save_bundle(bundle, args.out)
+    print_table(results)
+    print(f"model written to {out} ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def _count(grid: dict) -> int:
+    n = 1
+    for v in grid.values():
+        n *= len(v)
+    return n
