@@ -12,10 +12,12 @@ per OC and a constant input (1) is appended, so every model is affine.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
+from sklearn.exceptions import ConvergenceWarning
 from sklearn.linear_model import Lasso
 
 from node.sysid import WDMD, DelayDMD, LinearDMD, StateSpace
@@ -184,7 +186,9 @@ def fit_oc_model(method: str, params: dict, trajs: list[Trajectory]) -> OCModel:
     if meth is Method.LASSO:
         X = np.vstack([model.scale_inputs(t.seg_U)[:, :-1] for t in trajs])
         y = np.concatenate([t.seg_y for t in trajs])
-        reg = Lasso(alpha=float(params["alpha"]), precompute=True, max_iter=5_000, tol=1e-6).fit(X, y)
+        with warnings.catch_warnings():  # a small alpha may stop at max_iter: still the CV's pick
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            reg = Lasso(alpha=float(params["alpha"]), precompute=True, max_iter=5_000, tol=1e-6).fit(X, y)
         model.coef = reg.coef_.copy()
         model.intercept = float(reg.intercept_)
         return model

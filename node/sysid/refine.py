@@ -44,12 +44,28 @@ def _modal_filter(lam: np.ndarray, U: np.ndarray) -> np.ndarray:
     return xi
 
 
+def _powers(lam: np.ndarray, K: int) -> np.ndarray:
+    """lam^k for k = 0..K-1, (K, n) complex, by cumulative products."""
+    out = np.empty((K, lam.size), dtype=complex)
+    out[0] = 1.0
+    if K > 1:
+        out[1:] = lam[None, :]
+        np.cumprod(out[1:], axis=0, out=out[1:])
+    return out
+
+
 def _normal_equations_modal(A, C, Ys, Us, x0s):
-    n, p, m = A.shape[0], C.shape[0], Us[0].shape[1]
     lam, V = np.linalg.eig(A)
     if not np.isfinite(np.linalg.cond(V)) or np.linalg.cond(V) > MAX_EIGVEC_COND:
         return None
-    Vinv = np.linalg.inv(V)
+    return _normal_equations_eig(lam, V, np.linalg.inv(V), C, Ys, Us, x0s)[:3]
+
+
+def _normal_equations_eig(lam, V, Vinv, C, Ys, Us, x0s):
+    """Normal equations of (B, D) for A = V diag(lam) Vinv; also the per-trajectory
+    modal quantities (filtered inputs xi, pole powers, residual after the free response)."""
+    n, p, m = V.shape[0], C.shape[0], Us[0].shape[1]
+    cache = []
     Vh = Vinv.conj().T
     CV = C @ V
     CVhCV = CV.conj().T @ CV
@@ -62,10 +78,12 @@ def _normal_equations_modal(A, C, Ys, Us, x0s):
     rr = 0.0
     for Y, U, x0 in zip(Ys, Us, x0s):
         K = Y.shape[0]
-        powers = lam[None, :] ** np.arange(K)[:, None]  # (K, n)
+        powers = _powers(lam, K)  # (K, n)
         R = (Y - ((powers * (Vinv @ x0)[None, :]) @ CV.T).real)  # residual after the free response
         rr += float(np.sum(R ** 2))
-        xi = _modal_filter(lam, U).transpose(0, 2, 1).reshape(K, nb)  # columns (j, l)
+        xi3 = _modal_filter(lam, U)
+        cache.append((xi3, powers, R))
+        xi = xi3.transpose(0, 2, 1).reshape(K, nb)  # columns (j, l)
         xic = xi.conj()
         Gxx += xic.T @ xi
         Gxu += xic.T @ U
@@ -91,7 +109,7 @@ def _normal_equations_modal(A, C, Ys, Us, x0s):
             G[dj, djj] = np.eye(p) * Guu[j, jj]
     upper = np.triu_indices(q, 1)
     G[(upper[1], upper[0])] = G[upper].conj()  # fill the D-B blocks by symmetry
-    return G.real, g.real, rr
+    return G.real, g.real, rr, cache
 
 
 def _normal_equations_markov(A, C, Ys, Us, x0s):
@@ -218,24 +236,43 @@ def refine_poles(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np
     theta0 = np.array(start)
     scale = float(sum(np.sum(y ** 2) for y in Ys)) or 1.0
 
-    def system(theta):
-        Ai = (V @ np.diag(poles(theta)) @ Vinv).real
-        eq = _normal_equations_modal(Ai, C, Ys, Us, x0s)
-        return Ai, eq
+    CV = C @ V
+    nr = len(real_idx)
 
-    def cost(theta):
-        _, eq = system(theta)
-        if eq is None:
-            return np.inf
-        G, g, rr = eq
+    def cost_grad(theta):
+        lam_t = poles(theta)
+        G, g, rr, cache = _normal_equations_eig(lam_t, V, Vinv, C, Ys, Us, x0s)
         th = _solve_normal(G, g, rcond)
-        return (rr - 2 * g @ th + th @ G @ th) / scale
+        B = th[: n * m].reshape(m, n).T
+        D = th[n * m:].reshape(m, p).T
+        bt = Vinv @ B  # (n, m) modal input gains
+        h = np.zeros(n, dtype=complex)
+        for (xi, powers, R), U, x0 in zip(cache, Us, x0s):
+            K = U.shape[0]
+            z0 = Vinv @ x0
+            forced = np.einsum("knj,nj->kn", xi, bt)  # (K, n) modal forced responses
+            r = R - (forced @ CV.T).real - U @ D.T  # full residual (K, p)
+            k = np.arange(K)[:, None]
+            prev = np.vstack([np.zeros((1, n), dtype=complex), powers[:-1]])
+            d = k * prev * z0[None, :]
+            for l in range(n):
+                dxi = signal.lfilter([0.0, 1.0], [1.0, -lam_t[l]], xi[:, l, :], axis=0)
+                d[:, l] += dxi @ bt[l]
+            h += np.einsum("kp,pl,kl->l", r, CV, d)
+        grad = np.zeros_like(theta)
+        grad[:nr] = -2.0 * h[real_idx].real * (1.0 - lam_t[real_idx].real ** 2)
+        for q, i in enumerate(pos_idx):
+            s_, w_ = theta[nr + 2 * q], theta[nr + 2 * q + 1]
+            dz_ds = -np.exp(s_) * np.exp(1j * w_)
+            dz_dw = 1j * lam_t[i]
+            grad[nr + 2 * q] = -4.0 * (h[i] * dz_ds).real
+            grad[nr + 2 * q + 1] = -4.0 * (h[i] * dz_dw).real
+        c = (rr - 2 * g @ th + th @ G @ th) / scale
+        return c, grad / scale, (lam_t, B, D)
 
-    c0 = cost(theta0)
-    res = minimize(cost, theta0, method="L-BFGS-B", options={"maxiter": maxiter})
+    c0 = cost_grad(theta0)[0]
+    res = minimize(lambda t: cost_grad(t)[:2], theta0, jac=True, method="L-BFGS-B",
+                   options={"maxiter": maxiter})
     theta = res.x if np.isfinite(res.fun) and res.fun <= c0 else theta0
-    Ai, eq = system(theta)
-    if eq is None:
-        return None
-    th = _solve_normal(eq[0], eq[1], rcond)
-    return Ai, th[: n * m].reshape(m, n).T, th[n * m:].reshape(m, p).T
+    lam_t, B, D = cost_grad(theta)[2]
+    return (V @ np.diag(lam_t) @ Vinv).real, B, D
