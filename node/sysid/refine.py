@@ -198,7 +198,7 @@ def refine_poles(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np
 
     A = V diag(lam) V^-1 keeps the eigenvectors of the starting A (so the
     state keeps its meaning and C stays); the poles are the free parameters,
-    each stable by construction (a complex pair as (1 - e^s) e^(i w), a real
+    each stable by construction (a complex pair as exp(-e^s + i w), a real
     pole as tanh(a)), and for every trial (B, D) are the linear least-squares
     optimum. Returns (A, B, D), or None when A is not safely diagonalizable.
     """
@@ -226,13 +226,13 @@ def refine_poles(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np
         out[real_idx] = np.tanh(theta[:nr])
         for k, i in enumerate(pos_idx):
             s, w = theta[nr + 2 * k], theta[nr + 2 * k + 1]
-            z = (1.0 - np.exp(s)) * np.exp(1j * w)
+            z = np.exp(-np.exp(s) + 1j * w)  # |z| = exp(-e^s) < 1 for every s
             out[i], out[partner[i]] = z, np.conj(z)
         return out
 
     start = [np.arctanh(np.clip(lam[i].real, -0.999999, 0.999999)) for i in real_idx]
     for i in pos_idx:
-        start += [np.log(max(1.0 - abs(lam[i]), 1e-12)), float(np.angle(lam[i]))]
+        start += [np.log(-np.log(np.clip(abs(lam[i]), 1e-12, 1 - 1e-12))), float(np.angle(lam[i]))]
     theta0 = np.array(start)
     scale = float(sum(np.sum(y ** 2) for y in Ys)) or 1.0
 
@@ -262,8 +262,8 @@ def refine_poles(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np
         grad = np.zeros_like(theta)
         grad[:nr] = -2.0 * h[real_idx].real * (1.0 - lam_t[real_idx].real ** 2)
         for q, i in enumerate(pos_idx):
-            s_, w_ = theta[nr + 2 * q], theta[nr + 2 * q + 1]
-            dz_ds = -np.exp(s_) * np.exp(1j * w_)
+            s_ = theta[nr + 2 * q]
+            dz_ds = -np.exp(s_) * lam_t[i]
             dz_dw = 1j * lam_t[i]
             grad[nr + 2 * q] = -4.0 * (h[i] * dz_ds).real
             grad[nr + 2 * q + 1] = -4.0 * (h[i] * dz_dw).real

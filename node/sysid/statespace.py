@@ -102,6 +102,10 @@ class StateSpace:
     dt: float = 1.0
 
     def __post_init__(self) -> None:
+        # one memory layout for every model, so that a model reloaded from a file computes
+        # bit for bit what the fitted one did (BLAS rounding depends on the layout)
+        for name in ("A", "B", "C", "D"):
+            object.__setattr__(self, name, np.ascontiguousarray(getattr(self, name), dtype=float))
         n, m, p = self.A.shape[0], self.B.shape[1], self.C.shape[0]
         if self.A.shape != (n, n) or self.B.shape != (n, m) or self.C.shape != (p, n) \
                 or self.D.shape != (p, m):

@@ -1,0 +1,127 @@
+"""Training the switching model: bundles, refusals, robustness to gaps, the commands."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from node.bundle import Bundle, load_bundle, save_bundle
+from node.cli import main
+from node.errors import OrdervibError
+from node.evaluation import predict_segments
+from node.recording import SENSOR_CHANNELS, Run
+from node.schedule import OperatingCondition, Schedule
+from node.training import train
+from simulator.campaign import simulate_campaign
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL_GRID = {"levels": [1, 2], "rcond": [1e-8], "estimator": ["oe"]}
+
+
+@pytest.fixture(scope="module")
+def sim():
+    camp = simulate_campaign(runs=3, seed=5, plateau_scale=0.25)
+    runs = [Run(r.t, r.data, tuple(camp.channels), "bed1", None) for r in camp.runs]
+    schedule = Schedule(tuple(OperatingCondition(oc.name, oc.speed) for oc in camp.ocs))
+    return runs, schedule
+
+
+def test_bundle_reload_gives_bit_identical_predictions(sim, tmp_path):
+    runs, schedule = sim
+    for method, grid in (("wdmd", SMALL_GRID), ("lasso", {"alpha": [0.01, 0.1]})):
+        results = train(runs, schedule, method=method, grid=grid, workers=1)
+        assert any(r.model is not None for r in results)
+        save_bundle(Bundle(method, "yB", schedule, results, 60.0), tmp_path / method)
+        loaded = load_bundle(tmp_path / method)
+        assert loaded.schedule == schedule and loaded.method == method
+        before = predict_segments(results, runs, schedule, "yB")
+        after = predict_segments(loaded.ocs, runs, schedule, "yB")
+        assert len(before) == len(after) > 0
+        for a, b in zip(before, after):
+            np.testing.assert_array_equal(a.predicted, b.predicted)
+        for r, q in zip(results, loaded.ocs):
+            assert r.inputs == q.inputs and r.params == q.params
+            if r.calibration:
+                assert q.calibration.threshold == r.calibration.threshold
+
+
+def test_corrupted_or_mismatched_bundle_is_refused(sim, tmp_path):
+    runs, schedule = sim
+    results = train(runs, schedule, method="lasso", grid={"alpha": [0.1]}, workers=1)
+    path = save_bundle(Bundle("lasso", "yB", schedule, results, 60.0), tmp_path / "m")
+    data = bytearray((path / "arrays.npz").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (path / "arrays.npz").write_bytes(bytes(data))
+    with pytest.raises(OrdervibError, match="hash"):
+        load_bundle(path)
+    path = save_bundle(Bundle("lasso", "yB", schedule, results, 60.0), tmp_path / "v")
+    manifest = json.loads((path / "manifest.json").read_text())
+    manifest["format_version"] = 99
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(OrdervibError, match="version"):
+        load_bundle(path)
+    (path / "manifest.json").write_text("{not json")
+    with pytest.raises(OrdervibError, match="JSON"):
+        load_bundle(path)
+    with pytest.raises(OrdervibError, match="not found"):
+        load_bundle(tmp_path / "nothing")
+    # the arrays file holds no pickled objects: numpy refuses pickles on load
+    np.load(tmp_path / "m" / "arrays.npz", allow_pickle=False).close()
+
+
+def test_training_survives_dropouts_and_a_missing_optional_channel(sim):
+    runs, schedule = sim
+    rng = np.random.default_rng(0)
+    damaged = []
+    for i, r in enumerate(runs):
+        data = r.data.copy()
+        holes = rng.random(data.shape) < 0.05  # 5 % dropouts everywhere, target included
+        data[holes] = np.nan
+        channels = r.channels
+        if i == 1:  # one run lacks tG entirely
+            keep = [j for j, c in enumerate(channels) if c != "tG"]
+            data, channels = data[:, keep], tuple(channels[j] for j in keep)
+        damaged.append(Run(r.t, data, channels, r.bed, None))
+    results = train(damaged, schedule, method="wdmd", grid=SMALL_GRID, workers=1)
+    fitted = [r for r in results if r.model is not None]
+    assert len(fitted) >= len(schedule.ocs) - 1
+    for r in fitted:
+        assert "tG" not in r.inputs and len(r.inputs) == 4
+        assert np.isfinite(r.cv_eps) and np.isfinite(r.model.ss.A).all()
+    assert set(SENSOR_CHANNELS) >= set().union(*(r.inputs for r in fitted))
+
+
+def test_named_inputs_missing_from_recordings_is_one_line_error(sim):
+    runs, schedule = sim
+    with pytest.raises(OrdervibError, match="zZ"):
+        train(runs, schedule, method="lasso", inputs=["nB", "zZ"], workers=1)
+
+
+def test_train_and_evaluate_commands(tmp_path, capsys):
+    rec = ROOT / "recordings" / "engine1_runs.mcap"
+    sched = ROOT / "recordings" / "engine1_runs.schedule.toml"
+    out = tmp_path / "model"
+    assert main(["train", str(rec), "--schedule", str(sched), "--out", str(out), "--method", "lasso",
+                 "--quiet", "--workers", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "OC2a" in text and "CV eps_td" in text and (out / "manifest.json").exists()
+    fault = ROOT / "recordings" / "engine1_fault.mcap"
+    assert main(["evaluate", str(out), str(fault), "--quiet", "--png", str(tmp_path / "e.png")]) == 0
+    text = capsys.readouterr().out
+    assert "held-out eps_td" in text and "alarms:" in text
+    assert (tmp_path / "e.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["train", "nope.mcap", "--schedule", "s.toml", "--out", "m"], "schedule file not found"),
+    (["evaluate", "no-model-here", "x.mcap"], "model bundle not found"),
+    (["train", "x.mcap", "--schedule", "s.toml", "--out", "m", "--n-inputs", "0"], "n-inputs"),
+])
+def test_command_errors_are_one_line(argv, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and "Traceback" not in err
