@@ -169,7 +169,7 @@ def main_table(clean: Case, noisy: Case, freqs: np.ndarray, peers) -> None:
         lambda: ddmd(estimator="ls").fit(clean.y_train, clean.u_train), clean)
     for name, fit in peers(clean):
         add(name, "clean", "-", fit, clean)
-    for est in ("ls", "oe"):
+    for est in ("ls", "oe", "pem"):
         add(f"WDMD J={BENCH_LEVELS}, causal, {est.upper()}", "0.5 % noise", "-",
             lambda est=est: wdmd(estimator=est).fit(noisy.y_train, noisy.u_train), noisy)
     add("WDMD J=13, causal, OE", "0.5 % noise", "-",
@@ -177,7 +177,7 @@ def main_table(clean: Case, noisy: Case, freqs: np.ndarray, peers) -> None:
     add("WDMD J=13 beta=1e-12, MRA, LS", "0.5 % noise", "-",
         lambda: wdmd(13, components="mra", rcond=1e-12, estimator="ls")
         .fit(noisy.y_train, noisy.u_train), noisy)
-    for est in ("ls", "oe"):
+    for est in ("ls", "oe", "pem"):
         add(f"Delay-DMD tau=14, {est.upper()}", "0.5 % noise", "-",
             lambda est=est: ddmd(estimator=est).fit(noisy.y_train, noisy.u_train), noisy)
     for name, fit in peers(noisy):
@@ -271,8 +271,8 @@ def make_peers(quick: bool):
         out = [("N4SID order 6 (nfoursid)",
                 lambda: _Wrapped(pk.fit_n4sid(case.y_train, case.u_train, order=6, dt=1 / 5000.0)[0]))]
         if not quick:
-            out.append(("pykoop delay lifting", lambda: _Wrapped(
-                pk.fit_pykoop(case.y_train, case.u_train)[0])))
+            out.append(("pykoop d=16 alpha=1e-2", lambda: _Wrapped(
+                pk.fit_pykoop(case.y_train, case.u_train, n_delays=16, alpha=1e-2)[0])))
         return out
     return peers
 
