@@ -19,6 +19,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "node.commands.train",
     "node.commands.evaluate",
     "node.commands.schedule",
+    "node.commands.replay",
+    "node.commands.view",
+    "node.commands.recover",
 )
 
 

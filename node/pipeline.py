@@ -1,0 +1,130 @@
+"""The node's numerics, free of I/O: aligned samples in, monitor messages out.
+
+Live (Zenoh) and offline replay feed the very same ``MonitorPipeline``, so
+they give the very same numbers. Per sample: the OC detector steps on the
+switch speed; at an OC switch the OC's model is seeded from the measured
+past (a bounded ring buffer) and then steps once per sample; the residual is
+standardized by the OC's cross-validated sigma, smoothed (EWMA) and flagged
+when beyond the OC's threshold for long enough.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from node.align import AlignedSample
+from node.bundle import Bundle
+from node.ocdetect import OCDetector, Phase
+from node.ocmodel import OCRuntime
+
+FS = 40.0
+
+
+@dataclass
+class _Active:
+    oc: int
+    runtime: OCRuntime | None
+    inputs: list[str]
+    sigma: float
+    threshold: float
+    alpha: float
+    persist: int
+    model_id: str
+
+
+def _num(x: float) -> float | None:
+    return None if not math.isfinite(x) else float(x)
+
+
+class MonitorPipeline:
+    """Stateful per-bed pipeline (bounded memory: ``history_s`` of samples).
+
+    ``step(sample)`` returns ``(monitor_message, oc_message_or_None)`` as dicts
+    ready for JSON (contract section 2).
+    """
+
+    def __init__(self, bundle: Bundle) -> None:
+        self.bundle = bundle
+        self.target = bundle.target
+        self.switch = bundle.schedule.switch
+        self.detector = OCDetector(bundle.schedule, FS)
+        self.channels = sorted({self.switch, self.target, *bundle.inputs})
+        self._hist: deque[tuple[float, ...]] = deque(maxlen=int(bundle.history_s * FS))
+        self._last: dict[str, float] = {}
+        self._state: tuple[int | None, Phase] = (None, Phase.OFF)
+        self._active: _Active | None = None
+        self._score = 0.0
+        self._beyond = 0
+
+    def _filled(self, values: dict[str, float]) -> dict[str, float]:
+        """Hold each channel's last finite value over dropouts."""
+        out = {}
+        for c in self.channels:
+            v = values.get(c, float("nan"))
+            if math.isfinite(v):
+                self._last[c] = v
+            out[c] = self._last.get(c, float("nan"))
+        return out
+
+    def _activate(self, oc: int | None) -> None:
+        self._active = None
+        self._score, self._beyond = 0.0, 0
+        if oc is None:
+            return
+        res = self.bundle.oc(self.bundle.schedule.names[oc])
+        if res is None or res.model is None or res.calibration is None:
+            return
+        rt = res.model.runtime()
+        cols = [self.channels.index(c) for c in [self.target, *res.inputs]]
+        if self._hist:
+            H = np.asarray(self._hist)[:, cols]
+            ok = np.all(np.isfinite(H), axis=1)
+            H = H[np.argmax(ok):] if ok.any() else H[:0]  # history from the first complete row
+            rt.start(H[:, 0], H[:, 1:])
+        else:
+            rt.start(np.zeros(0), np.zeros((0, len(res.inputs))))
+        c = res.calibration
+        self._active = _Active(oc, rt, list(res.inputs), c.sigma, c.threshold, c.ewma_alpha,
+                               c.persist, f"{self.bundle.method}:{res.name}")
+
+    def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
+        if sample.new_run:
+            self.detector.reset()
+            self._hist.clear()
+            self._last.clear()
+        vals = self._filled(sample.values)
+        st = self.detector.step(sample.values.get(self.switch, float("nan")))
+        oc_msg = None
+        names = self.bundle.schedule.names
+        if (st.oc, st.phase) != self._state:
+            prev_oc = self._state[0]
+            if st.oc != prev_oc:
+                self._activate(st.oc)
+            oc_msg = {"t": sample.t, "oc": None if st.oc is None else names[st.oc],
+                      "phase": st.phase.value, "previous": None if prev_oc is None else names[prev_oc]}
+            self._state = (st.oc, st.phase)
+        measured = sample.values.get(self.target, float("nan"))
+        msg = {"t": sample.t, "oc": None if st.oc is None else names[st.oc], "phase": st.phase.value,
+               "measured": _num(measured), "predicted": None, "residual": None, "flag": "no-model",
+               "score": None, "band": None, "model": None}
+        a = self._active
+        if a is not None and a.runtime is not None:
+            u = np.array([vals[c] for c in a.inputs])
+            if np.all(np.isfinite(u)):
+                pred = a.runtime.step(u)
+                msg["predicted"] = _num(pred)
+                msg["model"] = a.model_id
+                msg["band"] = a.threshold * a.sigma
+                if math.isfinite(measured) and math.isfinite(pred):
+                    r = measured - pred
+                    self._score = (1.0 - a.alpha) * self._score + a.alpha * r / a.sigma
+                    self._beyond = self._beyond + 1 if abs(self._score) > a.threshold else 0
+                    msg["residual"] = r
+                msg["score"] = self._score
+                msg["flag"] = "alarm" if self._beyond >= a.persist else "ok"
+        self._hist.append(tuple(vals[c] for c in self.channels))
+        return msg, oc_msg

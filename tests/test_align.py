@@ -1,0 +1,95 @@
+"""Aligning independently published channels into 40 Hz samples."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import orjson
+
+from node.align import Aligner
+
+
+def feed(aligner: Aligner, msgs):
+    out = []
+    for ch, t, v in msgs:
+        out += aligner.push(ch, t, v)
+    return out + aligner.flush()
+
+
+def grid(n, channels, t0=1000.0, jitter=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    msgs = []
+    for k in range(n):
+        for c in channels:
+            msgs.append((c, t0 + k / 40 + jitter * rng.uniform(-1, 1), float(k)))
+    return msgs
+
+
+def test_jitter_and_reordering_within_the_wait_keep_every_value():
+    rng = np.random.default_rng(1)
+    msgs = grid(200, ["nB", "yB", "tF"], jitter=0.002)
+    # shuffle within windows of 6 messages (arrival out of order, 2 samples deep)
+    for i in range(0, len(msgs), 6):
+        block = msgs[i:i + 6]
+        rng.shuffle(block)
+        msgs[i:i + 6] = block
+    a = Aligner(["nB", "yB", "tF"])
+    out = feed(a, msgs)
+    assert len(out) == 200
+    for k, s in enumerate(out):
+        assert s.values == {"nB": k, "yB": k, "tF": k}
+        assert math.isclose(s.t, 1000.0 + k / 40, abs_tol=0.003)
+    assert a.stats.late == 0 and not a.stats.missing
+
+
+def test_duplicates_dropouts_missing_and_unknown_channels_are_counted():
+    msgs = grid(50, ["nB", "yB"])
+    msgs.insert(11, ("nB", 1000.0 + 5 / 40, 99.0))  # duplicate of slot 5 (first one wins)
+    msgs = [m for m in msgs if not (m[0] == "yB" and m[2] == 20.0)]  # yB of slot 20 never comes
+    msgs[40] = (msgs[40][0], msgs[40][1], None)  # a dropout: null value
+    msgs.append(("zz", 1000.5, 1.0))
+    a = Aligner(["nB", "yB"])
+    out = feed(a, msgs)
+    assert len(out) == 50
+    assert out[5].values["nB"] == 5.0 and a.stats.duplicates == 1
+    assert math.isnan(out[20].values["yB"]) and a.stats.missing["yB"] == 1
+    assert sum(math.isnan(v) for s in out for v in s.values.values()) == 2
+    assert a.stats.unknown["zz"] == 1
+
+
+def test_late_message_after_the_wait_is_counted_not_misplaced():
+    msgs = grid(40, ["nB", "yB"])
+    late = [m for m in msgs if m[0] == "yB" and m[2] == 3.0][0]
+    msgs.remove(late)
+    msgs.append(late)  # arrives a second late
+    a = Aligner(["nB", "yB"], max_wait=0.1)
+    out = feed(a, msgs)
+    assert len(out) == 40 and math.isnan(out[3].values["yB"]) and a.stats.late == 1
+
+
+def test_gap_starts_a_new_run_on_a_new_grid():
+    msgs = grid(20, ["nB"]) + grid(20, ["nB"], t0=1000.0 + 20 / 40 + 300.013)
+    out = feed(Aligner(["nB"]), msgs)
+    assert len(out) == 40
+    assert out[20].new_run and not out[19].new_run and out[0].new_run
+    assert math.isclose(out[20].t, 1300.513, abs_tol=1e-9)
+
+
+def test_malformed_payloads_are_counted_and_skipped(tmp_path):
+    from node.bundle import Bundle
+    from node.core import NodeCore
+    from node.schedule import OperatingCondition, Schedule
+    sched = Schedule((OperatingCondition("A", 4000.0),))
+    core = NodeCore(Bundle("wdmd", "yB", sched, [], 60.0))
+    bad = [b"{", b"[1,2]", b'{"t": "x", "v": 1}', b'{"t": 1.0}', b'{"t": NaN, "v": 1}', b"\xff"]
+    for p in bad:
+        assert core.handle("testbed/b/sensor/nB", p) == []
+    assert core.stats.malformed == len(bad)
+    assert core.handle("some/other/key", b"{}") == [] and core.stats.foreign == 1
+    out = []
+    for k in range(80):
+        for ch in ("nB", "yB"):
+            out += core.handle(f"testbed/b/sensor/{ch}", orjson.dumps({"t": 10.0 + k / 40, "v": 1.0}))
+    assert len([o for o in out if o[0] == "testbed/b/monitor/yB"]) >= 70
+    assert all(o[1]["flag"] == "no-model" for o in out if o[0].endswith("/yB"))
