@@ -20,6 +20,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "node.commands.evaluate",
     "node.commands.schedule",
     "node.commands.replay",
+    "node.commands.run",
     "node.commands.view",
     "node.commands.recover",
 )

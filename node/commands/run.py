@@ -1,0 +1,29 @@
+"""``ordervib run``: the live node."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "run"
+HELP = "the live node: subscribe to test beds over Zenoh, predict, publish, record to MCAP"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, metavar="MODEL", help="model bundle directory")
+    p.add_argument("--record", required=True, metavar="OUT.mcap", help="recording to write")
+    p.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="Zenoh endpoint to listen on (default tcp/127.0.0.1:7447 unless --connect)")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="Zenoh endpoint to connect to")
+    p.add_argument("--zenoh-config", metavar="FILE.json5",
+                   help="Zenoh configuration file (TLS, access control) applied under the endpoints")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--quiet", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from node.bundle import load_bundle
+    from node.live import DEFAULT_ENDPOINT, run_node
+    bundle = load_bundle(args.model)
+    listen = args.listen or (None if args.connect else [DEFAULT_ENDPOINT])
+    run_node(bundle, args.record, listen, args.connect, args.zenoh_config, args.duration, args.quiet)
+    return 0
