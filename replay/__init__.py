@@ -1,0 +1,1 @@
+"""Offline views of recordings (Rerun)."""
