@@ -48,7 +48,8 @@ def load_runs(paths: list[str], quiet: bool = False) -> list:
     return runs
 
 
-def print_table(results, file=sys.stdout) -> None:
+def print_table(results, file=None) -> None:
+    file = file or sys.stdout
     rows = [["OC", "inputs", "states", "hyper-parameters", "train eps_td", "CV eps_td", "sigma",
              "note"]]
     for r in results:
