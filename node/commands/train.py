@@ -22,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", default="wdmd", choices=["wdmd", "delay-dmd", "lasso"],
                    help="per-OC model (default wdmd)")
     p.add_argument("--estimator", default=None, choices=["ls", "oe", "pem"],
-                   help="state-space estimator (default: chosen by cross-validation among oe, pem)")
+                   help="state-space estimator (default oe; pem also refines the poles, slower)")
     p.add_argument("--inputs", default="auto", metavar="LIST|auto",
                    help="input channels, comma-separated, or auto: MS-DPCCA top-k per OC (default)")
     p.add_argument("--n-inputs", type=int, default=4, metavar="K", help="k for --inputs auto (default 4)")
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     inputs = None if args.inputs == "auto" else [c.strip() for c in args.inputs.split(",") if c.strip()]
     grid = dict(DEFAULT_GRIDS[Method(args.method)])
     if args.method != "lasso":
-        grid["estimator"] = [args.estimator] if args.estimator else ["oe", "pem"]
+        grid["estimator"] = [args.estimator] if args.estimator else ["oe"]
     if not args.quiet:
         print(f"training {args.method} for {args.target} on {len(runs)} run(s), {len(schedule.ocs)} OCs, "
               f"leave-one-run-out CV over {_count(grid)} candidates per OC", file=sys.stderr)
