@@ -21,6 +21,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "node.commands.schedule",
     "node.commands.replay",
     "node.commands.run",
+    "node.commands.demo",
     "node.commands.view",
     "node.commands.recover",
 )
