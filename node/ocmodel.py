@@ -32,8 +32,10 @@ class Method(StrEnum):
 
 
 def _dmd(method: Method, params: dict) -> LinearDMD:
+    # seed_window 0: at a switch the state is the lifted measured past itself; fitting this
+    # OC's model to a window of the previous OC's data (the observer) seeds worse (measured)
     common = {"rcond": params.get("rcond", 1e-8), "estimator": params.get("estimator", "oe"),
-              "dt": 1.0 / FS}
+              "dt": 1.0 / FS, "seed_window": params.get("seed_window", 0)}
     if method is Method.WDMD:
         return WDMD(levels=int(params["levels"]), wavelet=params.get("wavelet", "haar"), **common)
     if method is Method.DELAY_DMD:
