@@ -81,3 +81,28 @@ def test_sigterm_finishes_the_recording(setup, tmp_path):
     assert proc.wait(timeout=20) == 0
     with open(rec, "rb") as f:
         assert make_reader(f).get_summary() is not None  # finished: summary and footer written
+
+
+def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
+    from node.live import publish_recording
+    rec = tmp_path / "k.mcap"
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "node.cli", "run", "--model", str(setup / "m"),
+                             "--record", str(rec), "--listen", f"tcp/127.0.0.1:{port}", "--quiet"],
+                            cwd=Path(__file__).resolve().parents[1])
+    try:
+        deadline = time.monotonic() + 30
+        while not rec.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        sent = publish_recording(str(setup / "test.mcap"), f"tcp/127.0.0.1:{port}", speed=0.0,
+                                 quiet=True)
+        time.sleep(2.5)  # more than a flush period after the last message
+    finally:
+        proc.kill()
+        proc.wait(timeout=20)
+    fixed = tmp_path / "fixed.mcap"
+    assert main(["recover", str(rec), "--out", str(fixed)]) == 0
+    inputs = [m for m in iter_messages(fixed) if "/sensor/" in m.topic]
+    assert len(inputs) == sent  # everything older than the last flush is there
+    assert any("/monitor/yB" in m.topic for m in iter_messages(fixed))
