@@ -30,8 +30,8 @@ THRESHOLD_MARGIN = 1.25  # threshold = margin x the largest smoothed score seen 
 FS = 40.0
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
-    Method.WDMD: {"levels": [1, 2, 3, 4, 5], "rcond": [1e-8, 1e-4]},
-    Method.DELAY_DMD: {"delays": [1, 2, 4, 8, 16], "rcond": [1e-8, 1e-4]},
+    Method.WDMD: {"levels": [1, 2, 3, 4, 5], "rcond": [1e-8]},
+    Method.DELAY_DMD: {"delays": [1, 2, 4, 8, 16], "rcond": [1e-8]},
     Method.LASSO: {"alpha": [1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0]},
 }
 
