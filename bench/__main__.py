@@ -8,6 +8,7 @@ import sys
 BENCHMARKS = {
     "beam": "bench.beam",
     "read-speed": "bench.read_speed",
+    "train-speed": "bench.train_speed",
     "rotor": "bench.rotor",
 }
 

@@ -1,0 +1,70 @@
+"""Training speed and held-out accuracy of the switching model (issue 4's figures).
+
+    python -m bench train-speed [--train T.mcap --test H.mcap --schedule S.toml]
+
+Without recordings, simulates 8 training and 3 held-out runs of one engine
+(seed 11) first. Prints the training wall time (cross-validation included)
+and, per method, the mean held-out eps_td beside the characteristic-curve
+baseline, all measured in this one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from node.cli import main as cli
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench train-speed")
+    ap.add_argument("--train")
+    ap.add_argument("--test")
+    ap.add_argument("--schedule")
+    ap.add_argument("--methods", default="wdmd,delay-dmd,lasso")
+    args = ap.parse_args(argv)
+    from node.commands.train import load_runs
+    from node.evaluation import baseline_eps, evaluate
+    from node.schedule import load_schedule
+    from node.training import train
+
+    tmp = Path(tempfile.mkdtemp(prefix="ordervib-bench-"))
+    if not args.train:
+        print("simulating 8 training and 3 held-out runs (seed 11) ...", flush=True)
+        cli(["simulate", "--runs", "8", "--seed", "11", "--out", str(tmp / "train.mcap"), "--quiet"])
+        cli(["simulate", "--runs", "11", "--skip", "8", "--seed", "11", "--out", str(tmp / "test.mcap"),
+             "--quiet"])
+        args.train, args.test = str(tmp / "train.mcap"), str(tmp / "test.mcap")
+        args.schedule = str(tmp / "train.schedule.toml")
+    schedule = load_schedule(args.schedule)
+    t0 = time.perf_counter()
+    train_runs = load_runs([args.train], quiet=True)
+    t_read = time.perf_counter() - t0
+    test_runs = load_runs([args.test], quiet=True)
+    base = baseline_eps(train_runs, test_runs, schedule, "yB")
+    rows = []
+    for method in args.methods.split(","):
+        t1 = time.perf_counter()
+        results = train(train_runs, schedule, method=method)
+        t_train = time.perf_counter() - t1
+        evals, _ = evaluate(results, test_runs, schedule, "yB")
+        held = np.nanmean([e.eps for e in evals])
+        cv = np.nanmean([r.cv_eps for r in results])
+        alarms = sum(e.alarm_samples for e in evals) / 40.0
+        rows.append((method, t_read + t_train, cv, held, alarms))
+    print(f"\n{len(train_runs)} training runs, {len(test_runs)} held-out runs; reading took {t_read:.1f} s")
+    print("| method | train wall s (read + CV + fit) | mean CV eps_td | mean held-out eps_td | "
+          "alarm s on normal runs |")
+    print("|---|---|---|---|---|")
+    for m, t, cv, held, al in rows:
+        print(f"| {m} | {t:.1f} | {cv:.3f} | {held:.3f} | {al:.1f} |")
+    print(f"| characteristic-curve baseline | - | - | {np.nanmean(base):.3f} | - |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
