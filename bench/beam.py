@@ -89,7 +89,8 @@ class Scores:
     def cells(self) -> list[str]:
         if not self.stable:
             return ["unstable"] * 5
-        return [f"{v:.2e}" for v in (self.train, self.b165, self.test1, self.test2, self.fd)]
+        return [f"{v:.2e}" if np.isfinite(v) else "n/a"
+                for v in (self.train, self.b165, self.test1, self.test2, self.fd)]
 
 
 def _safe(f: Callable[[], float]) -> float:
