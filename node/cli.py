@@ -64,6 +64,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
         print(f"ordervib {args.command}: {exc.strerror}: {exc.filename}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into a reader that stopped (e.g. head)
+        sys.stderr.close()
+        return 0
     except KeyboardInterrupt:
         print(f"ordervib {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -70,6 +70,18 @@ def print_table(results, file=None) -> None:
         print(f"mean cross-validated eps_td over {len(cv)} OCs: {np.mean(cv):.3f}", file=file)
 
 
+def print_ranking(results, top: int = 6, file=None) -> None:
+    """MS-DPCCA ranking per OC: mean |rho_DPCCA| of each candidate with the target."""
+    file = file or sys.stdout
+    print("MS-DPCCA ranking of the inputs per OC (mean |rho_DPCCA| with the target over scales):",
+          file=file)
+    for r in results:
+        if r.ranking:
+            ranks = ", ".join(f"{c} {s:.2f}" for c, s in r.ranking[:top])
+            print(f"  {r.name:6s} {ranks}", file=file)
+    print(file=file)
+
+
 def run(args: argparse.Namespace) -> int:
     from node.baseline import CharacteristicCurve
     from node.bundle import Bundle, save_bundle, sha256_file
@@ -105,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
     bundle = Bundle(args.method, args.target, schedule, results, HISTORY_S, training,
                     (curve.centres_, curve.means_))
     out = save_bundle(bundle, args.out)
+    if inputs is None:
+        print_ranking(results)
     print_table(results)
     print(f"model written to {out} ({time.perf_counter() - t0:.1f} s)")
     return 0
