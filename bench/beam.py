@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench import beam_model as bm
+from bench.tables import print_table
 from node.sysid import IODMD, WDMD, DelayDMD, StateSpace, eps_fd, eps_td, mac
 
 OUTPUT_NODES = [1, 7, 12, 18, 24, 30]
@@ -126,15 +127,6 @@ def score(fit: Callable[[], object], case: Case, clean: Case, freqs: np.ndarray,
     fd = _safe(lambda: eps_fd(clean.truth.frequency_response(freqs), model.frequency_response(freqs)))
     stable = stable and np.isfinite(train) and train < 1e3
     return Scores(train, b165, t1, t2, fd, stable, fit_s)
-
-
-def print_table(title: str, header: list[str], rows: list[list[str]]) -> None:
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
-    print(f"\n## {title}\n")
-    print("| " + " | ".join(h.ljust(w) for h, w in zip(header, widths)) + " |")
-    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
-    for r in rows:
-        print("| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |")
 
 
 def wdmd(levels=BENCH_LEVELS, **kw) -> WDMD:

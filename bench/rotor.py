@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench import beam_model as bm
+from bench.tables import print_table
 from node.order_tracking import shaft_revolutions, vkf_orders
 from node.sysid import WDMD, eps_td
 
@@ -298,15 +299,6 @@ def cell(errs: list[tuple[float, float]]) -> str:
     tr, te = arr[ok].mean(axis=0)
     text = f"{num(tr)} / {num(te)}"
     return text if ok.all() else f"{text} ({int((~ok).sum())}/{len(ok)} unstable)"
-
-
-def print_table(title: str, header: list[str], rows: list[list[str]]) -> None:
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
-    print(f"\n## {title}\n")
-    print("| " + " | ".join(h.ljust(w) for h, w in zip(header, widths)) + " |")
-    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
-    for r in rows:
-        print("| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |")
 
 
 def pole_rows(run: Run, pcts: list[float], oc: str = "OC2") -> list[list[str]]:
