@@ -23,6 +23,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="per-OC model (default wdmd)")
     p.add_argument("--estimator", default=None, choices=["ls", "oe", "pem"],
                    help="state-space estimator (default oe; pem also refines the poles, slower)")
+    p.add_argument("--rcond-grid", default=None, metavar="LIST",
+                   help="rcond candidates for the cross-validation, comma-separated "
+                        "(default 1e-8: CV never preferred a larger one on the simulated engine, "
+                        "and each candidate costs training time)")
     p.add_argument("--inputs", default="auto", metavar="LIST|auto",
                    help="input channels, comma-separated, or auto: MS-DPCCA top-k per OC (default)")
     p.add_argument("--n-inputs", type=int, default=4, metavar="K", help="k for --inputs auto (default 4)")
@@ -98,6 +102,14 @@ def run(args: argparse.Namespace) -> int:
     grid = dict(DEFAULT_GRIDS[Method(args.method)])
     if args.method != "lasso":
         grid["estimator"] = [args.estimator] if args.estimator else ["oe"]
+        if args.rcond_grid:
+            try:
+                grid["rcond"] = [float(x) for x in args.rcond_grid.split(",")]
+            except ValueError:
+                raise OrdervibError(f"--rcond-grid must be numbers separated by commas, "
+                                    f"got {args.rcond_grid!r}") from None
+            if not all(0 < x < 1 for x in grid["rcond"]):
+                raise OrdervibError("--rcond-grid values must lie in (0, 1)")
     if not args.quiet:
         print(f"training {args.method} for {args.target} on {len(runs)} run(s), {len(schedule.ocs)} OCs, "
               f"leave-one-run-out CV over {_count(grid)} candidates per OC", file=sys.stderr)
