@@ -36,6 +36,19 @@ def setup(tmp_path_factory):
     return d
 
 
+def start_node(model: Path, rec: Path) -> tuple[subprocess.Popen, int]:
+    """``ordervib run`` in a subprocess on a free loopback port, once its recording exists."""
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "node.cli", "run", "--model", str(model),
+                             "--record", str(rec), "--listen", f"tcp/127.0.0.1:{port}", "--quiet"],
+                            cwd=Path(__file__).resolve().parents[1])
+    deadline = time.monotonic() + 30
+    while not rec.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(1.0)  # subscriber declared
+    return proc, port
+
+
 def monitor(path: Path) -> list[tuple]:
     return [(m.payload["t"], m.payload["predicted"], m.payload["residual"], m.payload["flag"])
             for m in iter_messages(path, decode=True) if m.topic.endswith("/monitor/yB")]
@@ -69,14 +82,7 @@ def test_live_node_equals_offline_replay_and_records_every_input(setup):
 def test_sigterm_finishes_the_recording(setup, tmp_path):
     from mcap.reader import make_reader
     rec = tmp_path / "n.mcap"
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "node.cli", "run", "--model", str(setup / "m"),
-                             "--record", str(rec), "--listen", f"tcp/127.0.0.1:{port}", "--quiet"],
-                            cwd=Path(__file__).resolve().parents[1])
-    deadline = time.monotonic() + 30
-    while not rec.exists() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    time.sleep(1.0)
+    proc, _ = start_node(setup / "m", rec)
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(timeout=20) == 0
     with open(rec, "rb") as f:
@@ -86,15 +92,8 @@ def test_sigterm_finishes_the_recording(setup, tmp_path):
 def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
     from node.live import publish_recording
     rec = tmp_path / "k.mcap"
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "node.cli", "run", "--model", str(setup / "m"),
-                             "--record", str(rec), "--listen", f"tcp/127.0.0.1:{port}", "--quiet"],
-                            cwd=Path(__file__).resolve().parents[1])
+    proc, port = start_node(setup / "m", rec)
     try:
-        deadline = time.monotonic() + 30
-        while not rec.exists() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        time.sleep(1.0)
         sent = publish_recording(str(setup / "test.mcap"), f"tcp/127.0.0.1:{port}", speed=0.0,
                                  quiet=True)
         time.sleep(2.5)  # more than a flush period after the last message

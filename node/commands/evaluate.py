@@ -80,7 +80,6 @@ def _alarm_episodes(bundle, preds) -> int:
     from node.evaluation import alarm_mask
     n = 0
     for p in preds:
-        res = bundle.ocs[p.oc] if p.oc < len(bundle.ocs) else None
         res = bundle.oc(bundle.schedule.names[p.oc])
         if res is None or res.calibration is None:
             continue
