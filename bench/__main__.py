@@ -9,6 +9,7 @@ BENCHMARKS = {
     "beam": "bench.beam",
     "read-speed": "bench.read_speed",
     "train-speed": "bench.train_speed",
+    "replay-speed": "bench.replay_speed",
     "rotor": "bench.rotor",
 }
 
