@@ -27,7 +27,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from node.cli import main as cli
     from node.commands.replay import replay_offline
-    from node.recording import iter_messages
+    from node.recording import iter_messages_fast
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-replay-"))
     if not args.model:
@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
              "--method", "lasso", "--quiet"])
     t0 = time.perf_counter()
     n = 0
-    for m in iter_messages(args.recording):
+    for m in iter_messages_fast(args.recording):
         orjson.loads(m.payload)
         n += 1
     t_read = time.perf_counter() - t0

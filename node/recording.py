@@ -310,6 +310,66 @@ def _scan(
     return True
 
 
+def iter_messages_fast(path: str | os.PathLike, stats: ReadStats | None = None) -> Iterator[Message]:
+    """Every message in file order as raw payload bytes, by a direct record walk.
+
+    The same messages as ``iter_messages(path)`` (also from unfinished files),
+    several times faster: no per-record objects. Loads the file into memory.
+    """
+    stats = stats if stats is not None else ReadStats()
+    with _open_checked(path) as f:
+        buf = f.read()
+    topics: dict[int, str] = {}
+    try:
+        yield from _walk(buf, len(MAGIC), topics, stats)
+    except (struct.error, UnicodeDecodeError):
+        stats.truncated = True
+
+
+def _walk(buf: bytes, pos: int, topics: dict[int, str], stats: ReadStats) -> Iterator[Message]:
+    n = len(buf)
+    rec, u16, u32, u64 = _REC.unpack_from, _U16.unpack_from, _U32.unpack_from, _U64.unpack_from
+    msg_head = struct.Struct("<HIQQ").unpack_from
+    while pos < n:
+        if pos + 9 > n:
+            stats.truncated = True
+            return
+        op, length = rec(buf, pos)
+        start = pos + 9
+        end = start + length
+        if end > n:
+            stats.truncated = True
+            return
+        if op == _OP_MESSAGE:
+            cid, _, log_time, publish_time = msg_head(buf, start)
+            topic = topics.get(cid)
+            if topic is None:
+                stats.malformed += 1
+            else:
+                stats.messages += 1
+                yield Message(topic, log_time, publish_time, buf[start + 22:end])
+        elif op == _OP_CHUNK:
+            usize = u64(buf, start + 16)[0]
+            clen = u32(buf, start + 28)[0]
+            comp = buf[start + 32:start + 32 + clen].decode()
+            rstart = start + 32 + clen + 8
+            try:
+                inner = _decompress(comp, buf[rstart:end], usize)
+            except OrdervibError:
+                raise
+            except Exception:  # a corrupt chunk: skip it, keep the rest
+                stats.malformed += 1
+            else:
+                yield from _walk(inner, 0, topics, stats)
+        elif op == _OP_CHANNEL:
+            cid = u16(buf, start)[0]
+            tlen = u32(buf, start + 4)[0]
+            topics[cid] = buf[start + 8:start + 8 + tlen].decode()
+        elif op == _OP_DATA_END or op == _OP_FOOTER:
+            return
+        pos = end
+
+
 def read_payloads(
     path: str | os.PathLike, stats: ReadStats | None = None
 ) -> dict[str, list[bytes]]:

@@ -27,7 +27,7 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
     """Feed every sensor message, in file order, through the node's logic; returns a summary."""
     from node.bundle import load_bundle
     from node.core import NodeCore
-    from node.recording import ReadStats, RecordingWriter, iter_messages
+    from node.recording import ReadStats, RecordingWriter, iter_messages_fast
 
     bundle = load_bundle(model)
     core = NodeCore(bundle)
@@ -37,7 +37,7 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
     alarms: list[tuple[str, float]] = []
     n_in = 0
     try:
-        for m in iter_messages(recording, stats=stats):
+        for m in iter_messages_fast(recording, stats=stats):
             if "/monitor/" in m.topic:  # a node's own recording: recompute, do not copy
                 continue
             n_in += 1
