@@ -26,7 +26,8 @@ from node.schedule import Schedule
 HISTORY_S = 60.0  # seconds of measured past kept before each OC for seeding
 EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
 PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
-THRESHOLD_MARGIN = 1.25  # threshold = margin x the largest smoothed score seen in CV folds
+THRESHOLD_MARGIN = 1.25  # the threshold is never below margin x the largest CV peak score
+SEGMENT_ALARM_P = 0.01  # chance a normal OC segment (~50 s) peaks beyond it: ~1 false alarm per hour
 FS = 40.0
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
@@ -66,6 +67,21 @@ class OCResult:
     ranking: list[tuple[str, float]] = field(default_factory=list)
     cv_scores: list[tuple[dict, float]] = field(default_factory=list)
     note: str = ""
+
+
+def alarm_threshold(peaks: list[float], p: float = SEGMENT_ALARM_P) -> float:
+    """Threshold on the smoothed standardized residual from the held-out CV segments' peaks.
+
+    The largest of a segment's |scores| is an extreme value: a Gumbel law fitted to the CV
+    peaks (method of moments) gives the level a normal segment exceeds with chance ``p``;
+    never below ``THRESHOLD_MARGIN`` x the largest peak seen. With only a few folds, the
+    plain maximum is exceeded by about one new run in (folds + 1) per OC.
+    """
+    x = np.asarray(peaks, dtype=float)
+    beta = float(np.std(x)) * np.sqrt(6.0) / np.pi
+    mu = float(np.mean(x)) - 0.5772156649 * beta
+    gumbel = mu - beta * np.log(-np.log(1.0 - p))
+    return max(gumbel, THRESHOLD_MARGIN * float(x.max()))
 
 
 def ewma_scores(residual: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
@@ -166,8 +182,8 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         sigma = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
         sigma = max(sigma, 1e-9)
         c = Calibration(sigma, 1.0)
-        peak = max(float(np.max(np.abs(ewma_scores(r, sigma, c.ewma_alpha)))) for r in res)
-        c.threshold = THRESHOLD_MARGIN * peak
+        peaks = [float(np.max(np.abs(ewma_scores(r, sigma, c.ewma_alpha)))) for r in res]
+        c.threshold = alarm_threshold(peaks)
         calib = c
     note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
     if meth is not Method.LASSO and not np.isfinite(cv_eps):
