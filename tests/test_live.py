@@ -90,16 +90,26 @@ def test_sigterm_finishes_the_recording(setup, tmp_path):
 
 
 def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
-    from node.live import publish_recording
+    import orjson
+
+    from node.live import open_session, publish_recording, zenoh_config
     rec = tmp_path / "k.mcap"
     proc, port = start_node(setup / "m", rec)
+    health: dict = {}
+    watcher = open_session(zenoh_config(None, [f"tcp/127.0.0.1:{port}"]))
+    watcher.declare_subscriber("testbed/*/monitor/health",
+                               lambda s: health.update(orjson.loads(s.payload.to_bytes())))
     try:
         sent = publish_recording(str(setup / "test.mcap"), f"tcp/127.0.0.1:{port}", speed=0.0,
                                  quiet=True)
-        time.sleep(2.5)  # more than a flush period after the last message
+        deadline = time.monotonic() + 60
+        while health.get("received", -1) < sent and time.monotonic() < deadline:
+            time.sleep(0.1)  # the node's health message tells how far it got
+        time.sleep(1.5)  # longer than a flush period
     finally:
         proc.kill()
         proc.wait(timeout=20)
+        watcher.close()
     fixed = tmp_path / "fixed.mcap"
     assert main(["recover", str(rec), "--out", str(fixed)]) == 0
     inputs = [m for m in iter_messages(fixed) if "/sensor/" in m.topic]
