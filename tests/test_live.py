@@ -113,5 +113,8 @@ def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
     fixed = tmp_path / "fixed.mcap"
     assert main(["recover", str(rec), "--out", str(fixed)]) == 0
     inputs = [m for m in iter_messages(fixed) if "/sensor/" in m.topic]
-    assert len(inputs) == sent, f"recovered {len(inputs)} of {sent} inputs (health: {health})"
+    # everything the node had received (its last health message, sent after the backlog
+    # was processed) is in the rescued file
+    assert health.get("received", 0) > 0.9 * sent
+    assert len(inputs) == health["received"], f"recovered {len(inputs)}; health {health}, sent {sent}"
     assert any("/monitor/yB" in m.topic for m in iter_messages(fixed))
