@@ -254,6 +254,20 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
     raise OrdervibError(f"unsupported chunk compression {compression!r}")
 
 
+def _chunk_records(buf: bytes, start: int, end: int, stats: ReadStats) -> bytes | None:
+    """The decompressed records of the chunk record at buf[start:end]; None (counted) if corrupt."""
+    usize = _U64.unpack_from(buf, start + 16)[0]
+    clen = _U32.unpack_from(buf, start + 28)[0]
+    comp = buf[start + 32:start + 32 + clen].decode()
+    try:
+        return _decompress(comp, buf[start + 32 + clen + 8:end], usize)
+    except OrdervibError:
+        raise
+    except Exception:  # a corrupt chunk: skip it, keep the rest
+        stats.malformed += 1
+        return None
+
+
 def _scan(
     buf: bytes,
     topics: dict[int, str],
@@ -266,7 +280,7 @@ def _scan(
     Returns False when the data ended mid-record (an unfinished file).
     """
     n = len(buf)
-    rec, u16, u32, u64 = _REC.unpack_from, _U16.unpack_from, _U32.unpack_from, _U64.unpack_from
+    rec, u16, u32 = _REC.unpack_from, _U16.unpack_from, _U32.unpack_from
     while pos < n:
         if pos + 9 > n:
             return False
@@ -283,17 +297,8 @@ def _scan(
             elif cid not in topics:
                 stats.malformed += 1  # message before its channel
         elif op == _OP_CHUNK:
-            usize = u64(buf, start + 16)[0]
-            clen = u32(buf, start + 28)[0]
-            comp = buf[start + 32 : start + 32 + clen].decode()
-            rstart = start + 32 + clen + 8
-            try:
-                inner = _decompress(comp, buf[rstart:end], usize)
-            except OrdervibError:
-                raise
-            except Exception:  # a corrupt chunk: skip it, keep the rest
-                stats.malformed += 1
-            else:
+            inner = _chunk_records(buf, start, end, stats)
+            if inner is not None:
                 try:
                     _scan(inner, topics, sink, stats)
                 except (struct.error, UnicodeDecodeError):
@@ -328,7 +333,7 @@ def iter_messages_fast(path: str | os.PathLike, stats: ReadStats | None = None) 
 
 def _walk(buf: bytes, pos: int, topics: dict[int, str], stats: ReadStats) -> Iterator[Message]:
     n = len(buf)
-    rec, u16, u32, u64 = _REC.unpack_from, _U16.unpack_from, _U32.unpack_from, _U64.unpack_from
+    rec, u16, u32 = _REC.unpack_from, _U16.unpack_from, _U32.unpack_from
     msg_head = struct.Struct("<HIQQ").unpack_from
     while pos < n:
         if pos + 9 > n:
@@ -349,17 +354,8 @@ def _walk(buf: bytes, pos: int, topics: dict[int, str], stats: ReadStats) -> Ite
                 stats.messages += 1
                 yield Message(topic, log_time, publish_time, buf[start + 22:end])
         elif op == _OP_CHUNK:
-            usize = u64(buf, start + 16)[0]
-            clen = u32(buf, start + 28)[0]
-            comp = buf[start + 32:start + 32 + clen].decode()
-            rstart = start + 32 + clen + 8
-            try:
-                inner = _decompress(comp, buf[rstart:end], usize)
-            except OrdervibError:
-                raise
-            except Exception:  # a corrupt chunk: skip it, keep the rest
-                stats.malformed += 1
-            else:
+            inner = _chunk_records(buf, start, end, stats)
+            if inner is not None:
                 yield from _walk(inner, 0, topics, stats)
         elif op == _OP_CHANNEL:
             cid = u16(buf, start)[0]
