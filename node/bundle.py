@@ -47,6 +47,7 @@ class Bundle:
     history_s: float
     training: dict = field(default_factory=dict)
     curve: tuple[np.ndarray, np.ndarray] | None = None  # characteristic curve (speeds, means)
+    checks: dict = field(default_factory=dict)  # model-free checks, e.g. {"flatline_samples": 80}
 
     def oc(self, name: str) -> OCResult | None:
         for r in self.ocs:
@@ -71,7 +72,8 @@ def _manifest_oc(r: OCResult) -> dict:
     if r.calibration is not None:
         c = r.calibration
         d["residual"] = {"sigma": c.sigma, "threshold": c.threshold,
-                         "ewma_alpha": c.ewma_alpha, "persist": c.persist}
+                         "ewma_alpha": c.ewma_alpha, "persist": c.persist,
+                         "cv_peaks": c.peaks}
     return d
 
 
@@ -98,7 +100,7 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike) -> Path:
         "format": FORMAT, "format_version": FORMAT_VERSION, "created_by": f"ordervib {__version__}",
         "method": bundle.method, "target": bundle.target, "sample_rate_hz": 40.0,
         "history_s": bundle.history_s, "schedule": bundle.schedule.to_dict(),
-        "training": bundle.training, "ocs": [_manifest_oc(r) for r in bundle.ocs],
+        "training": bundle.training, "checks": bundle.checks, "ocs": [_manifest_oc(r) for r in bundle.ocs],
         "arrays_sha256": hashlib.sha256(data).hexdigest(),
     }
     (out / MANIFEST).write_text(json.dumps(manifest, indent=1))
@@ -143,7 +145,8 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
             calib = None
             if d["residual"] is not None:
                 c = d["residual"]
-                calib = Calibration(c["sigma"], c["threshold"], c["ewma_alpha"], c["persist"])
+                calib = Calibration(c["sigma"], c["threshold"], c["ewma_alpha"], c["persist"],
+                                    [float(x) for x in c.get("cv_peaks", [])])
             ocs.append(OCResult(d["name"], model, list(d["inputs"]), dict(d["params"]), d["n_runs"],
                                 _f(d["train_eps"]), _f(d["cv_eps"]), calib,
                                 [(c, _f(s)) for c, s in d.get("ranking", [])], [], d.get("note", "")))
@@ -151,7 +154,8 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
         if "curve/speed" in arrays:
             curve = (arrays["curve/speed"], arrays["curve/mean"])
         return Bundle(manifest["method"], manifest["target"], schedule, ocs,
-                      float(manifest["history_s"]), manifest.get("training", {}), curve)
+                      float(manifest["history_s"]), manifest.get("training", {}), curve,
+                      dict(manifest.get("checks", {})))
     except (KeyError, TypeError, ValueError) as exc:
         raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
 

@@ -5,7 +5,9 @@ they give the very same numbers. Per sample: the OC detector steps on the
 switch speed; at an OC switch the OC's model is seeded from the measured
 past (a bounded ring buffer) and then steps once per sample; the residual is
 standardized by the OC's cross-validated sigma, smoothed (EWMA) and flagged
-when beyond the OC's threshold for long enough.
+when beyond the OC's threshold for long enough (``reason`` "residual"). A
+model-free check flags a measured target stuck on one value while the engine
+runs (``reason`` "flatline"), with or without a model.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.alarms import FlatlineCheck
 from node.align import AlignedSample
 from node.bundle import Bundle
 from node.ocdetect import OCDetector, Phase
@@ -59,6 +62,8 @@ class MonitorPipeline:
         self._active: _Active | None = None
         self._score = 0.0
         self._beyond = 0
+        limit = bundle.checks.get("flatline_samples")
+        self._flat = FlatlineCheck(int(limit)) if limit else None
 
     def _filled(self, values: dict[str, float]) -> dict[str, float]:
         """Hold each channel's last finite value over dropouts."""
@@ -96,6 +101,8 @@ class MonitorPipeline:
             self.detector.reset()
             self._hist.clear()
             self._last.clear()
+            if self._flat is not None:
+                self._flat.reset()
         vals = self._filled(sample.values)
         st = self.detector.step(sample.values.get(self.switch, float("nan")))
         oc_msg = None
@@ -110,7 +117,7 @@ class MonitorPipeline:
         measured = sample.values.get(self.target, float("nan"))
         msg = {"t": sample.t, "oc": None if st.oc is None else names[st.oc], "phase": st.phase.value,
                "measured": _num(measured), "predicted": None, "residual": None, "flag": "no-model",
-               "score": None, "band": None, "model": None}
+               "score": None, "band": None, "model": None, "reason": None}
         a = self._active
         if a is not None and a.runtime is not None:
             u = np.array([vals[c] for c in a.inputs])
@@ -125,6 +132,11 @@ class MonitorPipeline:
                     self._beyond = self._beyond + 1 if abs(self._score) > a.threshold else 0
                     msg["residual"] = r
                 msg["score"] = self._score
-                msg["flag"] = "alarm" if self._beyond >= a.persist else "ok"
+                if self._beyond >= a.persist:
+                    msg["flag"], msg["reason"] = "alarm", "residual"
+                else:
+                    msg["flag"] = "ok"
+        if self._flat is not None and self._flat.step(measured, st.phase is not Phase.OFF):
+            msg["flag"], msg["reason"] = "alarm", "flatline"
         self._hist.append(tuple(vals[c] for c in self.channels))
         return msg, oc_msg

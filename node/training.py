@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from node.alarms import FALSE_ALARMS_PER_HOUR, pooled_thresholds
 from node.dataset import Segment, run_arrays, segment_runs
 from node.errors import OrdervibError
 from node.features import rank_inputs
@@ -26,8 +27,6 @@ from node.schedule import Schedule
 HISTORY_S = 60.0  # seconds of measured past kept before each OC for seeding
 EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
 PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
-THRESHOLD_MARGIN = 1.25  # the threshold is never below margin x the largest CV peak score
-SEGMENT_ALARM_P = 0.01  # chance a normal OC segment (~50 s) peaks beyond it: ~1 false alarm per hour
 FS = 40.0
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
@@ -44,12 +43,17 @@ def grid_points(grid: dict[str, list]) -> list[dict]:
 
 @dataclass
 class Calibration:
-    """Residual statistics of one OC: sigma (target units) and the alarm rule."""
+    """Residual statistics of one OC: sigma (target units) and the alarm rule.
+
+    threshold is on the smoothed standardized score (sigma units); peaks are the CV
+    segments' peak |scores| it was calibrated from (see ``node.alarms``).
+    """
 
     sigma: float
     threshold: float
     ewma_alpha: float = 2.0 / (EWMA_SPAN_S * FS + 1.0)
     persist: int = int(PERSIST_S * FS)
+    peaks: list[float] = field(default_factory=list)
 
 
 @dataclass
@@ -67,21 +71,6 @@ class OCResult:
     ranking: list[tuple[str, float]] = field(default_factory=list)
     cv_scores: list[tuple[dict, float]] = field(default_factory=list)
     note: str = ""
-
-
-def alarm_threshold(peaks: list[float], p: float = SEGMENT_ALARM_P) -> float:
-    """Threshold on the smoothed standardized residual from the held-out CV segments' peaks.
-
-    The largest of a segment's |scores| is an extreme value: a Gumbel law fitted to the CV
-    peaks (method of moments) gives the level a normal segment exceeds with chance ``p``;
-    never below ``THRESHOLD_MARGIN`` x the largest peak seen. With only a few folds, the
-    plain maximum is exceeded by about one new run in (folds + 1) per OC.
-    """
-    x = np.asarray(peaks, dtype=float)
-    beta = float(np.std(x)) * np.sqrt(6.0) / np.pi
-    mu = float(np.mean(x)) - 0.5772156649 * beta
-    gumbel = mu - beta * np.log(-np.log(1.0 - p))
-    return max(gumbel, THRESHOLD_MARGIN * float(x.max()))
 
 
 def ewma_scores(residual: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
@@ -181,9 +170,8 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         res = [y - p for y, p in pairs]
         sigma = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
         sigma = max(sigma, 1e-9)
-        c = Calibration(sigma, 1.0)
-        peaks = [float(np.max(np.abs(ewma_scores(r, sigma, c.ewma_alpha)))) for r in res]
-        c.threshold = alarm_threshold(peaks)
+        c = Calibration(sigma, float("inf"))
+        c.peaks = [float(np.max(np.abs(ewma_scores(r, sigma, c.ewma_alpha)))) for r in res]
         calib = c
     note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
     if meth is not Method.LASSO and not np.isfinite(cv_eps):
@@ -232,9 +220,13 @@ def candidate_channels(runs: list[Run], target: str, switch: str) -> list[str]:
 
 def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str = "wdmd",
           inputs: list[str] | None = None, n_inputs: int = 4, grid: dict[str, list] | None = None,
-          workers: int | None = None, progress: Callable[[OCResult, int, int], None] | None = None
-          ) -> list[OCResult]:
-    """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``)."""
+          workers: int | None = None, progress: Callable[[OCResult, int, int], None] | None = None,
+          false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR) -> list[OCResult]:
+    """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
+
+    Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
+    (per hour of OC time in normal runs), see ``node.alarms.pooled_thresholds``.
+    """
     meth = Method(method)
     if not runs:
         raise OrdervibError("no runs to train on")
@@ -267,7 +259,20 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
             results[i] = train_oc(*job)
             if progress:
                 progress(results[i], i + 1, len(jobs))
-    return [r for r in results if r is not None]
+    out = [r for r in results if r is not None]
+    set_thresholds(out, datas, false_alarms_per_hour)
+    return out
+
+
+def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float) -> None:
+    """Give every calibrated OC its threshold from the pooled CV peaks and the alarm budget."""
+    hours = sum(y.size - s for d in datas for y, s in zip(d.y, d.start)) / FS / 3600.0
+    segments = sum(len(d.runs) for d in datas)
+    per_hour = segments / hours if hours > 0 else 1.0
+    calibs = {r.name: r.calibration for r in results if r.calibration is not None}
+    levels = pooled_thresholds({n: c.peaks for n, c in calibs.items()}, per_hour, budget)
+    for name, c in calibs.items():
+        c.threshold = levels[name]
 
 
 def memory_needed(results: list[OCResult]) -> int:

@@ -202,8 +202,13 @@ def simulate_campaign(
     seed: int,
     fault: str | None = None,
     plateau_scale: float = 1.0,
+    fault_seed: int | None = None,
 ) -> Campaign:
-    """Simulate ``runs`` consecutive pass-off runs of one engine; the fault hits the last run."""
+    """Simulate ``runs`` consecutive pass-off runs of one engine; the fault hits the last run.
+
+    fault_seed: draws the fault's onset (OC, time) and phase from its own stream, so one
+    engine and run can carry the fault at different places (default: from ``seed``).
+    """
     if runs < 1:
         raise ValueError("runs must be >= 1")
     if fault is not None and fault not in FAULTS:
@@ -228,7 +233,9 @@ def simulate_campaign(
             shutdown,
             history,
             fault if is_faulty else None,
-            np.random.default_rng(fault_ss) if is_faulty else None,
+            np.random.default_rng(fault_ss if fault_seed is None
+                                  else np.random.SeedSequence([seed, fault_seed, 0xFA17]))
+            if is_faulty else None,
             plateau_scale,
         )
         on_first, on_last = _first_on(sig)

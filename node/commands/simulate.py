@@ -31,6 +31,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--fault", choices=FAULTS, default=None, help="inject a fault into the last run"
     )
+    p.add_argument(
+        "--fault-seed",
+        type=int,
+        default=None,
+        metavar="F",
+        help="with --fault: draw the fault's onset (OC and time) from seed F (default: from --seed)",
+    )
     p.add_argument("--bed", default="bed1", metavar="NAME", help="test-bed name (default bed1)")
     p.add_argument(
         "--plateau-scale",
@@ -74,6 +81,8 @@ def _check(args: argparse.Namespace) -> None:
         raise OrdervibError(f"--runs must be between 1 and {MAX_RUNS}, got {args.runs}")
     if args.seed < 0:
         raise OrdervibError(f"--seed must be >= 0, got {args.seed}")
+    if args.fault_seed is not None and (args.fault is None or args.fault_seed < 0):
+        raise OrdervibError("--fault-seed needs --fault and must be >= 0")
     if not _BED_RE.match(args.bed):
         raise OrdervibError(f"--bed must be letters, digits, '_', '-' or '.', got {args.bed!r}")
     if not 0.05 <= args.plateau_scale <= 10.0:
@@ -115,7 +124,9 @@ def run(args: argparse.Namespace) -> int:
     from simulator.export import write_recording, write_sidecars
 
     start = time.perf_counter()
-    campaign = simulate_campaign(args.runs, args.seed, args.fault, args.plateau_scale)
+    campaign = simulate_campaign(
+        args.runs, args.seed, args.fault, args.plateau_scale, args.fault_seed
+    )
     part = args.out + ".part"
     progress = _Progress(not args.quiet)
     try:

@@ -30,6 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--inputs", default="auto", metavar="LIST|auto",
                    help="input channels, comma-separated, or auto: MS-DPCCA top-k per OC (default)")
     p.add_argument("--n-inputs", type=int, default=4, metavar="K", help="k for --inputs auto (default 4)")
+    p.add_argument("--false-alarms-per-hour", type=float, default=None, metavar="R",
+                   help="residual-alarm budget on normal runs, per hour of OC time (default 0.5); "
+                        "thresholds come from every OC's cross-validation peaks")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -55,15 +58,16 @@ def load_runs(paths: list[str], quiet: bool = False) -> list:
 def print_table(results, file=None) -> None:
     file = file or sys.stdout
     rows = [["OC", "inputs", "states", "hyper-parameters", "train eps_td", "CV eps_td", "sigma",
-             "note"]]
+             "alarm at", "note"]]
     for r in results:
         if r.model is None:
-            rows.append([r.name, "-", "-", "-", "-", "-", "-", r.note or "no model"])
+            rows.append([r.name, "-", "-", "-", "-", "-", "-", "-", r.note or "no model"])
             continue
         states = "0" if r.model.ss is None else str(r.model.ss.n_states)
         hp = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.params.items())
         rows.append([r.name, ",".join(r.inputs), states, hp, f"{r.train_eps:.3f}", f"{r.cv_eps:.3f}",
-                     f"{r.calibration.sigma:.3g}" if r.calibration else "-", r.note])
+                     f"{r.calibration.sigma:.3g}" if r.calibration else "-",
+                     f"{r.calibration.threshold:.2f} sigma" if r.calibration else "-", r.note])
     cv = [r.cv_eps for r in results if r.model is not None and np.isfinite(r.cv_eps)]
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     for i, row in enumerate(rows):
@@ -87,6 +91,7 @@ def print_ranking(results, top: int = 6, file=None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from node.alarms import FALSE_ALARMS_PER_HOUR
     from node.baseline import CharacteristicCurve
     from node.bundle import Bundle, save_bundle, sha256_file
     from node.dataset import run_arrays
@@ -95,6 +100,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.n_inputs < 1:
         raise OrdervibError("--n-inputs must be at least 1")
+    budget = FALSE_ALARMS_PER_HOUR if args.false_alarms_per_hour is None else args.false_alarms_per_hour
+    if not budget > 0:
+        raise OrdervibError("--false-alarms-per-hour must be positive")
     schedule = load_schedule(args.schedule)
     t0 = time.perf_counter()
     runs = load_runs(args.recordings, args.quiet)
@@ -120,20 +128,33 @@ def run(args: argparse.Namespace) -> int:
             print(f"  [{done}/{total}] {r.name}: {cv} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
 
     results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
-                    n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress)
+                    n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
+                    false_alarms_per_hour=budget)
     arrays = [run_arrays(r, args.target, [schedule.switch]) for r in runs]
     curve = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
                                       np.concatenate([a.y for a in arrays]))
     training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     bundle = Bundle(args.method, args.target, schedule, results, HISTORY_S, training,
-                    (curve.centres_, curve.means_))
+                    (curve.centres_, curve.means_), flatline_checks(runs, schedule, args.target))
     out = save_bundle(bundle, args.out)
     if inputs is None:
         print_ranking(results)
     print_table(results)
     print(f"model written to {out} ({time.perf_counter() - t0:.1f} s)")
     return 0
+
+
+def flatline_checks(runs, schedule, target: str) -> dict:
+    """The stuck-sensor limit learnt from the training runs (see ``node.alarms``)."""
+    from node.alarms import flatline_limit, longest_repeat, running_mask
+    from node.ocdetect import OCDetector
+    from node.training import FS
+
+    det = OCDetector(schedule, FS)
+    longest = max(longest_repeat(r.column(target), running_mask(r.column(schedule.switch), det))
+                  for r in runs)
+    return {"flatline_samples": flatline_limit(longest, FS), "longest_repeat_in_training": longest}
 
 
 def _count(grid: dict) -> int:
