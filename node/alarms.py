@@ -104,3 +104,28 @@ def running_mask(speed: np.ndarray, detector) -> np.ndarray:
 
     detector.reset()
     return np.array([detector.step(v).phase is not Phase.OFF for v in speed.tolist()])
+
+
+class EpisodeLog:
+    """Alarm episodes of a monitor stream: alarm samples less than ``gap_s`` apart are one.
+
+    ``episodes``: list of dicts {"key", "start", "end", "reason"} (times in s, the first
+    alarm sample's reason).
+    """
+
+    def __init__(self, gap_s: float = 1.0) -> None:
+        self.gap_s = gap_s
+        self.episodes: list[dict] = []
+        self._open: dict[str, dict] = {}
+
+    def add(self, key: str, msg: dict) -> None:
+        if msg.get("flag") != "alarm":
+            return
+        t = float(msg["t"])
+        ep = self._open.get(key)
+        if ep is not None and t - ep["end"] <= self.gap_s:
+            ep["end"] = t
+            return
+        ep = {"key": key, "start": t, "end": t, "reason": msg.get("reason")}
+        self._open[key] = ep
+        self.episodes.append(ep)

@@ -25,6 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def replay_offline(recording: str, model: str, out: str | None, quiet: bool = False) -> dict:
     """Feed every sensor message, in file order, through the node's logic; returns a summary."""
+    from node.alarms import EpisodeLog
     from node.bundle import load_bundle
     from node.core import NodeCore
     from node.recording import ReadStats, RecordingWriter, iter_messages_fast
@@ -34,7 +35,7 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
     stats = ReadStats()
     t0 = time.perf_counter()
     writer = RecordingWriter(out) if out else None
-    alarms: list[tuple[str, float]] = []
+    alarms = EpisodeLog()
     n_in = 0
     try:
         for m in iter_messages_fast(recording, stats=stats):
@@ -46,12 +47,9 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
             for key, msg in core.handle(m.topic, m.payload):
                 if writer:
                     writer.write(key, msg["t"], msg, m.log_time)
-                if msg.get("flag") == "alarm" and (not alarms or alarms[-1][0] != key
-                                                    or msg["t"] - alarms[-1][1] > 1.0):
-                    alarms.append((key, msg["t"]))
-                elif msg.get("flag") == "alarm":
-                    alarms[-1] = (key, msg["t"])
+                alarms.add(key, msg)
         for key, msg in core.finish():
+            alarms.add(key, msg)
             if writer:
                 writer.write(key, msg["t"], msg, round(msg["t"] * 1e9))
     finally:
@@ -60,6 +58,7 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
     elapsed = time.perf_counter() - t0
     summary = {"inputs": n_in, "published": core.stats.published, "malformed": core.stats.malformed,
                "seconds": elapsed, "truncated": stats.truncated,
+               "alarm_episodes": alarms.episodes,
                "beds": {b: {"samples": s.aligner.stats.samples, "alarm_samples": s.alarms,
                             "late": s.aligner.stats.late} for b, s in core.stats.beds.items()}}
     if not quiet:
@@ -68,7 +67,9 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
               f"({span / max(elapsed, 1e-9):.0f}x real time); published {core.stats.published} "
               f"monitor messages; {core.stats.malformed} malformed skipped", file=sys.stderr)
         for b, s in core.stats.beds.items():
-            print(f"  {b}: {s.aligner.stats.samples} samples, {s.alarms} alarm samples, "
+            n_ep = sum(1 for e in alarms.episodes if e["key"].split("/")[1] == b)
+            print(f"  {b}: {s.aligner.stats.samples} samples, {s.alarms} alarm samples "
+                  f"in {n_ep} episode(s), "
                   f"missing {dict(s.aligner.stats.missing)}", file=sys.stderr)
         if out:
             print(f"wrote {out}", file=sys.stderr)

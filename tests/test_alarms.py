@@ -1,0 +1,104 @@
+"""Alarm calibration, the stuck-sensor check and alarm episodes (node.alarms)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import orjson
+import pytest
+from scipy import stats
+
+from node.alarms import (
+    THRESHOLD_MARGIN,
+    EpisodeLog,
+    FlatlineCheck,
+    flatline_limit,
+    gumbel_quantile,
+    longest_repeat,
+    pooled_thresholds,
+)
+
+
+def test_gumbel_quantile_matches_scipy_for_moment_fit():
+    rng = np.random.default_rng(0)
+    x = stats.gumbel_r.rvs(loc=2.0, scale=0.5, size=5000, random_state=rng)
+    beta = np.std(x) * np.sqrt(6) / np.pi
+    mu = np.mean(x) - np.euler_gamma * beta
+    for p in (0.1, 0.01, 0.001):
+        assert gumbel_quantile(x, p) == pytest.approx(stats.gumbel_r.ppf(1 - p, mu, beta), rel=1e-9)
+    # and the fit recovers the law it was drawn from
+    assert gumbel_quantile(x, 0.01) == pytest.approx(stats.gumbel_r.ppf(0.99, 2.0, 0.5), rel=0.03)
+
+
+def test_pooled_thresholds_follow_the_budget_and_the_margin():
+    rng = np.random.default_rng(1)
+    peaks = {f"OC{i}": list(stats.gumbel_r.rvs(1.5, 0.3, size=8, random_state=rng)) for i in range(12)}
+    peaks["OC99"] = [5.0, 1.0, 1.2]  # one OC with a wild CV peak keeps its own margin
+    lo = pooled_thresholds(peaks, segments_per_hour=80.0, budget=2.0)
+    hi = pooled_thresholds(peaks, segments_per_hour=80.0, budget=0.2)
+    assert all(hi[k] >= lo[k] for k in peaks)
+    assert hi["OC0"] > lo["OC0"]
+    assert lo["OC99"] == pytest.approx(THRESHOLD_MARGIN * 5.0)
+    for k, v in peaks.items():
+        assert hi[k] >= THRESHOLD_MARGIN * max(v) - 1e-12
+    # the common level is the pooled Gumbel quantile at p = budget / segments per hour
+    every = [v for k, vals in peaks.items() for v in vals]
+    expect = max(gumbel_quantile(every, 0.2 / 80.0), THRESHOLD_MARGIN * max(peaks["OC0"]))
+    assert hi["OC0"] == pytest.approx(expect)
+    assert pooled_thresholds({}, 80.0) == {}
+
+
+def test_longest_repeat_ignores_dropouts_and_restarts_when_off():
+    y = np.array([1.0, 1.0, np.nan, 1.0, 2.0, 2.0, 2.0, 2.0, 2.0, 3.0])
+    on = np.ones(y.size, dtype=bool)
+    assert longest_repeat(y, on) == 4  # 2.0 five times in a row
+    on[6] = False  # switching off in the middle breaks the run
+    assert longest_repeat(y, on) == 2
+    assert longest_repeat(np.array([]), np.array([], dtype=bool)) == 0
+
+
+def test_flatline_limit_has_a_floor_and_scales_with_training():
+    assert flatline_limit(0, 40.0) == 80
+    assert flatline_limit(7, 40.0) == 80
+    assert flatline_limit(50, 40.0) == 200
+
+
+def test_flatline_check_flags_a_stuck_value_only_while_running():
+    chk = FlatlineCheck(5)
+    seq = [0.5, 0.5, 0.5, math.nan, 0.5, 0.5, 0.5, 0.6]
+    flags = [chk.step(v, True) for v in seq]
+    assert flags == [False, False, False, False, False, False, True, False]  # 6th repeat
+    chk.reset()
+    assert not any(chk.step(0.0, False) for _ in range(20))  # engine off: zeros are normal
+
+
+def test_episode_log_merges_close_alarm_samples():
+    log = EpisodeLog(gap_s=1.0)
+    for t, flag in [(0.0, "ok"), (1.0, "alarm"), (1.5, "alarm"), (2.4, "alarm"), (5.0, "alarm"), (5.1, "ok")]:
+        log.add("testbed/b/monitor/yB", {"t": t, "flag": flag, "reason": "residual"})
+    log.add("testbed/c/monitor/yB", {"t": 1.2, "flag": "alarm", "reason": "flatline"})
+    assert [(e["key"][8], e["start"], e["end"], e["reason"]) for e in log.episodes] == [
+        ("b", 1.0, 2.4, "residual"), ("b", 5.0, 5.0, "residual"), ("c", 1.2, 1.2, "flatline")]
+
+
+def test_pipeline_flags_a_stuck_target_without_a_model():
+    from node.bundle import Bundle
+    from node.core import NodeCore
+    from node.schedule import OperatingCondition, Schedule
+
+    sched = Schedule((OperatingCondition("A", 4000.0),))
+    core = NodeCore(Bundle("wdmd", "yB", sched, [], 60.0, checks={"flatline_samples": 80}))
+    rng = np.random.default_rng(3)
+    out = []
+    for k in range(400):
+        y = round(2.0 + 0.1 * rng.standard_normal(), 2) if k < 200 else 2.22  # stuck from k = 200
+        for ch, v in (("nB", 4000.0), ("yB", y)):
+            out += core.handle(f"testbed/b/sensor/{ch}", orjson.dumps({"t": 10.0 + k / 40, "v": v}))
+    mon = [m for k, m in out if k.endswith("/yB")]
+    flags = [m["flag"] for m in mon]
+    first = flags.index("alarm")
+    assert 200 + 79 <= first <= 200 + 81  # the limit counts repeats after the first stuck value
+    assert all(f == "alarm" for f in flags[first:])
+    assert mon[first]["reason"] == "flatline"
+    assert all(f == "no-model" for f in flags[:first])
