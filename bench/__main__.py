@@ -7,10 +7,12 @@ import sys
 
 BENCHMARKS = {
     "beam": "bench.beam",
+    "faults": "bench.faults",
     "read-speed": "bench.read_speed",
     "train-speed": "bench.train_speed",
     "replay-speed": "bench.replay_speed",
     "rotor": "bench.rotor",
+    "live": "bench.live",
 }
 
 

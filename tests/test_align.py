@@ -93,3 +93,17 @@ def test_malformed_payloads_are_counted_and_skipped(tmp_path):
             out += core.handle(f"testbed/b/sensor/{ch}", orjson.dumps({"t": 10.0 + k / 40, "v": 1.0}))
     assert len([o for o in out if o[0] == "testbed/b/monitor/yB"]) >= 70
     assert all(o[1]["flag"] == "no-model" for o in out if o[0].endswith("/yB"))
+
+
+def test_a_sample_is_emitted_by_the_message_that_completes_it():
+    # live latency: no waiting for the next sample once every expected channel is in
+    a = Aligner(["nB", "yB", "tF"])
+    for k in range(5):
+        t = 1000.0 + k / 40
+        assert a.push("yB", t + 0.001, 1.0) == []
+        assert a.push("zz", t, 1.0) == []  # a channel the model does not need
+        assert a.push("tF", t - 0.001, 2.0) == []
+        out = a.push("nB", t, 3.0)
+        assert len(out) == 1 and out[0].values == {"nB": 3.0, "yB": 1.0, "tF": 2.0}
+        assert math.isclose(out[0].t, 1000.001 + k / 40)  # the grid starts at the first message
+    assert a.flush() == []

@@ -1,0 +1,462 @@
+"""The live node over Zenoh on loopback, each figure beside its ceiling measured in the same run.
+
+    python -m bench live [--seconds 60] [--beds 20] [--ceiling-seconds 15] [--model MODEL] [REC.mcap]
+
+1. Latency, one test bed: the recording's channels published at 40 Hz in real time
+   (a sample's messages back to back at its due time) into ``ordervib run``;
+   latency = arrival of the monitor message of a sample minus the publish of the
+   last channel of that sample the model needs (publisher and subscriber share
+   this process's clock). Ceiling: the same stream through a bare Zenoh echo
+   process (its callback republishes each message), the round trip of the same
+   message.
+2. Throughput: ``--beds`` test beds (bed01, bed02, ...) each publishing every
+   channel at 40 Hz in real time into one node process. PASS when the node
+   receives every message, its queue never overflows, every sample of every bed
+   is complete (nothing missing from the cadence, nothing late) and has its
+   monitor message. Ceiling: a bare Zenoh subscriber process counting the same
+   stream.
+
+Without ``--model`` a Lasso bundle is trained on the committed sample runs
+first. The stream is the first run of the recording from ``--offset`` seconds
+(30 s: the window covers the first operating conditions, so the models run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import orjson
+
+ROOT = Path(__file__).resolve().parents[1]
+FS = 40.0
+RUN_GAP = 60.0
+WARMUP = 40  # slots (1 s) left out of the latency figures
+LATENCY_P99_MS = 20.0
+
+
+@dataclass
+class Stream:
+    """Slots of one test bed's messages: ``slots[j]`` = [(channel, payload)] in recording order."""
+
+    slots: list[list[tuple[str, bytes]]]
+    t0: float  # t of the first message: the node's grid anchor
+    last: list[int]  # per slot: index of the last message of a channel the model needs
+
+    def slot_of(self, t: float) -> int:
+        return round((t - self.t0) * FS)
+
+
+def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
+    """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
+    from node.recording import iter_messages_fast, parse_sensor_key
+    n = int(round(seconds * FS))
+    run0 = last_t = cut = t0 = None
+    slots: dict[int, list[tuple[str, bytes]]] = {}
+    for m in iter_messages_fast(path):
+        parsed = parse_sensor_key(m.topic)
+        if parsed is None:
+            continue
+        t = float(orjson.loads(m.payload)["t"])
+        if last_t is not None and t - last_t >= RUN_GAP:
+            break  # the first run ends
+        last_t = t if last_t is None else max(last_t, t)
+        if run0 is None:
+            run0 = t
+            cut = run0 + (round(offset * FS) - 0.5) / FS  # between two slots
+        if t < cut:
+            continue
+        if t0 is None:
+            t0 = t
+        k = round((t - t0) * FS)
+        if k >= n + 1:
+            break
+        slots.setdefault(k, []).append((parsed[1], bytes(m.payload)))
+    got = [slots.get(k, []) for k in range(n)]
+    if t0 is None or not got[-1]:
+        raise SystemExit(f"{path}: its first run holds less than {offset:g} + {seconds:g} s")
+    last = [max((i for i, (c, _) in enumerate(s) if c in needed), default=-1) for s in got]
+    return Stream(got, t0, last)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (Linux /proc)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def pct(a: np.ndarray, q: float) -> float:
+    return float(np.percentile(a, q)) if len(a) else float("nan")
+
+
+class Bench:
+    """This process's side: one Zenoh session that publishes the beds and collects replies."""
+
+    def __init__(self, endpoint: str, beds: list[str], channels: list[str], reply_keys: str) -> None:
+        import zenoh
+
+        from node.live import open_session, zenoh_config
+        self.session = open_session(zenoh_config(None, [endpoint]))
+        self.beds = beds
+        self.arrivals: list[tuple[str, bytes, int]] = []
+        self.sub = self.session.declare_subscriber(reply_keys, self._on_reply)
+        block = zenoh.CongestionControl.BLOCK
+        self.pubs = {(b, c): self.session.declare_publisher(f"testbed/{b}/sensor/{c}",
+                                                            congestion_control=block)
+                     for b in beds for c in channels}
+
+    def _on_reply(self, sample) -> None:  # Zenoh thread: stamp and keep only
+        self.arrivals.append((str(sample.key_expr), sample.payload.to_bytes(), time.monotonic_ns()))
+
+    def wait_matched(self, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        for p in self.pubs.values():
+            while not p.matching_status.matching:
+                if time.monotonic() > deadline:
+                    raise SystemExit("the Zenoh subscriber under test never matched")
+                time.sleep(0.02)
+        time.sleep(0.5)  # our subscriber's declaration reaches the other side too
+
+    def publish(self, stream: Stream) -> dict:
+        """Every slot for every bed at 40 Hz; returns the send times of each sample's last needed channel."""
+        nb, ns = len(self.beds), len(stream.slots)
+        sent = np.zeros((nb, ns), dtype=np.int64)
+        pubs = [{c: p for (b2, c), p in self.pubs.items() if b2 == b} for b in self.beds]
+        count, behind = 0, 0.0
+        clock = time.monotonic_ns
+        start = time.monotonic() + 0.1
+        for j, slot in enumerate(stream.slots):
+            due = start + j / FS
+            delay = due - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                behind = max(behind, -delay)
+            last = stream.last[j]
+            for bi, bp in enumerate(pubs):
+                for i, (c, payload) in enumerate(slot):
+                    if i == last:
+                        sent[bi, j] = clock()
+                    bp[c].put(payload)
+                count += len(slot)
+        wall = time.monotonic() - start
+        return {"sent": sent, "count": count, "wall": wall, "behind_s": behind, "end_ns": clock()}
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def start_node(model: str, record: str, port: int) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "node.cli", "run", "--model", model, "--record", record,
+                             "--listen", f"tcp/127.0.0.1:{port}", "--quiet"], cwd=ROOT)
+
+
+def start_peer(mode: str, port: int, stream: Stream | None = None, needed: set[str] | None = None):
+    """A bare Zenoh subscriber process: ``echo`` replies once per sample, ``count`` only counts."""
+    cmd = [sys.executable, "-m", "bench.live", "--peer", mode, "--port", str(port)]
+    if mode == "echo":
+        cmd += ["--t0", repr(stream.t0), "--needed", ",".join(sorted(needed))]
+    p = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    if p.stdout.readline().strip() != "ready":
+        raise SystemExit("the Zenoh peer process did not start")
+    return p
+
+
+def stop_peer(p: subprocess.Popen) -> dict:
+    out, _ = p.communicate("", timeout=30)
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
+    """The bare Zenoh peer: listens, subscribes to every sensor key until stdin closes.
+
+    ``echo``: in the callback, republishes on ``echo/<bed>`` the message that completes
+    a sample's needed channels (the node's message pattern without its work: many in,
+    one out per sample); ``count``: only counts.
+    """
+    import zenoh
+
+    from node.live import SENSOR_KEYS, open_session, zenoh_config
+    session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
+    pubs: dict[str, object] = {}
+    counts: dict[tuple[str, int], int] = {}
+    n = [0]
+    block = zenoh.CongestionControl.BLOCK
+
+    def on_sample(sample) -> None:
+        n[0] += 1
+        payload = sample.payload.to_bytes()
+        if mode != "echo":
+            return
+        _, bed, _, ch = str(sample.key_expr).split("/", 3)
+        if ch not in needed:
+            return
+        k = (bed, round((orjson.loads(payload)["t"] - t0) * FS))
+        c = counts[k] = counts.get(k, 0) + 1
+        if c == len(needed):
+            del counts[k]
+            pub = pubs.get(bed)
+            if pub is None:
+                pub = pubs[bed] = session.declare_publisher(f"echo/{bed}", congestion_control=block)
+            pub.put(payload)
+
+    sub = session.declare_subscriber(SENSOR_KEYS, on_sample)
+    print("ready", flush=True)
+    sys.stdin.read()
+    sub.undeclare()
+    print(json.dumps({"received": n[0]}), flush=True)
+    session.close()
+    return 0
+
+
+def latencies(bench: Bench, stream: Stream, sent: np.ndarray, suffix: str) -> tuple[np.ndarray, dict]:
+    """Per sample: arrival of its reply (key ending with ``suffix``) minus its last needed channel's send."""
+    bed_index = {b: i for i, b in enumerate(bench.beds)}
+    lat, seen = [], {}
+    for key, payload, arr in list(bench.arrivals):
+        if not key.endswith(suffix):
+            continue
+        bed = key.split("/")[1]  # testbed/<bed>/monitor/<target> or echo/<bed>
+        j = stream.slot_of(orjson.loads(payload)["t"])
+        bi = bed_index.get(bed)
+        if bi is None or not 0 <= j < len(stream.slots):
+            continue
+        seen[bed] = seen.get(bed, 0) + 1
+        if j >= WARMUP and sent[bi, j]:
+            lat.append((arr - sent[bi, j]) / 1e6)
+    return np.array(lat), seen
+
+
+def wait_for(cond, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def stop_node(node: subprocess.Popen) -> None:
+    node.send_signal(signal.SIGTERM)
+    try:
+        node.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        node.kill()
+        node.wait()
+
+
+def run_latency(args, stream: Stream, channels: list[str], needed: set[str], target: str,
+                tmp: Path) -> dict:
+    beds = ["lat01"]
+    # ceiling: Zenoh alone, a bare echo process
+    port = free_port()
+    peer = start_peer("echo", port, stream, needed)
+    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "echo/*")
+    try:
+        b.wait_matched()
+        short = Stream(stream.slots[:int(args.ceiling_seconds * FS)], stream.t0, stream.last)
+        r = b.publish(short)
+        wait_for(lambda: len(b.arrivals) >= len(short.slots), 10)
+        zlat, zseen = latencies(b, short, r["sent"], "echo/lat01")
+    finally:
+        b.close()
+        stop_peer(peer)
+    # the node
+    port = free_port()
+    node = start_node(args.model, str(tmp / "latency.mcap"), port)
+    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "testbed/*/monitor/**")
+    try:
+        b.wait_matched()
+        r = b.publish(stream)
+        suffix = f"/monitor/{target}"
+        wait_for(lambda: sum(k.endswith(suffix) for k, _, _ in b.arrivals) >= len(stream.slots), 10)
+        nlat, seen = latencies(b, stream, r["sent"], suffix)
+    finally:
+        b.close()
+        stop_node(node)
+    return {"zenoh": zlat, "node": nlat, "monitor": seen.get("lat01", 0), "slots": len(stream.slots),
+            "behind_s": r["behind_s"], "zenoh_replies": zseen.get("lat01", 0),
+            "zenoh_slots": len(short.slots)}
+
+
+def last_health(bench: Bench) -> dict[str, dict]:
+    out = {}
+    for key, payload, _ in bench.arrivals:
+        if key.endswith("/monitor/health"):
+            out[key.split("/")[1]] = orjson.loads(payload)
+    return out
+
+
+def run_throughput(args, stream: Stream, channels: list[str], target: str, tmp: Path) -> dict:
+    beds = [f"bed{i:02d}" for i in range(1, args.beds + 1)]
+    # ceiling: a bare Zenoh subscriber that only counts
+    port = free_port()
+    peer = start_peer("count", port)
+    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "nothing/**")
+    try:
+        b.wait_matched()
+        short = Stream(stream.slots[:int(args.ceiling_seconds * FS)], stream.t0, stream.last)
+        cpu0 = cpu_seconds(peer.pid)
+        rz = b.publish(short)
+        time.sleep(0.5)
+        zcpu = (cpu_seconds(peer.pid) - cpu0) / rz["wall"]
+    finally:
+        b.close()
+        zrecv = stop_peer(peer)["received"]
+    # the node
+    port = free_port()
+    node = start_node(args.model, str(tmp / "throughput.mcap"), port)
+    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "testbed/*/monitor/**")
+    suffix = f"/monitor/{target}"
+    try:
+        b.wait_matched()
+        cpu0 = cpu_seconds(node.pid)
+        r = b.publish(stream)
+        cpu = (cpu_seconds(node.pid) - cpu0) / r["wall"]
+        expected = len(stream.slots) * len(beds)
+        wait_for(lambda: sum(k.endswith(suffix) for k, _, _ in b.arrivals) >= expected, 30)
+        drained = max((a for k, _, a in b.arrivals if k.endswith(suffix)), default=r["end_ns"])
+        drain_ms = max(0.0, (drained - r["end_ns"]) / 1e6)
+        time.sleep(2.2)  # two health periods after the backlog
+        lat, seen = latencies(b, stream, r["sent"], suffix)
+        health = last_health(b)
+        lag99 = max((orjson.loads(p).get("lag_ms_p99") or 0.0 for k, p, _ in b.arrivals
+                     if k.endswith("/monitor/health")), default=float("nan"))
+    finally:
+        b.close()
+        stop_node(node)
+    return {"beds": beds, "offered": r["count"], "wall": r["wall"], "behind_s": r["behind_s"],
+            "zenoh_received": zrecv, "zenoh_offered": rz["count"], "zenoh_wall": rz["wall"],
+            "zenoh_cpu": zcpu, "cpu": cpu, "health": health, "seen": seen, "lat": lat,
+            "lag99": lag99, "drain_ms": drain_ms, "slots": len(stream.slots)}
+
+
+def ms(x: float) -> str:
+    return f"{x:.2f} ms"
+
+
+def report(lat: dict | None, thr: dict | None, nchan: int) -> bool:
+    from bench.tables import print_table
+    ok = True
+    if lat is not None:
+        z, n = lat["zenoh"], lat["node"]
+        p99_ok = pct(n, 99) < LATENCY_P99_MS and lat["monitor"] == lat["slots"]
+        ok &= p99_ok
+        rows = [
+            ["latency p50", ms(pct(n, 50)), f"Zenoh alone (echo process) {ms(pct(z, 50))}", ""],
+            ["latency p99", ms(pct(n, 99)), f"< {LATENCY_P99_MS:g} ms; Zenoh echo {ms(pct(z, 99))}",
+             "PASS" if p99_ok else "FAIL"],
+            ["latency max", ms(n.max() if len(n) else float("nan")),
+             f"Zenoh echo {ms(z.max() if len(z) else float('nan'))}", ""],
+            ["samples measured / monitor messages", f"{len(n)} / {lat['monitor']}",
+             f"{lat['slots'] - WARMUP} / {lat['slots']}; echo {lat['zenoh_replies']} / {lat['zenoh_slots']}",
+             "PASS" if lat["monitor"] == lat["slots"] else "FAIL"],
+        ]
+        print_table("Live latency, 1 test bed: last needed channel published -> monitor message received",
+                    ["figure", "measured", "ceiling / target", "result"], rows)
+    if thr is not None:
+        nb, slots = len(thr["beds"]), thr["slots"]
+        target_rate = nb * nchan * FS
+        health = thr["health"]
+        received = max((h.get("received", 0) for h in health.values()), default=0)
+        dropped = max((h.get("dropped", 0) for h in health.values()), default=-1)
+        missing = sum(sum(h.get("missing", {}).values()) for h in health.values())
+        late = sum(h.get("late", 0) for h in health.values())
+        samples = [health.get(b, {}).get("samples", 0) for b in thr["beds"]]
+        seen = [thr["seen"].get(b, 0) for b in thr["beds"]]
+        kept_up = thr["behind_s"] < 0.1
+        checks = {
+            "offered": kept_up,
+            "received": received == thr["offered"],
+            "dropped": dropped == 0,
+            "missing": missing == 0 and late == 0 and len(health) == nb and min(samples) == slots,
+            "monitor": min(seen) == slots and max(seen) == slots,
+        }
+        ok &= all(checks.values())
+
+        def res(k: str) -> str:
+            return "PASS" if checks[k] else "FAIL"
+        rows = [
+            ["messages/s offered", f"{thr['offered'] / thr['wall']:,.0f} ({thr['offered']:,} in "
+             f"{thr['wall']:.1f} s; publisher at most {thr['behind_s'] * 1e3:.0f} ms late)",
+             f"{target_rate:,.0f} ({nb} beds x {nchan} channels x 40 Hz)", res("offered")],
+            ["messages received by the node", f"{received:,}",
+             f"all offered; bare Zenoh subscriber: {thr['zenoh_received']:,} of {thr['zenoh_offered']:,}",
+             res("received")],
+            ["queue overflow", str(dropped), "0", res("dropped")],
+            ["missing from cadence / late (all beds)", f"{missing} / {late}",
+             f"0 / 0; {nb} beds x {slots} samples", res("missing")],
+            ["monitor messages per bed (min-max)", f"{min(seen)}-{max(seen)}", f"{slots} each",
+             res("monitor")],
+            ["node CPU", f"{thr['cpu'] * 100:.0f} % of a core",
+             f"bare Zenoh subscriber {thr['zenoh_cpu'] * 100:.0f} %", ""],
+            ["worker queue lag p99 (worst health report)", ms(thr["lag99"]), "", ""],
+            ["backlog after the last publish", ms(thr["drain_ms"]), "", ""],
+            ["latency under load p50 / p99", f"{pct(thr['lat'], 50):.1f} / {pct(thr['lat'], 99):.1f} ms", "",
+             ""],
+        ]
+        print_table(f"Throughput, {nb} test beds at 40 Hz into one node process",
+                    ["figure", "measured", "ceiling / target", "result"], rows)
+    return ok
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench live")
+    ap.add_argument("recording", nargs="?", default=str(ROOT / "recordings" / "engine1_runs.mcap"))
+    ap.add_argument("--model")
+    ap.add_argument("--seconds", type=float, default=60.0, help="per node measurement (default 60)")
+    ap.add_argument("--ceiling-seconds", type=float, default=15.0, help="per Zenoh-only measurement")
+    ap.add_argument("--beds", type=int, default=20)
+    ap.add_argument("--offset", type=float, default=30.0, help="s into the recording's first run")
+    ap.add_argument("--only", choices=["latency", "throughput"])
+    ap.add_argument("--peer", choices=["echo", "count"], help=argparse.SUPPRESS)
+    ap.add_argument("--port", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--t0", type=float, help=argparse.SUPPRESS)
+    ap.add_argument("--needed", default="", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.peer:
+        return peer_main(args.peer, args.port, args.t0, set(args.needed.split(",")))
+    from node.bundle import load_bundle
+    from node.cli import main as cli
+    from node.pipeline import MonitorPipeline
+
+    tmp = Path(tempfile.mkdtemp(prefix="ordervib-live-"))
+    if not args.model:
+        args.model = str(tmp / "model")
+        cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
+             str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
+             "--method", "lasso", "--quiet"])
+    bundle = load_bundle(args.model)
+    needed = set(MonitorPipeline(bundle).channels)
+    stream = load_stream(args.recording, args.seconds, args.offset, needed)
+    channels = sorted({c for s in stream.slots for c, _ in s})
+    print(f"{args.recording}: {len(stream.slots)} samples of {len(channels)} channels per bed "
+          f"({len(needed)} needed by the model), from {args.offset:g} s into the first run; "
+          f"node recordings in {tmp}")
+    lat = thr = None
+    if args.only in (None, "latency"):
+        lat = run_latency(args, stream, channels, needed, bundle.target, tmp)
+    if args.only in (None, "throughput"):
+        thr = run_throughput(args, stream, channels, bundle.target, tmp)
+    return 0 if report(lat, thr, len(channels)) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
