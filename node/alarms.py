@@ -9,6 +9,13 @@ Two rules flag a sample:
   normal segment exceeds with chance ``budget / segments_per_hour`` is the threshold,
   never below ``THRESHOLD_MARGIN`` x the OC's own largest CV peak. Pooling a hundred
   peaks gives a far steadier tail than each OC's eight or so.
+* step: during a steady plateau, the mean of the measured target over the last
+  ``STEP_SHORT_S`` departs from its mean over the ``STEP_LONG_S`` before by more than
+  a threshold in units of the local noise (a clipped EWMA of the first differences).
+  Model-free: an abrupt change of an order amplitude while the operating point holds
+  (added imbalance, a loose part) shows at once, however poorly the OC's model does.
+  The threshold comes from the training runs' steady plateaus: their peak statistics
+  pooled, a Gumbel law and the same alarm budget.
 * flatline: the measured target repeats the very same value for ``flatline`` samples
   while the engine runs: a stuck sensor or a frozen acquisition. The limit is learnt
   from the training runs (``FLATLINE_FACTOR`` x the longest repeat seen, at least
@@ -18,12 +25,17 @@ Two rules flag a sample:
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
 
 FALSE_ALARMS_PER_HOUR = 0.5  # residual-alarm budget on normal runs, per hour of OC time
 THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
+STEP_SHORT_S = 1.0  # recent window, s
+STEP_LONG_S = 4.0  # reference window just before it, s
+STEP_NOISE_S = 10.0  # EWMA span of the noise estimate, s
+STEP_PERSIST_S = 0.25  # the step statistic must stay beyond the threshold this long, s
 FLATLINE_MIN_S = 2.0  # a flat line shorter than this never alarms, s
 FLATLINE_FACTOR = 4.0  # limit = factor x the longest repeat in the training runs
 EULER_GAMMA = 0.5772156649
@@ -50,6 +62,66 @@ def pooled_thresholds(peaks: dict[str, list[float]], segments_per_hour: float,
     p = min(0.5, budget / max(segments_per_hour, 1e-9))
     common = gumbel_quantile(every, p) if len(every) > 1 else every[0]
     return {name: max(common, THRESHOLD_MARGIN * max(vals)) for name, vals in peaks.items() if vals}
+
+
+class StepCheck:
+    """Stateful step detector on one channel during steady plateaus (bounded memory).
+
+    ``step(value, steady) -> z``: |mean(last short) - mean(long before)| / noise sd, 0
+    until both windows lie inside the current plateau; ``flagged`` is True once z has
+    stayed beyond ``threshold`` for ``persist`` samples. NaN values hold the last one.
+    """
+
+    def __init__(self, threshold: float = math.inf, fs: float = 40.0) -> None:
+        self.threshold = threshold
+        self.n_short = max(1, int(round(STEP_SHORT_S * fs)))
+        self.n_long = max(1, int(round(STEP_LONG_S * fs)))
+        self.alpha = 2.0 / (STEP_NOISE_S * fs + 1.0)
+        self.persist = max(1, int(round(STEP_PERSIST_S * fs)))
+        self.reset()
+
+    def reset(self) -> None:
+        self._win: deque[float] = deque()
+        self._sum_short = self._sum_long = 0.0
+        self._last = math.nan
+        self._var = 0.0
+        self._ndiff = 0
+        self._beyond = 0
+        self.flagged = False
+
+    def step(self, value: float, steady: bool) -> float:
+        if not steady:
+            if self._win or self._ndiff:
+                self.reset()
+            return 0.0
+        if value != value:
+            value = self._last
+            if value != value:
+                return 0.0
+        if self._last == self._last:
+            d2 = 0.5 * (value - self._last) ** 2
+            if self._ndiff >= self.n_long:  # clip outliers (the step itself) out of the noise
+                d2 = min(d2, 25.0 * self._var)
+            self._ndiff += 1
+            a = max(self.alpha, 1.0 / self._ndiff)
+            self._var += a * (d2 - self._var)
+        self._last = value
+        win = self._win
+        win.append(value)
+        self._sum_short += value
+        if len(win) > self.n_short:
+            moved = win[-self.n_short - 1]
+            self._sum_short -= moved
+            self._sum_long += moved
+        if len(win) > self.n_short + self.n_long:
+            self._sum_long -= win.popleft()
+        z = 0.0
+        if len(win) == self.n_short + self.n_long and self._var > 0.0:
+            diff = self._sum_short / self.n_short - self._sum_long / self.n_long
+            z = abs(diff) / math.sqrt(self._var)
+        self._beyond = self._beyond + 1 if z > self.threshold else 0
+        self.flagged = self._beyond >= self.persist
+        return z
 
 
 def longest_repeat(y: np.ndarray, running: np.ndarray) -> int:
@@ -98,12 +170,43 @@ class FlatlineCheck:
         return self._count >= self.limit
 
 
-def running_mask(speed: np.ndarray, detector) -> np.ndarray:
-    """(K,) bool: samples the OC detector (stepped afresh on ``speed`` (K,)) does not call off."""
-    from node.ocdetect import Phase
+def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALSE_ALARMS_PER_HOUR,
+                     fs: float = 40.0) -> dict:
+    """The model-free checks' limits from training runs (objects with ``column(name)`` (K,)).
 
-    detector.reset()
-    return np.array([detector.step(v).phase is not Phase.OFF for v in speed.tolist()])
+    Steps the very ``StepCheck`` and OC detector the node runs over every run: the peak
+    step statistic of each steady plateau, pooled, gives the step threshold for the
+    alarm budget (per hour of running); the longest repeat gives the flatline limit.
+    """
+    from node.ocdetect import OCDetector, Phase
+
+    det = OCDetector(schedule, fs)
+    peaks: list[float] = []
+    longest, running_s = 0, 0.0
+    for run in runs:
+        speed, y = run.column(schedule.switch), run.column(target)
+        det.reset()
+        phases = [det.step(v).phase for v in speed.tolist()]
+        running = np.array([ph is not Phase.OFF for ph in phases])
+        running_s += float(running.sum()) / fs
+        longest = max(longest, longest_repeat(y, running))
+        chk, peak = StepCheck(math.inf, fs), None
+        for v, ph in zip(y.tolist(), phases):
+            z = chk.step(v, ph is Phase.STEADY)
+            if ph is Phase.STEADY:
+                peak = z if peak is None else max(peak, z)
+            elif peak is not None:
+                peaks.append(peak)
+                peak = None
+        if peak is not None:
+            peaks.append(peak)
+    checks: dict = {"flatline_samples": flatline_limit(longest, fs), "longest_repeat_in_training": longest}
+    if len(peaks) >= 2 and running_s > 0:
+        p = min(0.5, budget / (len(peaks) / (running_s / 3600.0)))
+        checks["step_threshold"] = max(gumbel_quantile(peaks, p), THRESHOLD_MARGIN * max(peaks))
+        checks["step_peaks_in_training"] = {"n": len(peaks), "max": max(peaks),
+                                            "median": float(np.median(peaks))}
+    return checks
 
 
 class EpisodeLog:

@@ -48,6 +48,19 @@ def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = No
     return conf
 
 
+def config_file_endpoints(config_file: str | None) -> bool:
+    """Whether a Zenoh config file sets listen or connect endpoints of its own."""
+    if not config_file:
+        return False
+    import zenoh
+    try:
+        conf, default = zenoh.Config.from_file(config_file), zenoh.Config()
+        return any(conf.get_json(k) != default.get_json(k)
+                   for k in ("listen/endpoints", "connect/endpoints"))
+    except Exception as exc:
+        raise OrdervibError(f"bad Zenoh configuration: {exc}") from None
+
+
 def open_session(conf):
     import zenoh
     try:
@@ -161,7 +174,8 @@ def run_node(bundle: Bundle, record: str, listen, connect, config_file, duration
     node = LiveNode(bundle, record, listen, connect, config_file)
     node.start()
     if not quiet:
-        print(f"ordervib node listening on {listen or connect}; recording to {record}; Ctrl-C stops",
+        where = listen or connect or f"the endpoints of {config_file}"
+        print(f"ordervib node on {where}; recording to {record}; Ctrl-C stops",
               file=sys.stderr, flush=True)
     stop.wait(duration)
     node.stop()
@@ -172,10 +186,17 @@ def run_node(bundle: Bundle, record: str, listen, connect, config_file, duration
 
 
 def publish_recording(path: str, connect: str | None, speed: float, quiet: bool = False,
-                      wait_s: float = 5.0) -> int:
-    """Publish a recording's sensor messages in their original timing (``speed`` x; 0: flat out)."""
+                      wait_s: float = 5.0, config_file: str | None = None) -> int:
+    """Publish a recording's sensor messages in their original timing (``speed`` x; 0: flat out).
+
+    Connects to ``connect``, else to the endpoints of ``config_file``, else to DEFAULT_ENDPOINT.
+    """
     from node.recording import iter_messages, parse_sensor_key
-    conf = zenoh_config(None, [connect or DEFAULT_ENDPOINT])
+    if connect:
+        endpoints = [connect]
+    else:
+        endpoints = None if config_file_endpoints(config_file) else [DEFAULT_ENDPOINT]
+    conf = zenoh_config(None, endpoints, config_file)
     session = open_session(conf)
     import zenoh
     pubs: dict[str, object] = {}

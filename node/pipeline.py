@@ -6,8 +6,9 @@ switch speed; at an OC switch the OC's model is seeded from the measured
 past (a bounded ring buffer) and then steps once per sample; the residual is
 standardized by the OC's cross-validated sigma, smoothed (EWMA) and flagged
 when beyond the OC's threshold for long enough (``reason`` "residual"). A
-model-free check flags a measured target stuck on one value while the engine
-runs (``reason`` "flatline"), with or without a model.
+model-free checks flag, with or without a model, an abrupt step of the measured
+target during a steady plateau (``reason`` "step") and a target stuck on one
+value while the engine runs (``reason`` "flatline"); see ``node.alarms``.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.alarms import FlatlineCheck
+from node.alarms import FlatlineCheck, StepCheck
 from node.align import AlignedSample
 from node.bundle import Bundle
 from node.ocdetect import OCDetector, Phase
@@ -64,6 +65,8 @@ class MonitorPipeline:
         self._beyond = 0
         limit = bundle.checks.get("flatline_samples")
         self._flat = FlatlineCheck(int(limit)) if limit else None
+        thr = bundle.checks.get("step_threshold")
+        self._jump = StepCheck(float(thr), FS) if thr else None
 
     def _filled(self, values: dict[str, float]) -> dict[str, float]:
         """Hold each channel's last finite value over dropouts."""
@@ -103,6 +106,8 @@ class MonitorPipeline:
             self._last.clear()
             if self._flat is not None:
                 self._flat.reset()
+            if self._jump is not None:
+                self._jump.reset()
         vals = self._filled(sample.values)
         st = self.detector.step(sample.values.get(self.switch, float("nan")))
         oc_msg = None
@@ -136,6 +141,10 @@ class MonitorPipeline:
                     msg["flag"], msg["reason"] = "alarm", "residual"
                 else:
                     msg["flag"] = "ok"
+        if self._jump is not None:
+            self._jump.step(measured, st.phase is Phase.STEADY)
+            if self._jump.flagged:
+                msg["flag"], msg["reason"] = "alarm", "step"
         if self._flat is not None and self._flat.step(measured, st.phase is not Phase.OFF):
             msg["flag"], msg["reason"] = "alarm", "flatline"
         self._hist.append(tuple(vals[c] for c in self.channels))

@@ -102,3 +102,47 @@ def test_pipeline_flags_a_stuck_target_without_a_model():
     assert all(f == "alarm" for f in flags[first:])
     assert mon[first]["reason"] == "flatline"
     assert all(f == "no-model" for f in flags[:first])
+
+
+def test_step_check_finds_a_step_in_noise_and_ignores_a_slow_trend():
+    from node.alarms import StepCheck
+
+    rng = np.random.default_rng(5)
+    k = np.arange(1200)
+    noise = 0.2 * rng.standard_normal(k.size)
+    chk = StepCheck(threshold=8.0)
+    trend = 5.0 + 0.002 * k + noise  # 0.08 mm/s per second: slow, like a thermal drift
+    z_trend = [chk.step(v, True) for v in trend]
+    assert max(z_trend) < 4.0 and not chk.flagged
+    chk.reset()
+    step = 5.0 + noise + 3.0 * (k >= 600)  # 15 noise sd at once
+    flags, zs = [], []
+    for v in step:
+        zs.append(chk.step(v, True))
+        flags.append(chk.flagged)
+    first = flags.index(True)
+    assert 600 <= first <= 600 + 40  # within a second
+    assert max(zs[:600]) < 4.0
+    # outside a plateau nothing is computed, and a new plateau starts afresh
+    assert chk.step(100.0, False) == 0.0 and not chk.flagged
+    assert chk.step(5.0, True) == 0.0
+
+
+def test_calibrated_step_threshold_is_above_every_normal_plateau():
+    from node.alarms import calibrate_checks
+    from node.schedule import OperatingCondition, Schedule
+
+    class R:  # two runs: ramp to a plateau at 4000 rpm, hold, noisy target
+        def __init__(self, seed):
+            rng = np.random.default_rng(seed)
+            speed = np.r_[np.linspace(0, 4000, 400), np.full(4000, 4000.0), np.linspace(4000, 0, 400)]
+            self.cols = {"nB": speed, "yB": np.round(2 + 0.001 * speed + 0.1 * rng.standard_normal(speed.size), 2)}
+
+        def column(self, name):
+            return self.cols[name]
+
+    sched = Schedule((OperatingCondition("A", 4000.0),))
+    checks = calibrate_checks([R(1), R(2), R(3)], sched, "yB")
+    assert checks["step_peaks_in_training"]["n"] == 3
+    assert checks["step_threshold"] >= THRESHOLD_MARGIN * checks["step_peaks_in_training"]["max"]
+    assert checks["flatline_samples"] == 80

@@ -17,7 +17,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", metavar="MODEL", help="model bundle: run the node offline")
     p.add_argument("--out", metavar="OUT.mcap", help="with --model: write what a live node would log")
     p.add_argument("--publish", action="store_true", help="publish the recording's sensor messages")
-    p.add_argument("--connect", metavar="ENDPOINT", help="with --publish: Zenoh endpoint to connect to")
+    p.add_argument("--connect", metavar="ENDPOINT",
+                   help="with --publish: Zenoh endpoint to connect to (default tcp/127.0.0.1:7447 "
+                        "unless the --zenoh-config file gives endpoints)")
+    p.add_argument("--zenoh-config", metavar="FILE.json5",
+                   help="with --publish: Zenoh configuration file (e.g. TLS root CA; see docs/zenoh/)")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="with --publish: X times real time (default 1; 0: as fast as possible)")
     p.add_argument("--quiet", action="store_true", help="no summary on stderr")
@@ -85,5 +89,6 @@ def run(args: argparse.Namespace) -> int:
     if args.speed < 0:
         raise OrdervibError("--speed must be >= 0")
     from node.live import publish_recording
-    publish_recording(args.recording, args.connect, args.speed, args.quiet)
+    publish_recording(args.recording, args.connect, args.speed, args.quiet,
+                      config_file=args.zenoh_config)
     return 0

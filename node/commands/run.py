@@ -12,18 +12,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", required=True, metavar="MODEL", help="model bundle directory")
     p.add_argument("--record", required=True, metavar="OUT.mcap", help="recording to write")
     p.add_argument("--listen", action="append", metavar="ENDPOINT",
-                   help="Zenoh endpoint to listen on (default tcp/127.0.0.1:7447 unless --connect)")
-    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="Zenoh endpoint to connect to")
+                   help="Zenoh endpoint to listen on (repeatable); the default tcp/127.0.0.1:7447 "
+                        "applies only when neither --listen, --connect nor the --zenoh-config file "
+                        "gives endpoints")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--zenoh-config", metavar="FILE.json5",
-                   help="Zenoh configuration file (TLS, access control) applied under the endpoints")
+                   help="Zenoh configuration file (TLS, access control; see docs/zenoh/); "
+                        "--listen replaces its listen endpoints, --connect its connect endpoints")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--quiet", action="store_true")
 
 
 def run(args: argparse.Namespace) -> int:
     from node.bundle import load_bundle
-    from node.live import DEFAULT_ENDPOINT, run_node
+    from node.live import DEFAULT_ENDPOINT, config_file_endpoints, run_node
+    listen = args.listen
+    if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):
+        listen = [DEFAULT_ENDPOINT]
     bundle = load_bundle(args.model)
-    listen = args.listen or (None if args.connect else [DEFAULT_ENDPOINT])
     run_node(bundle, args.record, listen, args.connect, args.zenoh_config, args.duration, args.quiet)
     return 0

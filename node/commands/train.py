@@ -31,8 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="input channels, comma-separated, or auto: MS-DPCCA top-k per OC (default)")
     p.add_argument("--n-inputs", type=int, default=4, metavar="K", help="k for --inputs auto (default 4)")
     p.add_argument("--false-alarms-per-hour", type=float, default=None, metavar="R",
-                   help="residual-alarm budget on normal runs, per hour of OC time (default 0.5); "
-                        "thresholds come from every OC's cross-validation peaks")
+                   help="false-alarm budget on normal runs, per hour of running (default 0.5), "
+                        "shared by the residual rule (thresholds from every OC's cross-validation "
+                        "peaks) and the step rule (from the training runs' steady plateaus)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -91,7 +92,7 @@ def print_ranking(results, top: int = 6, file=None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.alarms import FALSE_ALARMS_PER_HOUR
+    from node.alarms import FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.baseline import CharacteristicCurve
     from node.bundle import Bundle, save_bundle, sha256_file
     from node.dataset import run_arrays
@@ -129,32 +130,21 @@ def run(args: argparse.Namespace) -> int:
 
     results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
                     n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
-                    false_alarms_per_hour=budget)
+                    false_alarms_per_hour=budget / 2)
     arrays = [run_arrays(r, args.target, [schedule.switch]) for r in runs]
     curve = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
                                       np.concatenate([a.y for a in arrays]))
     training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     bundle = Bundle(args.method, args.target, schedule, results, HISTORY_S, training,
-                    (curve.centres_, curve.means_), flatline_checks(runs, schedule, args.target))
+                    (curve.centres_, curve.means_),
+                    calibrate_checks(runs, schedule, args.target, budget / 2))
     out = save_bundle(bundle, args.out)
     if inputs is None:
         print_ranking(results)
     print_table(results)
     print(f"model written to {out} ({time.perf_counter() - t0:.1f} s)")
     return 0
-
-
-def flatline_checks(runs, schedule, target: str) -> dict:
-    """The stuck-sensor limit learnt from the training runs (see ``node.alarms``)."""
-    from node.alarms import flatline_limit, longest_repeat, running_mask
-    from node.ocdetect import OCDetector
-    from node.training import FS
-
-    det = OCDetector(schedule, FS)
-    longest = max(longest_repeat(r.column(target), running_mask(r.column(schedule.switch), det))
-                  for r in runs)
-    return {"flatline_samples": flatline_limit(longest, FS), "longest_repeat_in_training": longest}
 
 
 def _count(grid: dict) -> int:
