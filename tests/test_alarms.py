@@ -136,7 +136,8 @@ def test_calibrated_step_threshold_is_above_every_normal_plateau():
         def __init__(self, seed):
             rng = np.random.default_rng(seed)
             speed = np.r_[np.linspace(0, 4000, 400), np.full(4000, 4000.0), np.linspace(4000, 0, 400)]
-            self.cols = {"nB": speed, "yB": np.round(2 + 0.001 * speed + 0.1 * rng.standard_normal(speed.size), 2)}
+            y = 2 + 0.001 * speed + 0.1 * rng.standard_normal(speed.size)
+            self.cols = {"nB": speed, "yB": np.round(y, 2)}
 
         def column(self, name):
             return self.cols[name]
