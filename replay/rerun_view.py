@@ -8,7 +8,8 @@ Entity layout (every scalar is sent in bulk with ``rr.send_columns``):
 - ``/target/{measured,predicted,upper,lower,alarm}``: the target against its
   prediction and the alarm band predicted ± band (same unit as the target);
 - ``/residual/{residual,upper,lower,alarm}``: residual and ± band;
-  ``/score/{score,alarm}``: the smoothed standardized residual;
+  ``/score/{score,alarm}``: the smoothed standardized residual; the flag lane
+  names the rule behind an alarm ("alarm (step)");
 - ``/health/*``: the node's health messages (lag, late, dropped);
 - ``/curve/**``: the characteristic curve (target against speed), a static 2-D
   point cloud, one entity per run, hue by run and shade by time in the run;
@@ -72,6 +73,15 @@ class MonitorColumns:
     flag: np.ndarray
     oc: np.ndarray
     phase: np.ndarray
+    reason: np.ndarray | None = None  # why a sample is flagged ("residual", "step", ...), "" if not
+
+    def flag_labels(self) -> np.ndarray:
+        """Flag with its reason, e.g. "alarm (step)": (K,) str."""
+        if self.reason is None:
+            return self.flag
+        r = self.reason.astype(object)
+        return np.where(r != "", self.flag.astype(object) + " (" + r + ")", self.flag.astype(object)
+                        ).astype(str)
 
 
 @dataclass
@@ -239,7 +249,7 @@ def log_monitor(data: ViewData, clock: Clock) -> None:
         log_style("score/score", "score (standardized)", COLORS["score"])
         log_scalars("score/score", m.t, m.score, clock)
         log_points("score/alarm", "alarm", m.t[alarm], m.score[alarm], clock)
-    log_states("state/flag", m.t, m.flag, clock)
+    log_states("state/flag", m.t, m.flag_labels(), clock)
 
 
 def log_health(h: Health, clock: Clock) -> None:

@@ -135,6 +135,7 @@ def monitor_of(payloads: list[bytes]) -> MonitorColumns:
         flag=str_column(objs, "flag"),
         oc=str_column(objs, "oc"),
         phase=str_column(objs, "phase"),
+        reason=str_column(objs, "reason"),
     )
 
 
