@@ -17,8 +17,6 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.linear_model import Lasso
 
 from node.sysid import WDMD, DelayDMD, LinearDMD, StateSpace
 
@@ -186,6 +184,9 @@ def fit_oc_model(method: str, params: dict, trajs: list[Trajectory]) -> OCModel:
     u_scale[u_scale < 1e-9 * (np.abs(u_mean) + 1.0)] = 1.0
     model = OCModel(meth, dict(params), u_mean, u_scale)
     if meth is Method.LASSO:
+        from sklearn.exceptions import ConvergenceWarning  # training only: the node starts faster
+        from sklearn.linear_model import Lasso
+
         X = np.vstack([model.scale_inputs(t.seg_U)[:, :-1] for t in trajs])
         y = np.concatenate([t.seg_y for t in trajs])
         with warnings.catch_warnings():  # a small alpha may stop at max_iter: still the CV's pick
