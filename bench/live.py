@@ -381,7 +381,7 @@ def report(lat: dict | None, thr: dict | None, nchan: int) -> bool:
         late = sum(h.get("late", 0) for h in health.values())
         samples = [health.get(b, {}).get("samples", 0) for b in thr["beds"]]
         seen = [thr["seen"].get(b, 0) for b in thr["beds"]]
-        kept_up = thr["behind_s"] < 0.1
+        kept_up = thr["offered"] / thr["wall"] >= 0.99 * target_rate  # the publisher kept the rate
         checks = {
             "offered": kept_up,
             "received": received == thr["offered"],

@@ -118,3 +118,28 @@ def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
     assert health.get("received", 0) > 0.9 * sent
     assert len(inputs) == health["received"], f"recovered {len(inputs)}; health {health}, sent {sent}"
     assert any("/monitor/yB" in m.topic for m in iter_messages(fixed))
+
+
+def test_three_beds_at_40_hz_every_sample_gets_its_monitor_message(setup, tmp_path):
+    from bench.live import Bench, latencies, load_stream, wait_for
+    from node.bundle import load_bundle
+    from node.live import LiveNode
+    from node.pipeline import MonitorPipeline
+    bundle = load_bundle(setup / "m")
+    stream = load_stream(str(setup / "test.mcap"), 3.0, 0.0, set(MonitorPipeline(bundle).channels))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    node = LiveNode(bundle, str(tmp_path / "n.mcap"), listen=[endpoint])
+    node.start()
+    beds = ["bedA", "bedB", "bedC"]
+    bench = Bench(endpoint, beds, ["nB", "yB", "tF"], "testbed/*/monitor/yB")
+    try:
+        bench.wait_matched()
+        sent = bench.publish(stream)  # 3 beds x 3 channels, 40 Hz in real time
+        n = len(stream.slots)
+        wait_for(lambda: len(bench.arrivals) >= 3 * n, 20)
+        _, seen = latencies(bench, stream, sent["sent"], "/monitor/yB")
+    finally:
+        bench.close()
+        node.stop()
+    assert node.stats.received == sent["count"] == 3 * 3 * n and node.stats.overflow == 0
+    assert seen == {b: n for b in beds}, f"monitor messages per bed {seen}, {n} samples each"
