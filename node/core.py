@@ -9,6 +9,7 @@ The live node and ``ordervib replay`` both drive this class.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import orjson
@@ -38,10 +39,30 @@ class CoreStats:
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
 
 
+def _check(t: object, v: object) -> tuple[float, float | None] | None:
+    """(t, v) as floats when t is a finite number and v a number or null; else None."""
+    try:
+        ok = isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t)
+        ok = ok and (v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)))
+        return (float(t), None if v is None else float(v)) if ok else None
+    except OverflowError:  # an integer too large for a float
+        return None
+
+
+def decode_sample(payload: bytes) -> tuple[float, float | None] | None:
+    """(t, v) of a sensor payload ``{"t": number, "v": number or null}``; None when malformed."""
+    try:
+        d = orjson.loads(payload)
+        return _check(d["t"], d["v"])
+    except (orjson.JSONDecodeError, TypeError, KeyError):
+        return None
+
+
 class NodeCore:
     def __init__(self, bundle: Bundle) -> None:
         self.bundle = bundle
         self.stats = CoreStats()
+        self._routes: dict[str, tuple[str, str] | tuple[()]] = {}  # key -> (bed, channel), () if foreign
 
     def _bed(self, bed: str) -> BedState:
         st = self.stats.beds.get(bed)
@@ -59,19 +80,59 @@ class NodeCore:
             self.stats.foreign += 1
             return []
         bed, channel = parsed
-        try:
-            d = orjson.loads(payload)
-            t = d["t"]
-            v = d["v"]
-            ok = isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t)
-            ok = ok and (v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)))
-        except (orjson.JSONDecodeError, TypeError, KeyError):
-            ok = False
-        if not ok:
+        sample = decode_sample(payload)
+        if sample is None:
             self.stats.malformed += 1
             return []
         st = self._bed(bed)
-        return self._run(bed, st, st.aligner.push(channel, float(t), None if v is None else float(v)))
+        return self._run(bed, st, st.aligner.push(channel, sample[0], sample[1]))
+
+    def handle_many(self, keys: Sequence[str], payloads: Sequence[bytes]) -> list[tuple[int, list[Output]]]:
+        """``handle`` over a batch of messages, with the very same effects, faster.
+
+        Returns ``(i, outputs)`` for each message i that completed monitor messages.
+        """
+        stats = self.stats
+        beds = stats.beds
+        routes = self._routes
+        loads, decode_error = orjson.loads, orjson.JSONDecodeError
+        per_bed: dict[str, list] = {}  # bed -> [(i, channel, t, v)] of its valid messages
+        foreign = malformed = 0
+        for i, (key, payload) in enumerate(zip(keys, payloads, strict=True)):
+            route = routes.get(key)
+            if route is None:
+                route = routes[key] = parse_sensor_key(key) or ()
+            if not route:
+                foreign += 1
+                continue
+            try:
+                d = loads(payload)
+                t = d["t"]
+                v = d["v"]
+            except (decode_error, TypeError, KeyError):
+                malformed += 1
+                continue
+            if not (type(t) is float and t - t == 0.0 and (v is None or type(v) is float)):
+                sample = _check(t, v)  # the general rule, for ints and anything odd
+                if sample is None:
+                    malformed += 1
+                    continue
+                t, v = sample
+            items = per_bed.get(route[0])
+            if items is None:
+                if route[0] not in beds:
+                    self._bed(route[0])  # bed states are made in order of first valid message
+                items = per_bed[route[0]] = []
+            items.append((i, route[1], t, v))
+        stats.messages += len(keys)
+        stats.foreign += foreign
+        stats.malformed += malformed
+        # each bed's aligner is independent; the pipelines then run in message order
+        done = [(i, bed, samples) for bed, items in per_bed.items()
+                for i, samples in beds[bed].aligner.push_many(items)]
+        if len(per_bed) > 1:
+            done.sort(key=lambda x: x[0])
+        return [(i, self._run(bed, beds[bed], samples)) for i, bed, samples in done]
 
     def _run(self, bed: str, st: BedState, samples) -> list[Output]:
         out: list[Output] = []

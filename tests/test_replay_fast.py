@@ -1,0 +1,188 @@
+"""The fast replay path gives exactly what the plain per-message path gives."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import orjson
+import pytest
+
+from node.align import RUN_GAP, AlignedSample, Aligner
+from node.bundle import Bundle
+from node.core import NodeCore
+from node.schedule import OperatingCondition, Schedule
+
+REC = Path(__file__).resolve().parents[1] / "recordings" / "engine1_fault.mcap"
+
+
+class ReferenceAligner(Aligner):
+    """The aligner's push as first written (no shortcuts), to compare against."""
+
+    def push(self, channel, t, v):
+        if channel not in self.channels:
+            self.stats.unknown[channel] += 1
+            return []
+        out = []
+        if self._last_t is not None and t - self._last_t >= RUN_GAP:
+            out += self.flush()
+            self._t0 = None
+            self._new_run, self._emitted = True, False
+        if self._t0 is None:
+            self._t0, self._next, self._newest = t, 0, 0
+        self._last_t = t if self._last_t is None else max(self._last_t, t)
+        k = round((t - self._t0) * self.fs)
+        if k < self._next:
+            if self._emitted:
+                self.stats.late += 1
+                return out
+            self._next = k
+        slot = self._open.setdefault(k, {})
+        if channel in slot:
+            self.stats.duplicates += 1
+            return out
+        slot[channel] = float("nan") if v is None else float(v)
+        self._newest = max(self._newest, k)
+        while True:
+            head = self._open.get(self._next)
+            complete = head is not None and len(head) == len(self.channels)
+            expired = self._newest - self._next >= self.wait_slots
+            if not (complete or expired):
+                break
+            out.append(self._emit(self._next))
+        return out
+
+
+def _stream(seed: int, n: int = 3000) -> list[tuple[str, float, float | None]]:
+    """Jitter, reordering, dropouts, duplicates, lost and late messages, unknown channels, gaps."""
+    rng = np.random.default_rng(seed)
+    chans = ["a", "b", "c", "x"]
+    msgs = []
+    t0 = 1000.0 - rng.uniform(0, 0.1)
+    for k in range(n):
+        if k == n // 2:
+            t0 += RUN_GAP + rng.uniform(0, 5)
+        for c in chans:
+            r = rng.uniform()
+            if r < 0.03:
+                continue  # lost
+            t = t0 + k / 40 + rng.normal(0, 0.004)
+            v = None if r > 0.98 else float(rng.normal())
+            delay = rng.exponential(0.03) if r < 0.9 else rng.uniform(0, 0.6)  # some late
+            msgs.append((delay + t, c, t, v))
+            if r < 0.05:
+                msgs.append((delay + t + 0.01, c, t, v))  # duplicate
+    msgs.sort(key=lambda m: m[0])
+    return [(c, t, v) for _, c, t, v in msgs]
+
+
+def _key(s: AlignedSample):
+    return (s.t, s.new_run, sorted((c, None if math.isnan(v) else v) for c, v in s.values.items()))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_aligner_matches_the_reference(seed: int) -> None:
+    fast, ref = Aligner(["a", "b", "c"]), ReferenceAligner(["a", "b", "c"])
+    got, want = [], []
+    for i, (c, t, v) in enumerate(_stream(seed)):
+        a, b = fast.push(c, t, v), ref.push(c, t, v)
+        got += [(i, _key(s)) for s in a]
+        want += [(i, _key(s)) for s in b]
+    got += [(-1, _key(s)) for s in fast.flush()]
+    want += [(-1, _key(s)) for s in ref.flush()]
+    assert got == want and len(got) > 1000
+    assert fast.stats == ref.stats and fast.stats.late > 0 and fast.stats.duplicates > 0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_aligner_push_many_matches_the_reference(seed: int) -> None:
+    fast, ref = Aligner(["a", "b", "c"]), ReferenceAligner(["a", "b", "c"])
+    msgs = _stream(seed)
+    want = [(i, _key(s)) for i, (c, t, v) in enumerate(msgs) for s in ref.push(c, t, v)]
+    got = []
+    for a in range(0, len(msgs), 333):  # batches, and one message at a time in between
+        items = [(a + j, c, t, v) for j, (c, t, v) in enumerate(msgs[a:a + 333])]
+        got += [(i, _key(s)) for i, out in fast.push_many(items[:-1]) for s in out]
+        got += [(items[-1][0], _key(s)) for s in fast.push(*items[-1][1:])]
+    assert got == want and len(got) > 1000
+    assert [_key(s) for s in fast.flush()] == [_key(s) for s in ref.flush()]
+    assert fast.stats == ref.stats
+
+
+def test_handle_many_equals_handle_one_by_one() -> None:
+    sched = Schedule((OperatingCondition("A", 4000.0),))
+    bundle = Bundle("wdmd", "yB", sched, [], 60.0)
+    msgs: list[tuple[str, bytes]] = []
+    for i, (c, t, v) in enumerate(_stream(7, 1500)):
+        key = f"testbed/{'b1' if i % 5 else 'b2'}/sensor/{ {'a': 'nB', 'b': 'yB'}.get(c, c)}"
+        payload = orjson.dumps({"t": t, "v": v})
+        if i % 97 == 0:
+            payload = [b"{", b"[1]", b'{"t": "x", "v": 1}', b'{"t": 1.0}', b'{"t": 1e999, "v": 1}',
+                       b'{"t": 1000, "v": 2}', b'{"t": 1000.5, "v": true}', b"\xff",
+                       b'{"t": 123456789012345678901234567890123456789012345678901234567890'
+                       b'1234567890123456789012345678901234567890123456789012345678901234567890'
+                       b'1234567890123456789012345678901234567890123456789012345678901234567890'
+                       b'1234567890123456789012345678901234567890123456789012345678901234567890'
+                       b'12345678901234567890123456789012345678901234567890, "v": 1}'][(i // 97) % 9]
+        if i % 211 == 0:
+            key = "some/other/key"
+        msgs.append((key, payload))
+    one, many = NodeCore(bundle), NodeCore(bundle)
+    want = [(i, out) for i, (k, p) in enumerate(msgs) if (out := one.handle(k, p))]
+    got = []
+    for a in range(0, len(msgs), 256):
+        keys, payloads = zip(*msgs[a:a + 256], strict=True)
+        got += [(a + i, out) for i, out in many.handle_many(keys, payloads)]
+    assert orjson.dumps(got) == orjson.dumps(want) and len(got) > 100
+    for f in ("messages", "malformed", "foreign", "published"):
+        assert getattr(many.stats, f) == getattr(one.stats, f), f
+    assert many.stats.malformed > 5 and many.stats.foreign > 3
+    assert set(many.stats.beds) == set(one.stats.beds) == {"b1", "b2"}
+    for b in many.stats.beds:
+        assert many.stats.beds[b].aligner.stats == one.stats.beds[b].aligner.stats
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory) -> Path:
+    from node.cli import main
+    d = tmp_path_factory.mktemp("fastreplay")
+    ch = ["--channels", "nB,yB,tF", "--plateau-scale", "0.05", "--quiet"]
+    assert main(["simulate", "--runs", "2", "--seed", "5", "--out", str(d / "train.mcap"), *ch]) == 0
+    assert main(["simulate", "--runs", "3", "--skip", "2", "--seed", "5", "--out", str(d / "test.mcap"),
+                 *ch]) == 0
+    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"),
+                 "--out", str(d / "m"), "--method", "lasso", "--inputs", "nB,tF", "--quiet",
+                 "--workers", "1"]) == 0
+    return d
+
+
+def test_worker_process_gives_the_same_bytes(model: Path) -> None:
+    from node.commands.replay import replay_offline
+    from node.recording import iter_messages
+    a, b = model / "w0.mcap", model / "w1.mcap"
+    s0 = replay_offline(str(model / "test.mcap"), str(model / "m"), str(a), quiet=True, workers=0)
+    s1 = replay_offline(str(model / "test.mcap"), str(model / "m"), str(b), quiet=True, workers=1)
+    assert (s0["workers"], s1["workers"]) == (0, 1)
+    assert a.read_bytes() == b.read_bytes()
+    for k in ("inputs", "published", "malformed", "beds", "alarm_episodes"):
+        assert s0[k] == s1[k], k
+    inputs = [(m.topic, m.log_time, m.publish_time, m.payload) for m in iter_messages(model / "test.mcap")]
+    out = list(iter_messages(a))
+    assert [(m.topic, m.log_time, m.publish_time, m.payload) for m in out if "/sensor/" in m.topic] == inputs
+    mon = [m for m in out if m.topic.endswith("/monitor/yB")]
+    assert len(mon) > 100 and s0["published"] == sum(1 for m in out if "/monitor/" in m.topic)
+    # each monitor message right after the input that completed it, published at its log_time
+    # (those flushed at the end of the stream: at their own log_time)
+    last_in, after_input = None, 0
+    for m in out:
+        if "/sensor/" in m.topic:
+            last_in = m
+        else:
+            assert m.publish_time in (last_in.log_time, m.log_time)
+            after_input += m.publish_time == last_in.log_time
+    assert after_input > 0.9 * len(mon)
+    # replaying the node's own recording recomputes the monitor messages: same file again
+    c = model / "again.mcap"
+    replay_offline(str(a), str(model / "m"), str(c), quiet=True)
+    assert c.read_bytes() == a.read_bytes()
