@@ -22,6 +22,7 @@ from node.bundle import Bundle
 from node.core import NodeCore
 from node.errors import OrdervibError
 from node.recording import RecordingWriter
+from node.rotation import RotatingRecorder
 
 SENSOR_KEYS = "testbed/*/sensor/**"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -79,11 +80,13 @@ class LiveStats:
 class LiveNode:
     """Subscribes to every test bed's sensors, predicts, publishes, records."""
 
-    def __init__(self, bundle: Bundle, record: str, listen: list[str] | None = None,
+    def __init__(self, bundle: Bundle, record: str | RecordingWriter | RotatingRecorder,
+                 listen: list[str] | None = None,
                  connect: list[str] | None = None, config_file: str | None = None,
                  queue_size: int = 1_000_000) -> None:
         self.core = NodeCore(bundle)
-        self.writer = RecordingWriter(record)
+        # a path, or a recorder with RecordingWriter's write/flush/close (e.g. RotatingRecorder)
+        self.writer = RecordingWriter(record) if isinstance(record, str) else record
         self.conf = zenoh_config(listen, connect, config_file)
         self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self.stats = LiveStats()
@@ -165,8 +168,8 @@ class LiveNode:
         self.session.close()
 
 
-def run_node(bundle: Bundle, record: str, listen, connect, config_file, duration: float | None,
-             quiet: bool = False) -> LiveStats:
+def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, listen, connect,
+             config_file, duration: float | None, quiet: bool = False) -> LiveStats:
     import signal
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
