@@ -24,6 +24,8 @@ first. The stream is the first run of the recording from ``--offset`` seconds
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import os
 import signal
@@ -440,9 +442,10 @@ def main(argv: list[str] | None = None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-live-"))
     if not args.model:
         args.model = str(tmp / "model")
-        cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
-             str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
-             "--method", "lasso", "--quiet"])
+        with contextlib.redirect_stdout(io.StringIO()):  # the training report is not the bench's
+            cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
+                 str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
+                 "--method", "lasso", "--quiet"])
     bundle = load_bundle(args.model)
     needed = set(MonitorPipeline(bundle).channels)
     stream = load_stream(args.recording, args.seconds, args.offset, needed)
