@@ -69,9 +69,9 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
                 truth = _simulate(rec, n + 1, seed, n, fault, i)
             f = truth["runs"][-1]["fault"]
             eps = replay_offline(str(rec), str(model), None, quiet=True)["alarm_episodes"]
-            # an alarm the same run raises without the fault (first held-out run) is not a detection
+            # an alarm the same run raises by the same rule without the fault is not a detection
             eps = [e for e in eps if not any(n["start"] - 1.0 <= e["end"] and e["start"] <= n["end"] + 1.0
-                                             for n in s["alarm_episodes"])]
+                                             and n["reason"] == e["reason"] for n in s["alarm_episodes"])]
             after = [e for e in eps if e["end"] >= f["onset"]]
             before = [e for e in eps if e["end"] < f["onset"]]
             first = after[0] if after else None

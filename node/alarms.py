@@ -210,7 +210,7 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
 
 
 class EpisodeLog:
-    """Alarm episodes of a monitor stream: alarm samples less than ``gap_s`` apart are one.
+    """Alarm episodes of a monitor stream: alarm samples of one rule less than ``gap_s`` apart.
 
     ``episodes``: list of dicts {"key", "start", "end", "reason"} (times in s, the first
     alarm sample's reason).
@@ -226,7 +226,7 @@ class EpisodeLog:
             return
         t = float(msg["t"])
         ep = self._open.get(key)
-        if ep is not None and t - ep["end"] <= self.gap_s:
+        if ep is not None and t - ep["end"] <= self.gap_s and ep["reason"] == msg.get("reason"):
             ep["end"] = t
             return
         ep = {"key": key, "start": t, "end": t, "reason": msg.get("reason")}

@@ -78,8 +78,10 @@ def test_episode_log_merges_close_alarm_samples():
     for t, flag in [(0.0, "ok"), (1.0, "alarm"), (1.5, "alarm"), (2.4, "alarm"), (5.0, "alarm"), (5.1, "ok")]:
         log.add("testbed/b/monitor/yB", {"t": t, "flag": flag, "reason": "residual"})
     log.add("testbed/c/monitor/yB", {"t": 1.2, "flag": "alarm", "reason": "flatline"})
+    log.add("testbed/b/monitor/yB", {"t": 5.2, "flag": "alarm", "reason": "flatline"})  # another rule
     assert [(e["key"][8], e["start"], e["end"], e["reason"]) for e in log.episodes] == [
-        ("b", 1.0, 2.4, "residual"), ("b", 5.0, 5.0, "residual"), ("c", 1.2, 1.2, "flatline")]
+        ("b", 1.0, 2.4, "residual"), ("b", 5.0, 5.0, "residual"), ("c", 1.2, 1.2, "flatline"),
+        ("b", 5.2, 5.2, "flatline")]
 
 
 def test_pipeline_flags_a_stuck_target_without_a_model():
