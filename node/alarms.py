@@ -9,7 +9,7 @@ Two rules flag a sample:
   normal segment exceeds with chance ``budget / segments_per_hour`` is the threshold,
   never below ``THRESHOLD_MARGIN`` x the OC's own largest CV peak. Pooling a hundred
   peaks gives a far steadier tail than each OC's eight or so.
-* step: during a steady plateau, the mean of the measured target over the last
+* step: during a steady plateau (after ``STEP_SETTLE_S``), the mean of the measured target over the last
   ``STEP_SHORT_S`` departs from its mean over the ``STEP_LONG_S`` before by more than
   a threshold in units of the local noise (a clipped EWMA of the first differences).
   Model-free: an abrupt change of an order amplitude while the operating point holds
@@ -32,6 +32,7 @@ import numpy as np
 
 FALSE_ALARMS_PER_HOUR = 0.5  # residual-alarm budget on normal runs, per hour of OC time
 THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
+STEP_SETTLE_S = 3.0  # the first seconds of a plateau are left out: the amplitude still settles
 STEP_SHORT_S = 1.0  # recent window, s
 STEP_LONG_S = 4.0  # reference window just before it, s
 STEP_NOISE_S = 10.0  # EWMA span of the noise estimate, s
@@ -68,12 +69,13 @@ class StepCheck:
     """Stateful step detector on one channel during steady plateaus (bounded memory).
 
     ``step(value, steady) -> z``: |mean(last short) - mean(long before)| / noise sd, 0
-    until both windows lie inside the current plateau; ``flagged`` is True once z has
+    until both windows lie inside the current plateau, after its settling time; ``flagged`` is True once z has
     stayed beyond ``threshold`` for ``persist`` samples. NaN values hold the last one.
     """
 
     def __init__(self, threshold: float = math.inf, fs: float = 40.0) -> None:
         self.threshold = threshold
+        self.n_settle = int(round(STEP_SETTLE_S * fs))
         self.n_short = max(1, int(round(STEP_SHORT_S * fs)))
         self.n_long = max(1, int(round(STEP_LONG_S * fs)))
         self.alpha = 2.0 / (STEP_NOISE_S * fs + 1.0)
@@ -82,6 +84,7 @@ class StepCheck:
 
     def reset(self) -> None:
         self._win: deque[float] = deque()
+        self._age = 0
         self._sum_short = self._sum_long = 0.0
         self._last = math.nan
         self._var = 0.0
@@ -91,8 +94,11 @@ class StepCheck:
 
     def step(self, value: float, steady: bool) -> float:
         if not steady:
-            if self._win or self._ndiff:
+            if self._age:
                 self.reset()
+            return 0.0
+        self._age += 1
+        if self._age <= self.n_settle:
             return 0.0
         if value != value:
             value = self._last

@@ -149,3 +149,14 @@ def test_calibrated_step_threshold_is_above_every_normal_plateau():
     assert checks["step_peaks_in_training"]["n"] == 3
     assert checks["step_threshold"] >= THRESHOLD_MARGIN * checks["step_peaks_in_training"]["max"]
     assert checks["flatline_samples"] == 80
+
+
+def test_step_check_leaves_the_settling_start_of_a_plateau_out():
+    from node.alarms import StepCheck
+
+    chk = StepCheck(threshold=8.0)
+    y = np.r_[np.linspace(0.0, 5.0, chk.n_settle), np.full(400, 5.0)]  # settles, then flat
+    y = y + 0.05 * np.random.default_rng(2).standard_normal(y.size)
+    z = [chk.step(v, True) for v in y]
+    assert max(z) < 4.0 and not chk.flagged
+    assert all(v == 0.0 for v in z[: chk.n_settle + chk.n_short + chk.n_long - 1])
