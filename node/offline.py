@@ -23,6 +23,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from itertools import islice
+from operator import itemgetter
 from typing import Any
 
 import orjson
@@ -36,6 +37,7 @@ from node.recording import ReadStats, RecordingWriter, iter_messages_fast
 BATCH = 4096  # messages per batch
 IN_FLIGHT = 2  # batches handed to the worker and not yet written
 
+_KEY, _LOG, _PUB, _PAYLOAD = (itemgetter(i) for i in range(4))  # fields of a Message
 Encoded = tuple[str, int, bytes]  # (key, log_time ns, JSON bytes) of a monitor message
 
 
@@ -161,13 +163,18 @@ class _Forked:
         if self.proc.is_alive():
             self.proc.kill()
         self.proc.join()
-        self.tasks.close()
-        self.results.close()
+        for q in (self.tasks, self.results):
+            q.cancel_join_thread()  # batches nobody will read must not hold up the exit
+            q.close()
 
 
 def default_workers() -> int:
-    """1 (logic in a worker process) with two cores or more and ``fork``; else 0."""
-    ok = "fork" in multiprocessing.get_all_start_methods() and (os.cpu_count() or 1) >= 2
+    """1 (logic in a worker process) with two cores or more and ``fork``; else 0.
+
+    ``fork`` keeps the start cheap (the worker inherits the loaded model and modules).
+    """
+    ok = ("fork" in multiprocessing.get_all_start_methods() and (os.cpu_count() or 1) >= 2
+          and not multiprocessing.current_process().daemon)  # a daemon may not have children
     return 1 if ok else 0
 
 
@@ -210,10 +217,10 @@ def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None 
         flight: deque = deque()  # columns of the batches handed over and not yet written
 
         def submit(batch: list) -> None:
-            keys, payloads = [m[0] for m in batch], [m[3] for m in batch]
+            keys, payloads = list(map(_KEY, batch)), list(map(_PAYLOAD, batch))
             engine.submit(keys, payloads)
             if writer:
-                flight.append((keys, [m[1] for m in batch], [m[2] for m in batch], payloads))
+                flight.append((keys, list(map(_LOG, batch)), list(map(_PUB, batch)), payloads))
             else:
                 flight.append(None)
             while len(flight) > IN_FLIGHT:
@@ -227,7 +234,7 @@ def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None 
 
         messages = iter_messages_fast(recording, stats=stats)
         while batch := list(islice(messages, BATCH)):
-            if any("/monitor/" in key for key in {m[0] for m in batch}):
+            if any("/monitor/" in key for key in set(map(_KEY, batch))):
                 # a node's own recording: recompute its monitor messages, do not copy them
                 batch = [m for m in batch if "/monitor/" not in m[0]]
             n_in += len(batch)

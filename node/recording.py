@@ -159,8 +159,12 @@ class RecordingWriter:
         """``write_many`` given as four columns (the fastest way to write many messages)."""
         if self._closed:
             raise OrdervibError("recording already closed")
-        get, channel_of = self._channels.get, self.channel_id
-        cids = [get(k) or channel_of(k) for k in keys]
+        channels = self._channels
+        if not channels.keys() >= set(keys):
+            for k in keys:  # register new keys in order of first appearance
+                if k not in channels:
+                    self.channel_id(k)
+        cids = list(map(channels.__getitem__, keys))
         self._writer.add_columns(cids, log_times, publish_times, payloads)
         self.count += len(cids)
 

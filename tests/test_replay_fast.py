@@ -186,3 +186,17 @@ def test_worker_process_gives_the_same_bytes(model: Path) -> None:
     c = model / "again.mcap"
     replay_offline(str(a), str(model / "m"), str(c), quiet=True)
     assert c.read_bytes() == a.read_bytes()
+
+
+def test_a_failing_worker_ends_the_replay_with_one_line(model: Path, monkeypatch) -> None:
+    import node.offline as off
+    from node.bundle import load_bundle
+    from node.errors import OrdervibError
+
+    def boom(self, keys, payloads):
+        raise ValueError("bad model")
+
+    monkeypatch.setattr(off._Logic, "batch", boom)  # inherited by the forked worker
+    with pytest.raises(OrdervibError, match="replay worker: ValueError: bad model") as err:
+        off.replay(str(model / "test.mcap"), load_bundle(model / "m"), str(model / "x.mcap"), workers=1)
+    assert "\n" not in str(err.value)
