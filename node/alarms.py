@@ -69,8 +69,11 @@ class StepCheck:
     """Stateful step detector on one channel during steady plateaus (bounded memory).
 
     ``step(value, steady) -> z``: |mean(last short) - mean(long before)| / noise sd, 0
-    until both windows lie inside the current plateau, after its settling time; ``flagged`` is True once z has
-    stayed beyond ``threshold`` for ``persist`` samples. NaN values hold the last one.
+    until both windows lie inside the current plateau, after its settling time;
+    ``flagged`` is True once z has stayed beyond ``threshold`` for ``persist`` samples,
+    and stays True to the end of the
+    plateau (the operating point has not changed, so the new level is not normal). NaN
+    values hold the last one.
     """
 
     def __init__(self, threshold: float = math.inf, fs: float = 40.0) -> None:
@@ -126,7 +129,7 @@ class StepCheck:
             diff = self._sum_short / self.n_short - self._sum_long / self.n_long
             z = abs(diff) / math.sqrt(self._var)
         self._beyond = self._beyond + 1 if z > self.threshold else 0
-        self.flagged = self._beyond >= self.persist
+        self.flagged = self.flagged or self._beyond >= self.persist  # holds to the plateau's end
         return z
 
 

@@ -124,6 +124,7 @@ def test_step_check_finds_a_step_in_noise_and_ignores_a_slow_trend():
         flags.append(chk.flagged)
     first = flags.index(True)
     assert 600 <= first <= 600 + 40  # within a second
+    assert all(flags[first:])  # held to the end of the plateau
     assert max(zs[:600]) < 4.0
     # outside a plateau nothing is computed, and a new plateau starts afresh
     assert chk.step(100.0, False) == 0.0 and not chk.flagged
