@@ -134,11 +134,36 @@ class OCModel:
 
 
 class OCRuntime:
-    """Online stepper of one OC model: ``start`` at the switch, then ``step`` per sample."""
+    """Online stepper of one OC model: ``start`` at the switch, then ``step`` per sample.
+
+    One matrix-vector product per sample: the input scaling is folded into
+    G = [[C, D], [A, B]] acting on z = [x; u; 1] (raw inputs u).
+    """
 
     def __init__(self, model: OCModel) -> None:
         self.model = model
-        self.x: np.ndarray | None = None
+        m = model
+        inv = 1.0 / np.asarray(m.u_scale, float)
+        shift = -np.asarray(m.u_mean, float) * inv
+        k = inv.size
+        if m.method is Method.LASSO:
+            self._w = np.append(np.asarray(m.coef, float) * inv, m.intercept + float(shift @ m.coef))
+            self._z = np.ones(k + 1)
+            self._n = 0
+            return
+        ss = m.ss
+        n = ss.n_states
+        top = np.hstack([ss.C[:1], ss.D[:1, :k] * inv, ss.D[:1, k:] + ss.D[:1, :k] @ shift[:, None]])
+        low = np.hstack([ss.A, ss.B[:, :k] * inv, ss.B[:, k:] + ss.B[:, :k] @ shift[:, None]])
+        self._G = np.ascontiguousarray(np.vstack([top, low]))
+        self._z = np.zeros(n + k + 1)
+        self._z[-1] = 1.0
+        self._n = n
+
+    @property
+    def x(self) -> np.ndarray:
+        """The state (n,) (a copy)."""
+        return self._z[: self._n].copy()
 
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
         """Seed from the measured past: y_hist (K1,), U_hist (K1, m) (K1 may be 0)."""
@@ -146,21 +171,20 @@ class OCRuntime:
         if m.method is Method.LASSO:
             return
         if len(y_hist) == 0:
-            self.x = np.zeros(m.ss.n_states)
+            self._z[: self._n] = 0.0
             return
         Un = m.scale_inputs(U_hist)
-        self.x = m.dmd().initial_state((np.asarray(y_hist, float)[:, None], Un))
+        self._z[: self._n] = m.dmd().initial_state((np.asarray(y_hist, float)[:, None], Un))
 
-    def step(self, u: np.ndarray) -> float:
-        """Prediction for this sample from its inputs u (m,); advances the state."""
-        m = self.model
-        un = np.append((np.asarray(u, float) - m.u_mean) / m.u_scale, 1.0)
-        if m.method is Method.LASSO:
-            return float(un[:-1] @ m.coef + m.intercept)
-        ss = m.ss
-        y = float(ss.C[0] @ self.x + ss.D[0] @ un)
-        self.x = ss.A @ self.x + ss.B @ un
-        return y
+    def step(self, u) -> float:
+        """Prediction for this sample from its raw inputs u (m,); advances the state."""
+        z, n = self._z, self._n
+        z[n:-1] = u
+        if self.model.method is Method.LASSO:
+            return float(self._w @ z)
+        out = self._G @ z
+        z[:n] = out[1:]
+        return float(out[0])
 
 
 # -- fitting -------------------------------------------------------------------------------

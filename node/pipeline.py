@@ -58,7 +58,7 @@ class MonitorPipeline:
         self.detector = OCDetector(bundle.schedule, FS)
         self.channels = sorted({self.switch, self.target, *bundle.inputs})
         self._hist: deque[tuple[float, ...]] = deque(maxlen=int(bundle.history_s * FS))
-        self._last: dict[str, float] = {}
+        self._last: dict[str, float] = dict.fromkeys(self.channels, math.nan)  # in channel order
         self._state: tuple[int | None, Phase] = (None, Phase.OFF)
         self._active: _Active | None = None
         self._score = 0.0
@@ -69,14 +69,13 @@ class MonitorPipeline:
         self._jump = StepCheck(float(thr), FS) if thr else None
 
     def _filled(self, values: dict[str, float]) -> dict[str, float]:
-        """Hold each channel's last finite value over dropouts."""
-        out = {}
+        """Hold each channel's last finite value over dropouts (NaN before the first); in place."""
+        last = self._last
         for c in self.channels:
-            v = values.get(c, float("nan"))
-            if math.isfinite(v):
-                self._last[c] = v
-            out[c] = self._last.get(c, float("nan"))
-        return out
+            v = values.get(c)
+            if v is not None and v - v == 0.0:  # finite
+                last[c] = v
+        return last
 
     def _activate(self, oc: int | None) -> None:
         self._active = None
@@ -103,7 +102,7 @@ class MonitorPipeline:
         if sample.new_run:
             self.detector.reset()
             self._hist.clear()
-            self._last.clear()
+            self._last = dict.fromkeys(self.channels, math.nan)
             if self._flat is not None:
                 self._flat.reset()
             if self._jump is not None:
@@ -125,8 +124,8 @@ class MonitorPipeline:
                "score": None, "band": None, "model": None, "reason": None}
         a = self._active
         if a is not None and a.runtime is not None:
-            u = np.array([vals[c] for c in a.inputs])
-            if np.all(np.isfinite(u)):
+            u = [vals[c] for c in a.inputs]
+            if all(x - x == 0.0 for x in u):
                 pred = a.runtime.step(u)
                 msg["predicted"] = _num(pred)
                 msg["model"] = a.model_id
@@ -147,5 +146,5 @@ class MonitorPipeline:
                 msg["flag"], msg["reason"] = "alarm", "step"
         if self._flat is not None and self._flat.step(measured, st.phase is not Phase.OFF):
             msg["flag"], msg["reason"] = "alarm", "flatline"
-        self._hist.append(tuple(vals[c] for c in self.channels))
+        self._hist.append(tuple(vals.values()))
         return msg, oc_msg
