@@ -56,6 +56,7 @@ class MonitorPipeline:
         self.target = bundle.target
         self.switch = bundle.schedule.switch
         self.detector = OCDetector(bundle.schedule, FS)
+        self._names = bundle.schedule.names  # a tuple built on each access: keep one
         self.channels = sorted({self.switch, self.target, *bundle.inputs})
         self._hist: deque[tuple[float, ...]] = deque(maxlen=int(bundle.history_s * FS))
         self._last: dict[str, float] = dict.fromkeys(self.channels, math.nan)  # in channel order
@@ -82,7 +83,7 @@ class MonitorPipeline:
         self._score, self._beyond = 0.0, 0
         if oc is None:
             return
-        res = self.bundle.oc(self.bundle.schedule.names[oc])
+        res = self.bundle.oc(self._names[oc])
         if res is None or res.model is None or res.calibration is None:
             return
         rt = res.model.runtime()
@@ -110,7 +111,7 @@ class MonitorPipeline:
         vals = self._filled(sample.values)
         st = self.detector.step(sample.values.get(self.switch, float("nan")))
         oc_msg = None
-        names = self.bundle.schedule.names
+        names = self._names
         if (st.oc, st.phase) != self._state:
             prev_oc = self._state[0]
             if st.oc != prev_oc:
