@@ -10,12 +10,12 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import small_campaign
 
 from node.cli import main
 from node.recording import iter_messages
 
 pytest.importorskip("zenoh")
-CH = ["--channels", "nB,yB,tF", "--plateau-scale", "0.05", "--quiet"]
 
 
 def free_port() -> int:
@@ -27,13 +27,7 @@ def free_port() -> int:
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     d = tmp_path_factory.mktemp("live")
-    assert main(["simulate", "--runs", "2", "--seed", "3", "--out", str(d / "train.mcap"), *CH]) == 0
-    assert main(["simulate", "--runs", "3", "--skip", "2", "--seed", "3", "--out", str(d / "test.mcap"),
-                 *CH]) == 0
-    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"),
-                 "--out", str(d / "m"), "--method", "lasso", "--inputs", "nB,tF", "--quiet",
-                 "--workers", "1"]) == 0
-    return d
+    return small_campaign(d, 3)
 
 
 def start_node(model: Path, rec: Path) -> tuple[subprocess.Popen, int]:

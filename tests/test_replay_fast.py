@@ -145,16 +145,8 @@ def test_handle_many_equals_handle_one_by_one() -> None:
 
 @pytest.fixture(scope="module")
 def model(tmp_path_factory) -> Path:
-    from node.cli import main
-    d = tmp_path_factory.mktemp("fastreplay")
-    ch = ["--channels", "nB,yB,tF", "--plateau-scale", "0.05", "--quiet"]
-    assert main(["simulate", "--runs", "2", "--seed", "5", "--out", str(d / "train.mcap"), *ch]) == 0
-    assert main(["simulate", "--runs", "3", "--skip", "2", "--seed", "5", "--out", str(d / "test.mcap"),
-                 *ch]) == 0
-    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"),
-                 "--out", str(d / "m"), "--method", "lasso", "--inputs", "nB,tF", "--quiet",
-                 "--workers", "1"]) == 0
-    return d
+    from conftest import small_campaign
+    return small_campaign(tmp_path_factory.mktemp("fastreplay"), 5)
 
 
 def test_worker_process_gives_the_same_bytes(model: Path) -> None:

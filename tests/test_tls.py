@@ -18,6 +18,7 @@ from pathlib import Path
 
 import orjson
 import pytest
+from conftest import small_campaign
 
 from node.cli import main
 from node.recording import iter_messages
@@ -28,7 +29,6 @@ if shutil.which("openssl") is None:
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs" / "zenoh"
-CH = ["--channels", "nB,yB,tF", "--plateau-scale", "0.05", "--quiet"]
 
 
 def free_port() -> int:
@@ -72,13 +72,7 @@ def example_config(name: str, d: Path, endpoint: str, old_endpoint: str) -> Path
 def setup(tmp_path_factory):
     d = tmp_path_factory.mktemp("tls")
     make_certs(d)
-    assert main(["simulate", "--runs", "2", "--seed", "3", "--out", str(d / "train.mcap"), *CH]) == 0
-    assert main(["simulate", "--runs", "3", "--skip", "2", "--seed", "3", "--out", str(d / "test.mcap"),
-                 *CH]) == 0
-    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"),
-                 "--out", str(d / "m"), "--method", "lasso", "--inputs", "nB,tF", "--quiet",
-                 "--workers", "1"]) == 0
-    return d
+    return small_campaign(d, 3)
 
 
 def test_tls_node_serves_a_tls_test_bed_and_nobody_else(setup, tmp_path):

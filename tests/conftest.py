@@ -1,0 +1,24 @@
+"""Shared test fixtures' building blocks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from node.cli import main
+
+SMALL_CHANNELS = ["--channels", "nB,yB,tF", "--plateau-scale", "0.05", "--quiet"]
+
+
+def small_campaign(d: Path, seed: int) -> Path:
+    """In ``d``: train.mcap (2 short runs), test.mcap (the next one), model ``m`` (Lasso on nB, tF).
+
+    Three channels and plateaus at 5 % keep it to a few seconds; returns ``d``.
+    """
+    assert main(["simulate", "--runs", "2", "--seed", str(seed), "--out", str(d / "train.mcap"),
+                 *SMALL_CHANNELS]) == 0
+    assert main(["simulate", "--runs", "3", "--skip", "2", "--seed", str(seed),
+                 "--out", str(d / "test.mcap"), *SMALL_CHANNELS]) == 0
+    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"),
+                 "--out", str(d / "m"), "--method", "lasso", "--inputs", "nB,tF", "--quiet",
+                 "--workers", "1"]) == 0
+    return d
