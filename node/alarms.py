@@ -9,6 +9,8 @@ Two rules flag a sample:
   normal segment exceeds with chance ``budget / segments_per_hour`` is the threshold,
   never below ``THRESHOLD_MARGIN`` x the OC's own largest CV peak. Pooling a hundred
   peaks gives a far steadier tail than each OC's eight or so.
+  The residual's sigma is scaled per run by ``RunScale`` (how far this run's earlier
+  OCs strayed from their models), in calibration and in the node alike.
 * step: during a steady plateau (after ``STEP_SETTLE_S``), the mean of the measured target over the last
   ``STEP_SHORT_S`` departs from its mean over the ``STEP_LONG_S`` before by more than
   a threshold in units of the local noise (a clipped EWMA of the first differences).
@@ -40,6 +42,34 @@ STEP_PERSIST_S = 0.25  # the step statistic must stay beyond the threshold this 
 FLATLINE_MIN_S = 2.0  # a flat line shorter than this never alarms, s
 FLATLINE_FACTOR = 4.0  # limit = factor x the longest repeat in the training runs
 EULER_GAMMA = 0.5772156649
+
+
+RUN_SCALE_PRIOR_OCS = 3.0  # a run counts as typical with the weight of this many OCs
+
+
+class RunScale:
+    """How unusual this run is so far: the residual rule's sigma is multiplied by ``factor``.
+
+    The same engine vibrates differently from run to run (thermal state, re-seated
+    imbalance), and an OC model's error carries that run's mark into every OC.
+    After each OC segment, its mean squared standardized residual m_j is added;
+    factor = max(1, sqrt((n0 + sum m_j) / (n0 + J))), n0 = ``RUN_SCALE_PRIOR_OCS``:
+    1 for a typical run, never below 1 (never more sensitive than the calibration).
+    Training calibrates with the very same rule over each held-out CV run.
+    """
+
+    def __init__(self, prior: float = RUN_SCALE_PRIOR_OCS) -> None:
+        self.prior = prior
+        self.total = 0.0
+        self.count = 0
+        self.factor = 1.0
+
+    def add(self, mean_sq: float) -> None:
+        """One finished OC segment's mean squared standardized residual."""
+        if mean_sq == mean_sq and mean_sq != math.inf:
+            self.total += mean_sq
+            self.count += 1
+            self.factor = max(1.0, math.sqrt((self.prior + self.total) / (self.prior + self.count)))
 
 
 def gumbel_quantile(peaks: Sequence[float], p: float) -> float:
@@ -186,6 +216,8 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     Steps the very ``StepCheck`` and OC detector the node runs over every run: the peak
     step statistic of each steady plateau, pooled, gives the step threshold for the
     alarm budget (per hour of running); the longest repeat gives the flatline limit.
+    ``run_scale_prior_ocs`` tells the node the residual thresholds were calibrated with
+    ``RunScale`` (bundles without it are run without).
     """
     from node.ocdetect import OCDetector, Phase
 
@@ -209,7 +241,8 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
                 peak = None
         if peak is not None:
             peaks.append(peak)
-    checks: dict = {"flatline_samples": flatline_limit(longest, fs), "longest_repeat_in_training": longest}
+    checks: dict = {"flatline_samples": flatline_limit(longest, fs), "longest_repeat_in_training": longest,
+                    "run_scale_prior_ocs": RUN_SCALE_PRIOR_OCS}
     if len(peaks) >= 2 and running_s > 0:
         p = min(0.5, budget / (len(peaks) / (running_s / 3600.0)))
         checks["step_threshold"] = max(gumbel_quantile(peaks, p), THRESHOLD_MARGIN * max(peaks))

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.alarms import FlatlineCheck, StepCheck
+from node.alarms import FlatlineCheck, RunScale, StepCheck
 from node.align import AlignedSample
 from node.bundle import Bundle
 from node.ocdetect import OCDetector, Phase
@@ -38,6 +38,7 @@ class _Active:
     alpha: float
     persist: int
     model_id: str
+    run_scale: float = 1.0
 
 
 def _num(x: float) -> float | None:
@@ -68,6 +69,10 @@ class MonitorPipeline:
         self._flat = FlatlineCheck(int(limit)) if limit else None
         thr = bundle.checks.get("step_threshold")
         self._jump = StepCheck(float(thr), FS) if thr else None
+        prior = bundle.checks.get("run_scale_prior_ocs")
+        self._scale_prior = float(prior) if prior else None
+        self._runscale = RunScale(self._scale_prior) if prior else None
+        self._zsum, self._zn = 0.0, 0  # squared standardized residuals of the active OC
 
     def _filled(self, values: dict[str, float]) -> dict[str, float]:
         """Hold each channel's last finite value over dropouts (NaN before the first); in place."""
@@ -79,6 +84,9 @@ class MonitorPipeline:
         return last
 
     def _activate(self, oc: int | None) -> None:
+        if self._runscale is not None and self._zn:
+            self._runscale.add(self._zsum / self._zn)
+        self._zsum, self._zn = 0.0, 0
         self._active = None
         self._score, self._beyond = 0.0, 0
         if oc is None:
@@ -97,7 +105,8 @@ class MonitorPipeline:
             rt.start(np.zeros(0), np.zeros((0, len(res.inputs))))
         c = res.calibration
         self._active = _Active(oc, rt, list(res.inputs), c.sigma, c.threshold, c.ewma_alpha,
-                               c.persist, f"{self.bundle.method}:{res.name}")
+                               c.persist, f"{self.bundle.method}:{res.name}",
+                               1.0 if self._runscale is None else self._runscale.factor)
 
     def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
         if sample.new_run:
@@ -108,6 +117,9 @@ class MonitorPipeline:
                 self._flat.reset()
             if self._jump is not None:
                 self._jump.reset()
+            if self._runscale is not None:
+                self._runscale = RunScale(self._scale_prior)
+            self._zsum, self._zn = 0.0, 0
         vals = self._filled(sample.values)
         st = self.detector.step(sample.values.get(self.switch, float("nan")))
         oc_msg = None
@@ -122,7 +134,8 @@ class MonitorPipeline:
         measured = sample.values.get(self.target, float("nan"))
         msg = {"t": sample.t, "oc": None if st.oc is None else names[st.oc], "phase": st.phase.value,
                "measured": _num(measured), "predicted": None, "residual": None, "flag": "no-model",
-               "score": None, "band": None, "model": None, "reason": None}
+               "score": None, "band": None, "model": None, "reason": None,
+               "run_scale": None}
         a = self._active
         if a is not None and a.runtime is not None:
             u = [vals[c] for c in a.inputs]
@@ -130,10 +143,14 @@ class MonitorPipeline:
                 pred = a.runtime.step(u)
                 msg["predicted"] = _num(pred)
                 msg["model"] = a.model_id
-                msg["band"] = a.threshold * a.sigma
+                msg["band"] = a.threshold * a.sigma * a.run_scale
+                msg["run_scale"] = a.run_scale
                 if math.isfinite(measured) and math.isfinite(pred):
                     r = measured - pred
-                    self._score = (1.0 - a.alpha) * self._score + a.alpha * r / a.sigma
+                    z = r / a.sigma
+                    self._zsum += z * z
+                    self._zn += 1
+                    self._score = (1.0 - a.alpha) * self._score + a.alpha * z / a.run_scale
                     self._beyond = self._beyond + 1 if abs(self._score) > a.threshold else 0
                     msg["residual"] = r
                 msg["score"] = self._score

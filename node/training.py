@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.alarms import FALSE_ALARMS_PER_HOUR, pooled_thresholds
+from node.alarms import FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds
 from node.dataset import Segment, run_arrays, segment_runs
 from node.errors import OrdervibError
 from node.features import rank_inputs
@@ -54,6 +54,7 @@ class Calibration:
     ewma_alpha: float = 2.0 / (EWMA_SPAN_S * FS + 1.0)
     persist: int = int(PERSIST_S * FS)
     peaks: list[float] = field(default_factory=list)
+    segments: list[tuple[int, int, float]] = field(default_factory=list)  # CV: (run, start, mean z^2)
 
 
 @dataclass
@@ -99,6 +100,7 @@ class OCData:
     y: list[np.ndarray]  # target from the history start to the segment end
     X: list[np.ndarray]  # candidates, same rows
     start: list[int]  # index of the OC's first sample in y / X
+    at: list[int] = field(default_factory=list)  # index of the OC's first sample in its run
 
 
 def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int
@@ -172,6 +174,9 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         sigma = max(sigma, 1e-9)
         c = Calibration(sigma, float("inf"))
         c.peaks = [float(np.max(np.abs(ewma_scores(r, sigma, c.ewma_alpha)))) for r in res]
+        rows = [i for f in folds for i, r in enumerate(d.runs) if r == f]  # the order of ``pairs``
+        at = d.at if d.at else [0] * len(d.runs)
+        c.segments = [(d.runs[i], at[i], float(np.mean((r / sigma) ** 2))) for i, r in zip(rows, res)]
         calib = c
     note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
     if meth is not Method.LASSO and not np.isfinite(cv_eps):
@@ -198,6 +203,7 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
             d.y.append(ra.y[lo:s.stop])
             d.X.append(ra.U[lo:s.stop])
             d.start.append(s.start - lo)
+            d.at.append(s.start)
         out.append(d)
     return out
 
@@ -270,9 +276,32 @@ def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float) 
     segments = sum(len(d.runs) for d in datas)
     per_hour = segments / hours if hours > 0 else 1.0
     calibs = {r.name: r.calibration for r in results if r.calibration is not None}
+    for name, scaled in run_scaled_peaks(calibs).items():
+        calibs[name].peaks = scaled
     levels = pooled_thresholds({n: c.peaks for n, c in calibs.items()}, per_hour, budget)
     for name, c in calibs.items():
         c.threshold = levels[name]
+
+
+def run_scaled_peaks(calibs: dict[str, Calibration]) -> dict[str, list[float]]:
+    """CV peaks divided by the run scale the node would have used at each segment's start.
+
+    Within a held-out CV run, its segments (every OC) in time order feed ``RunScale``
+    exactly as the node's pipeline does; an OC without calibrated segments is left as is.
+    """
+    by_run: dict[int, list[tuple[int, str, int]]] = {}
+    for name, c in calibs.items():
+        if len(c.segments) != len(c.peaks):
+            continue
+        for k, (run, at, _) in enumerate(c.segments):
+            by_run.setdefault(run, []).append((at, name, k))
+    out = {name: list(c.peaks) for name, c in calibs.items()}
+    for segs in by_run.values():
+        scale = RunScale()
+        for _, name, k in sorted(segs):
+            out[name][k] = calibs[name].peaks[k] / scale.factor
+            scale.add(calibs[name].segments[k][2])
+    return out
 
 
 def memory_needed(results: list[OCResult]) -> int:

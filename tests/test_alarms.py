@@ -161,3 +161,33 @@ def test_step_check_leaves_the_settling_start_of_a_plateau_out():
     z = [chk.step(v, True) for v in y]
     assert max(z) < 4.0 and not chk.flagged
     assert all(v == 0.0 for v in z[: chk.n_settle + chk.n_short + chk.n_long - 1])
+
+
+def test_run_scale_grows_only_for_an_unusual_run():
+    from node.alarms import RunScale
+
+    typical = RunScale(prior=3.0)
+    for m in (1.0, 0.5, 1.2, 0.8):
+        typical.add(m)
+    assert typical.factor == 1.0  # never below 1: never more sensitive than calibrated
+    odd = RunScale(prior=3.0)
+    odd.add(9.0)
+    assert odd.factor == pytest.approx(math.sqrt((3 + 9) / 4))
+    odd.add(9.0)
+    assert odd.factor == pytest.approx(math.sqrt((3 + 18) / 5))
+    odd.add(float("nan"))  # an OC without residuals changes nothing
+    assert odd.count == 2
+
+
+def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
+    from node.alarms import RunScale
+    from node.training import Calibration, run_scaled_peaks
+
+    a = Calibration(1.0, 0.0, peaks=[2.0, 3.0], segments=[(0, 100, 9.0), (1, 100, 1.0)])
+    b = Calibration(1.0, 0.0, peaks=[4.0, 5.0], segments=[(0, 500, 4.0), (1, 500, 1.0)])
+    out = run_scaled_peaks({"A": a, "B": b})
+    assert out["A"] == [2.0, 3.0]  # first OC of each run: nothing seen yet
+    s = RunScale()
+    s.add(9.0)
+    assert out["B"] == [pytest.approx(4.0 / s.factor), 5.0]  # run 0 strayed in A, run 1 did not
+    assert s.factor > 1.0
