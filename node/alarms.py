@@ -33,6 +33,7 @@ from collections.abc import Sequence
 import numpy as np
 
 FALSE_ALARMS_PER_HOUR = 0.5  # residual-alarm budget on normal runs, per hour of OC time
+RESIDUAL_CLEAR_S = 5.0  # a residual alarm clears after this long back under its threshold, s
 THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
 STEP_SETTLE_S = 3.0  # the first seconds of a plateau are left out: the amplitude still settles
 STEP_SHORT_S = 1.0  # recent window, s

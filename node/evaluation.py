@@ -56,7 +56,11 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
 
 
 def alarm_mask(residual: np.ndarray, res: OCResult) -> np.ndarray:
-    """Samples where the smoothed standardized residual has exceeded the threshold persistently."""
+    """Samples where the smoothed standardized residual has exceeded the threshold persistently.
+
+    Per segment, so without the node's run scale and off-delay (``node.pipeline``): a
+    quick per-OC view; the node's own figures come from ``ordervib replay``.
+    """
     c = res.calibration
     e = np.abs(ewma_scores(residual, c.sigma, c.ewma_alpha)) > c.threshold
     run = np.zeros(e.size, dtype=np.int64)

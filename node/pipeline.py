@@ -5,7 +5,8 @@ they give the very same numbers. Per sample: the OC detector steps on the
 switch speed; at an OC switch the OC's model is seeded from the measured
 past (a bounded ring buffer) and then steps once per sample; the residual is
 standardized by the OC's cross-validated sigma, smoothed (EWMA) and flagged
-when beyond the OC's threshold for long enough (``reason`` "residual"). A
+when beyond the OC's threshold for long enough (``reason`` "residual"); it clears
+once back under the threshold for ``RESIDUAL_CLEAR_S`` (an off-delay against chatter). A
 model-free checks flag, with or without a model, an abrupt step of the measured
 target during a steady plateau (``reason`` "step") and a target stuck on one
 value while the engine runs (``reason`` "flatline"); see ``node.alarms``.
@@ -19,13 +20,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.alarms import FlatlineCheck, RunScale, StepCheck
+from node.alarms import RESIDUAL_CLEAR_S, FlatlineCheck, RunScale, StepCheck
 from node.align import AlignedSample
 from node.bundle import Bundle
 from node.ocdetect import OCDetector, Phase
 from node.ocmodel import OCRuntime
 
 FS = 40.0
+CLEAR_SAMPLES = int(RESIDUAL_CLEAR_S * FS)
 
 
 @dataclass
@@ -65,6 +67,8 @@ class MonitorPipeline:
         self._active: _Active | None = None
         self._score = 0.0
         self._beyond = 0
+        self._below = 0
+        self._raised = False
         limit = bundle.checks.get("flatline_samples")
         self._flat = FlatlineCheck(int(limit)) if limit else None
         thr = bundle.checks.get("step_threshold")
@@ -88,7 +92,7 @@ class MonitorPipeline:
             self._runscale.add(self._zsum / self._zn)
         self._zsum, self._zn = 0.0, 0
         self._active = None
-        self._score, self._beyond = 0.0, 0
+        self._score, self._beyond, self._below, self._raised = 0.0, 0, 0, False
         if oc is None:
             return
         res = self.bundle.oc(self._names[oc])
@@ -151,10 +155,18 @@ class MonitorPipeline:
                     self._zsum += z * z
                     self._zn += 1
                     self._score = (1.0 - a.alpha) * self._score + a.alpha * z / a.run_scale
-                    self._beyond = self._beyond + 1 if abs(self._score) > a.threshold else 0
+                    if abs(self._score) > a.threshold:
+                        self._beyond, self._below = self._beyond + 1, 0
+                    else:
+                        self._beyond, self._below = 0, self._below + 1
+                    # on-delay (persist) to raise, off-delay to clear: no chattering alarm
+                    if self._beyond >= a.persist:
+                        self._raised = True
+                    elif self._below >= CLEAR_SAMPLES:
+                        self._raised = False
                     msg["residual"] = r
                 msg["score"] = self._score
-                if self._beyond >= a.persist:
+                if self._raised:
                     msg["flag"], msg["reason"] = "alarm", "residual"
                 else:
                     msg["flag"] = "ok"

@@ -191,3 +191,37 @@ def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
     s.add(9.0)
     assert out["B"] == [pytest.approx(4.0 / s.factor), 5.0]  # run 0 strayed in A, run 1 did not
     assert s.factor > 1.0
+
+
+def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
+    from node.alarms import RESIDUAL_CLEAR_S
+    from node.bundle import Bundle
+    from node.core import NodeCore
+    from node.ocmodel import Method, OCModel
+    from node.schedule import OperatingCondition, Schedule
+    from node.training import Calibration, OCResult
+
+    # an OC whose model predicts yB = 2 whatever nB does (Lasso with a zero weight)
+    model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([4000.0]), np.array([1.0]),
+                    coef=np.array([0.0]), intercept=2.0)
+    calib = Calibration(sigma=0.1, threshold=3.0, ewma_alpha=1.0, persist=40)  # no smoothing: score = z
+    sched = Schedule((OperatingCondition("A", 4000.0),))
+    res = OCResult("A", model, ["nB"], {}, 8, 0.1, 0.1, calib)
+    core = NodeCore(Bundle("lasso", "yB", sched, [res], 60.0))
+    # 10 s normal, 2 s at +5 sigma, 3 s normal, 1 s at +5 sigma, 10 s normal
+    level = [2.0] * 400 + [2.5] * 80 + [2.0] * 120 + [2.5] * 40 + [2.0] * 400
+    out = []
+    for k, y in enumerate(level):
+        for ch, v in (("nB", 4000.0), ("yB", y)):
+            out += core.handle(f"testbed/b/sensor/{ch}", orjson.dumps({"t": 10.0 + k / 40, "v": v}))
+    mon = [m for key, m in out if key.endswith("/yB")]
+    assert len(mon) == len(level) and mon[400]["measured"] == 2.5 and mon[399]["measured"] == 2.0
+    assert mon[399]["predicted"] == 2.0  # the model is active well before
+    flags = ["alarm" if m["flag"] == "alarm" else "ok" for m in mon]
+    off = 400  # the first sample at +5 sigma
+    assert "alarm" not in flags[: off + 39]  # persistence: 1 s beyond before it rises
+    first = flags.index("alarm")
+    assert off + 38 <= first <= off + 40
+    assert all(f == "alarm" for f in flags[first: off + 80 + 120 + 40])  # the 3 s dip does not clear it
+    clear = off + 240 + int(RESIDUAL_CLEAR_S * 40)
+    assert flags[clear + 2] == "ok" and flags[clear - 2] == "alarm"
