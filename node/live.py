@@ -26,6 +26,7 @@ from node.rotation import RotatingRecorder
 
 SENSOR_KEYS = "testbed/*/sensor/**"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+CLOSE_GRACE_S = 1.0  # publisher: wait before closing the session, s
 
 
 def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = None,
@@ -227,7 +228,7 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
             pub.put(m.payload)
             sent += 1
     finally:
-        time.sleep(0.2)
+        time.sleep(CLOSE_GRACE_S)  # let the link drain: close() drops what is still queued
         session.close()
     if not quiet:
         print(f"published {sent} messages from {path} in {time.monotonic() - start:.1f} s",
