@@ -43,6 +43,38 @@ class OCState(NamedTuple):
     phase: Phase
 
 
+class _Extremes:
+    """Max and min of the last ``n`` values pushed, in O(1) amortized per push (monotonic queues)."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self._i = 0
+        self._hi: deque[tuple[int, float]] = deque()
+        self._lo: deque[tuple[int, float]] = deque()
+
+    def push(self, v: float) -> None:
+        i = self._i = self._i + 1
+        hi, lo = self._hi, self._lo
+        while hi and hi[-1][1] <= v:
+            hi.pop()
+        hi.append((i, v))
+        if hi[0][0] <= i - self.n:
+            hi.popleft()
+        while lo and lo[-1][1] >= v:
+            lo.pop()
+        lo.append((i, v))
+        if lo[0][0] <= i - self.n:
+            lo.popleft()
+
+    @property
+    def high(self) -> float:
+        return self._hi[0][1]
+
+    @property
+    def low(self) -> float:
+        return self._lo[0][1]
+
+
 class OCDetector:
     """Stateful, causal OC detector (``step`` one sample at a time).
 
@@ -73,6 +105,7 @@ class OCDetector:
         self.state = OCState(None, Phase.OFF)
         self._raw: deque[float] = deque(maxlen=self.n_smooth)
         self._hist: deque[float] = deque(maxlen=self.n_settle)
+        self._ext = {n: _Extremes(n) for n in (self.n_settle, self.n_confirm)}  # for _held
         self._anchor: float | None = None  # speed of the plateau last held
         self._last: int = -1  # last OC reached steady in this run
         self._away = 0  # consecutive samples away from the anchor
@@ -84,6 +117,9 @@ class OCDetector:
         """The last n smoothed speeds all lie within centre +- band."""
         if len(self._hist) < n:
             return False
+        ext = self._ext.get(n)
+        if ext is not None:
+            return ext.high <= centre + band and ext.low >= centre - band
         recent = list(self._hist)[-n:]
         return max(recent) <= centre + band and min(recent) >= centre - band
 
@@ -105,6 +141,8 @@ class OCDetector:
         self._since += 1
         s = sum(self._raw) / len(self._raw)
         self._hist.append(s)
+        for ext in self._ext.values():
+            ext.push(s)
         oc, phase = self.state
 
         if speed < self.off_level:
