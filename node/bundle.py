@@ -155,9 +155,23 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
             curve = (arrays["curve/speed"], arrays["curve/mean"])
         return Bundle(manifest["method"], manifest["target"], schedule, ocs,
                       float(manifest["history_s"]), manifest.get("training", {}), curve,
-                      dict(manifest.get("checks", {})))
+                      _checks(manifest.get("checks", {})))
     except (KeyError, TypeError, ValueError) as exc:
         raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
+
+
+NUMERIC_CHECKS = ("flatline_samples", "step_threshold", "run_scale_prior_ocs")
+
+
+def _checks(d: object) -> dict:
+    """The model-free checks' settings; a wrong type is a malformed bundle (ValueError)."""
+    if not isinstance(d, dict):
+        raise ValueError(f"checks must be an object, got {type(d).__name__}")
+    for key in NUMERIC_CHECKS:
+        v = d.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0):
+            raise ValueError(f"checks.{key} must be a positive number, got {v!r}")
+    return dict(d)
 
 
 def _f(x: float | None) -> float:

@@ -68,6 +68,13 @@ def test_corrupted_or_mismatched_bundle_is_refused(sim, tmp_path):
         load_bundle(path)
     with pytest.raises(OrdervibError, match="not found"):
         load_bundle(tmp_path / "nothing")
+    for bad in ({"step_threshold": "high"}, {"flatline_samples": -3}, []):
+        path = save_bundle(Bundle("lasso", "yB", schedule, results, 60.0), tmp_path / "c")
+        manifest = json.loads((path / "manifest.json").read_text())
+        manifest["checks"] = bad
+        (path / "manifest.json").write_text(json.dumps(manifest))
+        with pytest.raises(OrdervibError, match="malformed bundle"):
+            load_bundle(path)
     # the arrays file holds no pickled objects: numpy refuses pickles on load
     np.load(tmp_path / "m" / "arrays.npz", allow_pickle=False).close()
 
