@@ -233,14 +233,18 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
         running_s += float(running.sum()) / fs
         longest = max(longest, longest_repeat(y, running))
         chk, peak = StepCheck(math.inf, fs), None
+        full = chk.n_settle + chk.n_short + chk.n_long  # samples before the statistic exists
+        n_steady = 0
         for v, ph in zip(y.tolist(), phases):
             z = chk.step(v, ph is Phase.STEADY)
             if ph is Phase.STEADY:
+                n_steady += 1
                 peak = z if peak is None else max(peak, z)
             elif peak is not None:
-                peaks.append(peak)
-                peak = None
-        if peak is not None:
+                if n_steady >= full:  # a plateau too short for the check says nothing
+                    peaks.append(peak)
+                peak, n_steady = None, 0
+        if peak is not None and n_steady >= full:
             peaks.append(peak)
     checks: dict = {"flatline_samples": flatline_limit(longest, fs), "longest_repeat_in_training": longest,
                     "run_scale_prior_ocs": RUN_SCALE_PRIOR_OCS}

@@ -169,8 +169,8 @@ def _checks(d: object) -> dict:
         raise ValueError(f"checks must be an object, got {type(d).__name__}")
     for key in NUMERIC_CHECKS:
         v = d.get(key)
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0):
-            raise ValueError(f"checks.{key} must be a positive number, got {v!r}")
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0):
+            raise ValueError(f"checks.{key} must be a non-negative number (0: off), got {v!r}")
     return dict(d)
 
 

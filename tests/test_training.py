@@ -68,7 +68,7 @@ def test_corrupted_or_mismatched_bundle_is_refused(sim, tmp_path):
         load_bundle(path)
     with pytest.raises(OrdervibError, match="not found"):
         load_bundle(tmp_path / "nothing")
-    for bad in ({"step_threshold": "high"}, {"flatline_samples": -3}, []):
+    for bad in ({"step_threshold": "high"}, {"flatline_samples": -3}, {"run_scale_prior_ocs": True}, []):
         path = save_bundle(Bundle("lasso", "yB", schedule, results, 60.0), tmp_path / "c")
         manifest = json.loads((path / "manifest.json").read_text())
         manifest["checks"] = bad
