@@ -118,7 +118,7 @@ def test_train_and_evaluate_commands(tmp_path, capsys):
     fault = ROOT / "recordings" / "engine1_fault.mcap"
     assert main(["evaluate", str(out), str(fault), "--quiet", "--png", str(tmp_path / "e.png")]) == 0
     text = capsys.readouterr().out
-    assert "held-out eps_td" in text and "alarms:" in text
+    assert "held-out eps_td" in text and "node alarms (ordervib replay)" in text and "per hour" in text
     assert (tmp_path / "e.png").stat().st_size > 10_000
 
 

@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
         curve.centres_, curve.means_ = bundle.curve
     sw = bundle.schedule.switch
     arrays = [run_arrays(r, bundle.target, [sw]) for r in runs]
-    rows = [["OC", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td", "alarm s"]]
+    rows = [["OC", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td"]]
     hold, base = [], []
     for e in evals:
         res = bundle.oc(e.name)
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
             den = sum(float(np.sum(p.measured ** 2)) for p in mine)
             b = float(np.sqrt(num / den)) if den else float("nan")
         rows.append([e.name, str(e.n_segments), _f(e.eps), _f(res.cv_eps if res else float("nan")),
-                     _f(b), f"{e.alarm_samples / 40.0:.1f}"])
+                     _f(b)])
         if np.isfinite(e.eps):
             hold.append(e.eps)
             base.append(b)
@@ -56,14 +56,10 @@ def run(args: argparse.Namespace) -> int:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths)))
         if i == 0:
             print("  ".join("-" * w for w in widths))
-    hours = sum(p.t.size for p in preds) / 40.0 / 3600.0
-    alarm_s = sum(e.alarm_samples for e in evals) / 40.0
-    episodes = _alarm_episodes(bundle, preds)
     if hold:
         print(f"mean held-out eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
               f"(characteristic-curve baseline {np.nanmean(base):.3f})")
-    print(f"alarms: {episodes} episode(s), {alarm_s:.1f} s flagged in {hours * 60:.1f} min of OC data "
-          f"({episodes / hours if hours else 0:.2f} per hour)")
+    print(node_alarms(args.model, args.recordings))
     png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
     if _plot(bundle, preds, png):
         print(f"plot written to {png}")
@@ -76,16 +72,23 @@ def _speed(arrays, runs, p) -> np.ndarray:
     return arrays[p.run].U[k0:k0 + p.t.size, 0]
 
 
-def _alarm_episodes(bundle, preds) -> int:
-    from node.evaluation import alarm_mask
-    n = 0
-    for p in preds:
-        res = bundle.oc(bundle.schedule.names[p.oc])
-        if res is None or res.calibration is None:
-            continue
-        m = alarm_mask(p.measured - p.predicted, res)
-        n += int(np.sum(np.diff(np.concatenate([[0], m.astype(np.int8)])) == 1))
-    return n
+def node_alarms(model: str, recordings: list[str]) -> str:
+    """The node's own alarms over the recordings (``ordervib replay``'s code): one line."""
+    from node.commands.replay import replay_offline
+
+    episodes, samples = [], 0
+    for rec in recordings:
+        s = replay_offline(rec, model, None, quiet=True)
+        episodes += s["alarm_episodes"]
+        samples += sum(b["samples"] for b in s["beds"].values())
+    hours = samples / 40.0 / 3600.0
+    rules: dict[str, int] = {}
+    for e in episodes:
+        rules[e["reason"]] = rules.get(e["reason"], 0) + 1
+    by_rule = ", ".join(f"{k} {v}" for k, v in sorted(rules.items())) or "none"
+    rate = len(episodes) / hours if hours else 0.0
+    return (f"node alarms (ordervib replay): {len(episodes)} episode(s) in {hours * 60:.1f} min of data "
+            f"= {rate:.2f} per hour; by rule: {by_rule}")
 
 
 def _f(x: float) -> str:
