@@ -1,6 +1,6 @@
-"""Alarm calibration and the model-free sensor check, free of I/O.
+"""The alarm rules, their calibration, and alarm episodes; free of I/O.
 
-Two rules flag a sample:
+Three rules flag a sample (the monitor message's ``reason``):
 
 * residual: the smoothed standardized residual (EWMA of (measured - predicted) / sigma)
   stays beyond its OC's threshold for ``persist`` samples. Thresholds come from an
@@ -10,9 +10,10 @@ Two rules flag a sample:
   never below ``THRESHOLD_MARGIN`` x the OC's own largest CV peak. Pooling a hundred
   peaks gives a far steadier tail than each OC's eight or so.
   The residual's sigma is scaled per run by ``RunScale`` (how far this run's earlier
-  OCs strayed from their models), in calibration and in the node alike.
-* step: during a steady plateau (after ``STEP_SETTLE_S``), the mean of the measured target over the last
-  ``STEP_SHORT_S`` departs from its mean over the ``STEP_LONG_S`` before by more than
+  OCs strayed from their models), in calibration and in the node alike; an alarm
+  clears after ``RESIDUAL_CLEAR_S`` back under the threshold.
+* step: during a steady plateau (after ``STEP_SETTLE_S``), the mean of the measured
+  target over the last ``STEP_SHORT_S`` departs from its mean over the ``STEP_LONG_S`` before by more than
   a threshold in units of the local noise (a clipped EWMA of the first differences).
   Model-free: an abrupt change of an order amplitude while the operating point holds
   (added imbalance, a loose part) shows at once, however poorly the OC's model does.
@@ -32,7 +33,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-FALSE_ALARMS_PER_HOUR = 0.5  # residual-alarm budget on normal runs, per hour of OC time
+FALSE_ALARMS_PER_HOUR = 0.5  # false-alarm budget on normal runs per hour (residual + step rules)
 RESIDUAL_CLEAR_S = 5.0  # a residual alarm clears after this long back under its threshold, s
 THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
 STEP_SETTLE_S = 3.0  # the first seconds of a plateau are left out: the amplitude still settles
@@ -43,8 +44,6 @@ STEP_PERSIST_S = 0.25  # the step statistic must stay beyond the threshold this 
 FLATLINE_MIN_S = 2.0  # a flat line shorter than this never alarms, s
 FLATLINE_FACTOR = 4.0  # limit = factor x the longest repeat in the training runs
 EULER_GAMMA = 0.5772156649
-
-
 RUN_SCALE_PRIOR_OCS = 3.0  # a run counts as typical with the weight of this many OCs
 
 
