@@ -219,7 +219,7 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     ``run_scale_prior_ocs`` tells the node the residual thresholds were calibrated with
     ``RunScale`` (bundles without it are run without).
     """
-    from node.ocdetect import OCDetector, Phase
+    from node.ocdetect import OCDetector
 
     det = OCDetector(schedule, fs)
     peaks: list[float] = []
@@ -227,16 +227,16 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     for run in runs:
         speed, y = run.column(schedule.switch), run.column(target)
         det.reset()
-        phases = [det.step(v).phase for v in speed.tolist()]
-        running = np.array([ph is not Phase.OFF for ph in phases])
+        phase = det.label(speed)[1]  # codes: 0 off, 1 transition, 2 steady
+        running = phase != 0
         running_s += float(running.sum()) / fs
         longest = max(longest, longest_repeat(y, running))
         chk, peak = StepCheck(math.inf, fs), None
         full = chk.n_settle + chk.n_short + chk.n_long  # samples before the statistic exists
         n_steady = 0
-        for v, ph in zip(y.tolist(), phases):
-            z = chk.step(v, ph is Phase.STEADY)
-            if ph is Phase.STEADY:
+        for v, steady in zip(y.tolist(), (phase == 2).tolist()):
+            z = chk.step(v, steady)
+            if steady:
                 n_steady += 1
                 peak = z if peak is None else max(peak, z)
             elif peak is not None:

@@ -160,11 +160,6 @@ class OCRuntime:
         self._z[-1] = 1.0
         self._n = n
 
-    @property
-    def x(self) -> np.ndarray:
-        """The state (n,) (a copy)."""
-        return self._z[: self._n].copy()
-
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
         """Seed from the measured past: y_hist (K1,), U_hist (K1, m) (K1 may be 0)."""
         m = self.model

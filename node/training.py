@@ -175,8 +175,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         c = Calibration(sigma, float("inf"))
         c.peaks = [float(np.max(np.abs(ewma_scores(r, sigma, c.ewma_alpha)))) for r in res]
         rows = [i for f in folds for i, r in enumerate(d.runs) if r == f]  # the order of ``pairs``
-        at = d.at if d.at else [0] * len(d.runs)
-        c.segments = [(d.runs[i], at[i], float(np.mean((r / sigma) ** 2))) for i, r in zip(rows, res)]
+        c.segments = [(d.runs[i], d.at[i], float(np.mean((r / sigma) ** 2))) for i, r in zip(rows, res)]
         calib = c
     note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
     if meth is not Method.LASSO and not np.isfinite(cv_eps):

@@ -25,6 +25,7 @@ from mcap.records import Channel, Schema
 from mcap.records import Message as McapMessage
 from mcap.writer import CompressionType, IndexType, Writer
 
+from node.commands.paths import check_output_file
 from node.errors import OrdervibError
 from node.recording import LIBRARY, MAGIC, _open_checked
 
@@ -147,11 +148,7 @@ def recover_file(src: str | os.PathLike, dst: IO[bytes]) -> RecoverReport:
 
 def _check(args: argparse.Namespace) -> None:
     src, out = args.recording, args.out
-    if os.path.isdir(out):
-        raise OrdervibError(f"--out is a directory: {out}")
-    parent = os.path.dirname(os.path.abspath(out))
-    if not os.path.isdir(parent):
-        raise OrdervibError(f"output directory does not exist: {parent}")
+    check_output_file(out, "--out")
     if os.path.exists(src) and os.path.exists(out) and os.path.samefile(src, out):
         raise OrdervibError("--out must differ from the input recording")
 

@@ -13,6 +13,7 @@ import re
 import sys
 import time
 
+from node.commands.paths import check_output_file
 from node.errors import OrdervibError
 
 NAME = "simulate"
@@ -89,13 +90,7 @@ def _check(args: argparse.Namespace) -> None:
         raise OrdervibError(f"--plateau-scale must be between 0.05 and 10, got {args.plateau_scale}")
     if not 0 <= args.skip < args.runs:
         raise OrdervibError(f"--skip must be between 0 and runs - 1, got {args.skip}")
-    if not args.out.endswith(".mcap"):
-        raise OrdervibError(f"--out must name a .mcap file, got {args.out!r}")
-    if os.path.isdir(args.out):
-        raise OrdervibError(f"--out is a directory: {args.out}")
-    parent = os.path.dirname(os.path.abspath(args.out))
-    if not os.path.isdir(parent):
-        raise OrdervibError(f"output directory does not exist: {parent}")
+    check_output_file(args.out, "--out", ".mcap")
 
 
 class _Progress:

@@ -104,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     budget = FALSE_ALARMS_PER_HOUR if args.false_alarms_per_hour is None else args.false_alarms_per_hour
     if not budget > 0:
         raise OrdervibError("--false-alarms-per-hour must be positive")
+    per_rule = budget / 2  # shared half and half by the residual and the step rules
     schedule = load_schedule(args.schedule)
     t0 = time.perf_counter()
     runs = load_runs(args.recordings, args.quiet)
@@ -130,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
 
     results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
                     n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
-                    false_alarms_per_hour=budget / 2)
+                    false_alarms_per_hour=per_rule)
     arrays = [run_arrays(r, args.target, [schedule.switch]) for r in runs]
     curve = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
                                       np.concatenate([a.y for a in arrays]))
@@ -138,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     bundle = Bundle(args.method, args.target, schedule, results, HISTORY_S, training,
                     (curve.centres_, curve.means_),
-                    calibrate_checks(runs, schedule, args.target, budget / 2))
+                    calibrate_checks(runs, schedule, args.target, per_rule))
     out = save_bundle(bundle, args.out)
     if inputs is None:
         print_ranking(results)

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import orjson
 
+from node.commands.paths import check_output_file
 from node.errors import OrdervibError
 
 if TYPE_CHECKING:
@@ -99,8 +100,9 @@ def str_column(objs: list[dict[str, Any]], key: str) -> np.ndarray:
     return np.array([v if isinstance(v := o.get(key), str) else "" for o in objs], dtype=str)
 
 
-def _sorted_valid(objs: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], np.ndarray]:
-    """Objects with a finite t, sorted by t (stable); and their t (N,)."""
+def _sorted_objects(payloads: list[bytes]) -> tuple[list[dict[str, Any]], np.ndarray]:
+    """Decoded payloads with a finite t, sorted by t (stable); and their t (N,)."""
+    objs, _ = decode_payloads(payloads)
     t = float_column(objs, "t")
     ok = np.flatnonzero(np.isfinite(t))
     order = ok[np.argsort(t[ok], kind="stable")]
@@ -114,8 +116,7 @@ def series_of(payloads: list[bytes]) -> Series:
     """A sensor topic's samples as a time-sorted Series."""
     from replay.rerun_view import Series
 
-    objs, _ = decode_payloads(payloads)
-    objs, t = _sorted_valid(objs)
+    objs, t = _sorted_objects(payloads)
     return Series(t=t, v=float_column(objs, "v"))
 
 
@@ -123,8 +124,7 @@ def monitor_of(payloads: list[bytes]) -> MonitorColumns:
     """A ``monitor/<target>`` topic as time-sorted columns."""
     from replay.rerun_view import MonitorColumns
 
-    objs, _ = decode_payloads(payloads)
-    objs, t = _sorted_valid(objs)
+    objs, t = _sorted_objects(payloads)
     return MonitorColumns(
         t=t,
         measured=float_column(objs, "measured"),
@@ -143,8 +143,7 @@ def switches_of(payloads: list[bytes]) -> OcSwitches:
     """``monitor/oc`` messages as time-sorted switches."""
     from replay.rerun_view import OcSwitches
 
-    objs, _ = decode_payloads(payloads)
-    objs, t = _sorted_valid(objs)
+    objs, t = _sorted_objects(payloads)
     return OcSwitches(t=t, oc=str_column(objs, "oc"), phase=str_column(objs, "phase"))
 
 
@@ -152,8 +151,7 @@ def health_of(payloads: list[bytes]) -> Health:
     """``monitor/health`` messages as time-sorted columns (missing: summed over channels)."""
     from replay.rerun_view import Health
 
-    objs, _ = decode_payloads(payloads)
-    objs, t = _sorted_valid(objs)
+    objs, t = _sorted_objects(payloads)
     missing = np.array(
         [
             sum(_num(v) for v in m.values()) if isinstance(m := o.get("missing"), dict) else np.nan
@@ -280,13 +278,7 @@ def load_view_data(args: argparse.Namespace) -> tuple[ViewData, str, ReadStats]:
 def _check(args: argparse.Namespace) -> None:
     if args.save is None:
         return
-    if not args.save.endswith(".rrd"):
-        raise OrdervibError(f"--save must name a .rrd file, got {args.save!r}")
-    if os.path.isdir(args.save):
-        raise OrdervibError(f"--save is a directory: {args.save}")
-    parent = os.path.dirname(os.path.abspath(args.save))
-    if not os.path.isdir(parent):
-        raise OrdervibError(f"output directory does not exist: {parent}")
+    check_output_file(args.save, "--save", ".rrd")
 
 
 def _has_display() -> bool:
