@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import orjson
 
+from node.alarms import EpisodeLog
 from node.align import Aligner
 from node.bundle import Bundle
 from node.pipeline import MonitorPipeline
@@ -34,6 +35,7 @@ class CoreStats:
     foreign: int = 0  # keys that are not sensor keys
     published: int = 0
     beds: dict[str, BedState] = field(default_factory=dict)
+    alarm_log: EpisodeLog = field(default_factory=EpisodeLog)  # alarm episodes, every bed
 
 
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
@@ -141,9 +143,11 @@ class NodeCore:
             msg, oc_msg = st.pipeline.step(s)
             if oc_msg is not None:
                 out.append((f"testbed/{bed}/monitor/oc", oc_msg))
+            key = f"testbed/{bed}/monitor/{target}"
             if msg["flag"] == "alarm":
                 st.alarms += 1
-            out.append((f"testbed/{bed}/monitor/{target}", msg))
+                self.stats.alarm_log.add(key, msg)
+            out.append((key, msg))
         self.stats.published += len(out)
         return out
 

@@ -28,7 +28,6 @@ from typing import Any
 
 import orjson
 
-from node.alarms import EpisodeLog
 from node.bundle import Bundle
 from node.core import NodeCore
 from node.errors import OrdervibError
@@ -56,21 +55,16 @@ class ReplayReport:
 
 
 class _Logic:
-    """NodeCore plus what replay needs around it: alarm episodes and encoded outputs."""
+    """NodeCore plus what replay needs around it: encoded outputs and the report."""
 
     def __init__(self, bundle: Bundle, encode: bool) -> None:
         self.core = NodeCore(bundle)
-        self.alarms = EpisodeLog()
         self.encode = encode
 
     def _outputs(self, outs) -> list[Encoded]:
-        add = self.alarms.add
-        enc = []
-        for key, msg in outs:
-            add(key, msg)
-            if self.encode:
-                enc.append((key, round(msg["t"] * 1e9), orjson.dumps(msg)))
-        return enc
+        if not self.encode:
+            return []
+        return [(key, round(msg["t"] * 1e9), orjson.dumps(msg)) for key, msg in outs]
 
     def batch(self, keys, payloads) -> list[tuple[int, list[Encoded]]]:
         return [(i, self._outputs(outs)) for i, outs in self.core.handle_many(keys, payloads)]
@@ -79,7 +73,7 @@ class _Logic:
         final = self._outputs(self.core.finish())
         c = self.core.stats
         report = {"published": c.published, "malformed": c.malformed,
-                  "alarm_episodes": self.alarms.episodes,
+                  "alarm_episodes": c.alarm_log.episodes,
                   "beds": {b: {"samples": s.aligner.stats.samples, "alarm_samples": s.alarms,
                                "late": s.aligner.stats.late, "missing": dict(s.aligner.stats.missing)}
                            for b, s in c.beds.items()}}

@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     alarms = sum(b.alarms for b in beds.values())
     print(f"      node: {node.stats.received} received of {sent} sent, {node.stats.published} published, "
           f"{node.stats.overflow} dropped, {alarms} alarm samples", file=sys.stderr)
-    print(fault_summary(node_rec, rec_test.with_suffix(".truth.json")), file=sys.stderr)
+    print(fault_summary(node.core.stats.alarm_log.episodes, rec_test.with_suffix(".truth.json")),
+          file=sys.stderr)
     rrd = out / "node.rrd"
     print(f"[4/4] Rerun file {rrd}", file=sys.stderr, flush=True)
     if cli(["view", str(node_rec), "--save", str(rrd), "--schedule", str(schedule)]) != 0:
@@ -85,26 +86,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def fault_summary(node_rec: Path, truth_path: Path) -> str:
-    """One line: the fault's onset (ground truth) against the alarm episodes the node recorded."""
+def fault_summary(episodes: list[dict], truth_path: Path) -> str:
+    """One line: the fault's onset (ground truth) against the node's alarm episodes."""
     import json
-
-    import orjson
-
-    from node.alarms import EpisodeLog
-    from node.recording import iter_messages_fast
 
     try:
         fault = json.loads(truth_path.read_text())["runs"][-1]["fault"]
     except (OSError, KeyError, IndexError, ValueError):
         return "      (no ground truth beside the recording)"
-    log = EpisodeLog()
-    for m in iter_messages_fast(node_rec):
-        if "/monitor/" in m.topic and not m.topic.endswith(("/oc", "/health")):
-            log.add(m.topic, orjson.loads(m.payload))
     onset = fault["onset"]
-    after = [e for e in log.episodes if e["end"] >= onset]
-    before = len(log.episodes) - len(after)
+    after = [e for e in episodes if e["end"] >= onset]
+    before = len(episodes) - len(after)
     seen = (f"first alarm {max(0.0, after[0]['start'] - onset):.1f} s after it ({after[0]['reason']} rule)"
             if after else "no alarm after it")
     return (f"      truth: {fault['kind']} fault from {fault['onset_s']:.1f} s into the run ({fault['oc']}); "
