@@ -38,6 +38,8 @@ STIFFNESS_FAULT = 0.90  # stiffness factor of the 0.95 mode after a stiffness fa
 STIFFNESS_RAMP = 20.0  # s
 DRIFT_RATE = 0.5 / 60.0  # yB drift, mm/s per second
 IMBALANCE_FAULT = 0.9  # added imbalance, times the base imbalance of plane 1
+# The three magnitudes above are a fault of size 1; ``fault_size`` scales the added imbalance,
+# the stiffness loss (1 - STIFFNESS_FAULT) and the drift rate. A stuck sensor has no size.
 
 
 @dataclass
@@ -108,11 +110,13 @@ def simulate_run(
     fault: str | None = None,
     fault_rng: np.random.Generator | None = None,
     plateau_scale: float = 1.0,
+    fault_size: float = 1.0,
 ) -> tuple[dict[str, np.ndarray], Profile, dict, dict]:
     """Simulate one run's clean signals.
 
     shutdown: seconds since the previous run stopped (inf for a cold engine);
     history: the previous run's end state ({"metal", "slow", "ambient"}), or {}.
+    fault_size: scales the fault's magnitude (see ``simulate_campaign``).
     Returns (clean signals by channel, profile, run truth, end state).
     """
     profile = make_profile(rng, plateau_scale=plateau_scale)
@@ -148,7 +152,10 @@ def simulate_run(
     if fault is not None:
         assert fault_rng is not None
         onset, onset_oc = _fault_onset(fault_rng, profile)
-        truth_run["fault"] = {"kind": fault, "onset_s": onset, "oc": onset_oc, "channel": "yB"}
+        truth_run["fault"] = {
+            "kind": fault, "onset_s": onset, "oc": onset_oc, "channel": "yB",
+            "size": float(fault_size),
+        }
     after = profile.t >= onset if onset is not None else np.zeros(k, dtype=bool)
 
     for shaft in SHAFTS:
@@ -161,11 +168,12 @@ def simulate_run(
         bow = b0 * np.exp(1j * rng.uniform(0, 2 * np.pi)) * heal
         stiffness = None
         if fault == "imbalance" and shaft.out == "yB":
-            extra = IMBALANCE_FAULT * abs(base[0]) * np.exp(1j * fault_rng.uniform(0, 2 * np.pi))
+            extra = (IMBALANCE_FAULT * fault_size * abs(base[0])
+                     * np.exp(1j * fault_rng.uniform(0, 2 * np.pi)))
             unbalance[after, 0] += extra
         if fault == "stiffness" and shaft.out == "yB":
             ramp = np.clip((profile.t - onset) / STIFFNESS_RAMP, 0.0, 1.0)
-            stiffness = {2: 1.0 - (1.0 - STIFFNESS_FAULT) * ramp}
+            stiffness = {2: 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size * ramp}
         sig[shaft.out] = rotor.amplitude(
             shaft, sig[shaft.speed], metal, unbalance, bow, stiffness
         )
@@ -181,8 +189,13 @@ def simulate_run(
     return sig, profile, truth_run, end_state
 
 
-def _sensor_fault(data: np.ndarray, t: np.ndarray, kind: str | None, onset: float | None) -> None:
-    """Apply a yB sensor fault in place (stuck value or drift) from ``onset`` (s from run start)."""
+def _sensor_fault(
+    data: np.ndarray, t: np.ndarray, kind: str | None, onset: float | None, size: float = 1.0
+) -> None:
+    """Apply a yB sensor fault in place (stuck value or drift) from ``onset`` (s from run start).
+
+    size: scales the drift rate; a stuck sensor ignores it.
+    """
     if kind not in ("stuck-sensor", "drift") or onset is None:
         return
     j = SENSOR_CHANNELS.index("yB")
@@ -194,7 +207,7 @@ def _sensor_fault(data: np.ndarray, t: np.ndarray, kind: str | None, onset: floa
         value = held[-1] if held.size else 0.0
         col[after] = value
     else:
-        col[after] = np.round(col[after] + DRIFT_RATE * (t[after] - onset), 2)
+        col[after] = np.round(col[after] + DRIFT_RATE * size * (t[after] - onset), 2)
 
 
 def simulate_campaign(
@@ -203,16 +216,28 @@ def simulate_campaign(
     fault: str | None = None,
     plateau_scale: float = 1.0,
     fault_seed: int | None = None,
+    fault_size: float = 1.0,
 ) -> Campaign:
     """Simulate ``runs`` consecutive pass-off runs of one engine; the fault hits the last run.
 
     fault_seed: draws the fault's onset (OC, time) and phase from its own stream, so one
     engine and run can carry the fault at different places (default: from ``seed``).
+    fault_size: scales the fault (1 = nominal): the added imbalance (IMBALANCE_FAULT x base
+    imbalance of plane 1), the stiffness loss (factor 1 - (1 - STIFFNESS_FAULT) x size, which
+    must stay > 0) and the drift rate (DRIFT_RATE); a stuck sensor ignores it. Same draws for
+    every size, so sizes differ only in magnitude.
     """
     if runs < 1:
         raise ValueError("runs must be >= 1")
     if fault is not None and fault not in FAULTS:
         raise ValueError(f"unknown fault {fault!r}")
+    if not (np.isfinite(fault_size) and fault_size > 0):
+        raise ValueError(f"fault_size must be > 0 and finite, got {fault_size!r}")
+    if fault == "stiffness" and 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size <= 1e-9:
+        raise ValueError(
+            f"fault_size {fault_size!r} leaves no stiffness (factor 1 - "
+            f"{1.0 - STIFFNESS_FAULT:.2g} x size must be > 0)"
+        )
     seq = np.random.SeedSequence(seed)
     engine_ss, fault_ss, *run_ss = seq.spawn(2 + runs)
     engine_rng = np.random.default_rng(engine_ss)
@@ -237,13 +262,14 @@ def simulate_campaign(
                                   else np.random.SeedSequence([seed, fault_seed, 0xFA17]))
             if is_faulty else None,
             plateau_scale,
+            fault_size,
         )
         on_first, on_last = _first_on(sig)
         start = clock if last_stop is None else last_stop + gap - on_first * DT
         t = start + profile.t
         data = _measure(rng, sig, SENSOR_CHANNELS)
         onset = truth_run.get("fault", {}).get("onset_s")
-        _sensor_fault(data, profile.t, fault if is_faulty else None, onset)
+        _sensor_fault(data, profile.t, fault if is_faulty else None, onset, fault_size)
         truth_run.update(
             {
                 "index": r,

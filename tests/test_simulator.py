@@ -141,6 +141,30 @@ def test_fault_changes_yb_after_onset_only(kind: str) -> None:
         assert np.unique(faulty.data[after, j]).size == 1
 
 
+def test_fault_size_scales_the_drift() -> None:
+    j = SENSOR_CHANNELS.index("yB")
+    healthy = simulate_campaign(1, 3, plateau_scale=0.05).runs[0]
+    one, two = (simulate_campaign(1, 3, fault="drift", plateau_scale=0.05, fault_size=x).runs[0]
+                for x in (1.0, 2.0))
+    assert one.truth["fault"]["size"] == 1.0 and two.truth["fault"]["size"] == 2.0
+    assert one.truth["fault"]["onset"] == two.truth["fault"]["onset"]
+    after = one.t >= one.truth["fault"]["onset"]
+    assert after.sum() > 100
+    added1 = one.data[after, j] - healthy.data[after, j]
+    added2 = two.data[after, j] - healthy.data[after, j]
+    ok = ~np.isnan(added1)
+    assert ok.sum() > 100
+    assert added1[ok][-1] > 0.1  # the drift has grown well past the rounding by the end
+    # the drifted value is rounded to 2 decimals: |round(2d) - 2 round(d)| <= 0.01
+    np.testing.assert_allclose(added2[ok], 2.0 * added1[ok], rtol=0, atol=0.011)
+
+
+@pytest.mark.parametrize("size", [0.0, -1.0])
+def test_fault_size_must_be_positive(size: float) -> None:
+    with pytest.raises(ValueError, match="fault_size"):
+        simulate_campaign(1, 3, fault="drift", plateau_scale=0.05, fault_size=size)
+
+
 def test_hot_restart_has_more_bow_than_cold() -> None:
     runs = simulate_campaign(6, 2, plateau_scale=0.05).runs
     gaps = [r.truth["shutdown_before_s"] for r in runs[1:]]
@@ -161,6 +185,8 @@ def test_hot_restart_has_more_bow_than_cold() -> None:
         ["--skip", "3"],
         ["--plateau-scale", "0"],
         ["--channels", "nB,zZ"],
+        ["--fault", "drift", "--fault-size", "0"],
+        ["--fault-size", "2"],
     ],
 )
 def test_bad_options_one_line_exit_2(

@@ -8,6 +8,7 @@ seed gives byte-identical files.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import sys
@@ -38,6 +39,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="F",
         help="with --fault: draw the fault's onset (OC and time) from seed F (default: from --seed)",
+    )
+    p.add_argument(
+        "--fault-size",
+        type=float,
+        default=None,
+        metavar="X",
+        help="with --fault: scale the fault's magnitude by X > 0 (default 1 = nominal): "
+        "imbalance adds X x 0.9 x the base imbalance of plane 1; stiffness lowers the 0.95 "
+        "mode's stiffness by X x 10 %% over 20 s (X < 10); drift ramps yB by X x 0.5 mm/s "
+        "per minute; stuck-sensor ignores it",
     )
     p.add_argument("--bed", default="bed1", metavar="NAME", help="test-bed name (default bed1)")
     p.add_argument(
@@ -84,6 +95,15 @@ def _check(args: argparse.Namespace) -> None:
         raise OrdervibError(f"--seed must be >= 0, got {args.seed}")
     if args.fault_seed is not None and (args.fault is None or args.fault_seed < 0):
         raise OrdervibError("--fault-seed needs --fault and must be >= 0")
+    if args.fault_size is not None and (
+        args.fault is None or not (math.isfinite(args.fault_size) and args.fault_size > 0)
+    ):
+        raise OrdervibError("--fault-size needs --fault and must be > 0 and finite")
+    if args.fault == "stiffness" and args.fault_size is not None and args.fault_size >= 10.0:
+        raise OrdervibError(
+            f"--fault-size must be < 10 for a stiffness fault (no stiffness left), "
+            f"got {args.fault_size:g}"
+        )
     if not _BED_RE.match(args.bed):
         raise OrdervibError(f"--bed must be letters, digits, '_', '-' or '.', got {args.bed!r}")
     if not 0.05 <= args.plateau_scale <= 10.0:
@@ -120,7 +140,12 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     campaign = simulate_campaign(
-        args.runs, args.seed, args.fault, args.plateau_scale, args.fault_seed
+        args.runs,
+        args.seed,
+        args.fault,
+        args.plateau_scale,
+        args.fault_seed,
+        fault_size=1.0 if args.fault_size is None else args.fault_size,
     )
     part = args.out + ".part"
     progress = _Progress(not args.quiet)
