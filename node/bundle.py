@@ -160,7 +160,7 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
         raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
 
 
-NUMERIC_CHECKS = ("flatline_samples", "step_threshold", "run_scale_prior_ocs")
+NUMERIC_CHECKS = ("flatline_samples", "step_threshold", "run_scale_prior_ocs", "residual_cv_undercoverage")
 
 
 def _checks(d: object) -> dict:

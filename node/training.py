@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.alarms import FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds
+from node.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds
 from node.dataset import Segment, run_arrays, segment_runs
 from node.errors import OrdervibError
 from node.features import rank_inputs
@@ -226,7 +226,8 @@ def candidate_channels(runs: list[Run], target: str, switch: str) -> list[str]:
 def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str = "wdmd",
           inputs: list[str] | None = None, n_inputs: int = 4, grid: dict[str, list] | None = None,
           workers: int | None = None, progress: Callable[[OCResult, int, int], None] | None = None,
-          false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR) -> list[OCResult]:
+          false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
+          cv_undercoverage: float = CV_UNDERCOVERAGE) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
@@ -265,11 +266,12 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
             if progress:
                 progress(results[i], i + 1, len(jobs))
     out = [r for r in results if r is not None]
-    set_thresholds(out, datas, false_alarms_per_hour)
+    set_thresholds(out, datas, false_alarms_per_hour, cv_undercoverage)
     return out
 
 
-def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float) -> None:
+def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float,
+                   undercoverage: float = CV_UNDERCOVERAGE) -> None:
     """Give every calibrated OC its threshold from the pooled CV peaks and the alarm budget."""
     hours = sum(y.size - s for d in datas for y, s in zip(d.y, d.start)) / FS / 3600.0
     segments = sum(len(d.runs) for d in datas)
@@ -277,7 +279,7 @@ def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float) 
     calibs = {r.name: r.calibration for r in results if r.calibration is not None}
     for name, scaled in run_scaled_peaks(calibs).items():
         calibs[name].peaks = scaled
-    levels = pooled_thresholds({n: c.peaks for n, c in calibs.items()}, per_hour, budget)
+    levels = pooled_thresholds({n: c.peaks for n, c in calibs.items()}, per_hour, budget, undercoverage)
     for name, c in calibs.items():
         c.threshold = levels[name]
 

@@ -35,8 +35,8 @@ def test_pooled_thresholds_follow_the_budget_and_the_margin():
     rng = np.random.default_rng(1)
     peaks = {f"OC{i}": list(stats.gumbel_r.rvs(1.5, 0.3, size=8, random_state=rng)) for i in range(12)}
     peaks["OC99"] = [5.0, 1.0, 1.2]  # one OC with a wild CV peak keeps its own margin
-    lo = pooled_thresholds(peaks, segments_per_hour=80.0, budget=2.0)
-    hi = pooled_thresholds(peaks, segments_per_hour=80.0, budget=0.2)
+    lo = pooled_thresholds(peaks, segments_per_hour=80.0, budget=2.0, undercoverage=1.0)
+    hi = pooled_thresholds(peaks, segments_per_hour=80.0, budget=0.2, undercoverage=1.0)
     assert all(hi[k] >= lo[k] for k in peaks)
     assert hi["OC0"] > lo["OC0"]
     assert lo["OC99"] == pytest.approx(THRESHOLD_MARGIN * 5.0)
@@ -46,6 +46,8 @@ def test_pooled_thresholds_follow_the_budget_and_the_margin():
     every = [v for k, vals in peaks.items() for v in vals]
     expect = max(gumbel_quantile(every, 0.2 / 80.0), THRESHOLD_MARGIN * max(peaks["OC0"]))
     assert hi["OC0"] == pytest.approx(expect)
+    # the under-coverage factor divides the chance: 0.8 / 80 / 4 is 0.2 / 80
+    assert pooled_thresholds(peaks, 80.0, budget=0.8, undercoverage=4.0) == pytest.approx(hi)
     assert pooled_thresholds({}, 80.0) == {}
 
 

@@ -126,6 +126,10 @@ def test_train_and_evaluate_commands(tmp_path, capsys):
     (["train", "nope.mcap", "--schedule", "s.toml", "--out", "m"], "schedule file not found"),
     (["evaluate", "no-model-here", "x.mcap"], "model bundle not found"),
     (["train", "x.mcap", "--schedule", "s.toml", "--out", "m", "--n-inputs", "0"], "n-inputs"),
+    (["train", "x.mcap", "--schedule", "s.toml", "--out", "m", "--cv-undercoverage", "0.5"],
+     "cv-undercoverage"),
+    (["train", "x.mcap", "--schedule", "s.toml", "--out", "m", "--cv-undercoverage", "nan"],
+     "cv-undercoverage"),
 ])
 def test_command_errors_are_one_line(argv, message, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -34,6 +35,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="false-alarm budget on normal runs, per hour of running (default 0.5), "
                         "shared by the residual rule (thresholds from every OC's cross-validation "
                         "peaks) and the step rule (from the training runs' steady plateaus)")
+    p.add_argument("--cv-undercoverage", type=float, default=None, metavar="F",
+                   help="how many times more often new runs exceed a cross-validated residual level "
+                        "than the CV runs do (default 4, measured with 8 training runs; "
+                        "1 trusts the cross-validation as it is)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -92,7 +97,7 @@ def print_ranking(results, top: int = 6, file=None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.alarms import FALSE_ALARMS_PER_HOUR, calibrate_checks
+    from node.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.baseline import CharacteristicCurve
     from node.bundle import Bundle, save_bundle, sha256_file
     from node.dataset import run_arrays
@@ -105,6 +110,9 @@ def run(args: argparse.Namespace) -> int:
     if not budget > 0:
         raise OrdervibError("--false-alarms-per-hour must be positive")
     per_rule = budget / 2  # shared half and half by the residual and the step rules
+    under = CV_UNDERCOVERAGE if args.cv_undercoverage is None else args.cv_undercoverage
+    if not (under >= 1.0 and math.isfinite(under)):
+        raise OrdervibError("--cv-undercoverage must be a number >= 1")
     schedule = load_schedule(args.schedule)
     t0 = time.perf_counter()
     runs = load_runs(args.recordings, args.quiet)
@@ -131,15 +139,16 @@ def run(args: argparse.Namespace) -> int:
 
     results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
                     n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
-                    false_alarms_per_hour=per_rule)
+                    false_alarms_per_hour=per_rule, cv_undercoverage=under)
     arrays = [run_arrays(r, args.target, [schedule.switch]) for r in runs]
     curve = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
                                       np.concatenate([a.y for a in arrays]))
     training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
+    checks = calibrate_checks(runs, schedule, args.target, per_rule)
+    checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
     bundle = Bundle(args.method, args.target, schedule, results, HISTORY_S, training,
-                    (curve.centres_, curve.means_),
-                    calibrate_checks(runs, schedule, args.target, per_rule))
+                    (curve.centres_, curve.means_), checks)
     out = save_bundle(bundle, args.out)
     if inputs is None:
         print_ranking(results)
