@@ -96,12 +96,17 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
     hours = sum(b["samples"] for b in s["beds"].values()) / 40.0 / 3600.0
     rows = []
     for fault in faults:
-        for size in sizes:
+        for size in _sizes_of(fault, sizes):
             for i in range(1, instances + 1):
                 rows.append(_fault_row(work, seed, n, model, s, fault, i, size))
             print(f"[engine {seed}] {fault} x{size:g}: done ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
     return rows, hours, s["alarm_episodes"]
+
+
+def _sizes_of(fault: str, sizes: tuple[float, ...]) -> tuple[float, ...]:
+    """The sizes a fault kind is run at: a stuck sensor has no size, so once."""
+    return (1.0,) if fault == "stuck-sensor" else sizes
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -152,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
               f"| {ok} |")
     print()
     for fault in faults:
-        for size in sizes:
+        for size in _sizes_of(fault, sizes):
             mine = [r for r in rows if r[1] == fault and r[2] == size]
             hit = sum(1 for r in mine if r[6] <= DELAY_TARGET_S)
             print(f"{fault} size {size:g}: flagged within {DELAY_TARGET_S:.0f} s in {hit}/{len(mine)}")
