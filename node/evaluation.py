@@ -9,8 +9,10 @@ import numpy as np
 
 from node.baseline import CharacteristicCurve
 from node.dataset import run_arrays, segment_runs
+from node.errors import OrdervibError
 from node.ocmodel import Trajectory
 from node.recording import Run
+from node.runcurve import RUN_CURVE, add_run_curve
 from node.schedule import Schedule
 from node.training import FS, HISTORY_S, OCResult, ewma_scores, pooled_eps
 
@@ -34,12 +36,20 @@ class OCEvaluation:
 
 
 def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedule,
-                     target: str) -> list[SegmentPrediction]:
-    """Free-run predictions of every OC segment found in ``runs`` that has a model."""
+                     target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None
+                     ) -> list[SegmentPrediction]:
+    """Free-run predictions of every OC segment found in ``runs`` that has a model.
+
+    fleet: the bundle's characteristic curve, needed when a model takes ``run_curve``.
+    """
     by_oc = {schedule.index(r.name): r for r in results if r.model is not None}
     out = []
     hist = int(HISTORY_S * FS)
     inputs_needed = sorted({c for r in by_oc.values() for c in r.inputs})
+    if RUN_CURVE in inputs_needed:
+        if fleet is None:
+            raise OrdervibError("the model takes run_curve but has no characteristic curve")
+        runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
     arrays = [run_arrays(run, target, inputs_needed) for run in runs]
     for s in segment_runs(runs, schedule):
         res = by_oc.get(s.oc)
@@ -72,8 +82,9 @@ def alarm_mask(residual: np.ndarray, res: OCResult) -> np.ndarray:
 
 
 def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
-             target: str) -> tuple[list[OCEvaluation], list[SegmentPrediction]]:
-    preds = predict_segments(results, runs, schedule, target)
+             target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None
+             ) -> tuple[list[OCEvaluation], list[SegmentPrediction]]:
+    preds = predict_segments(results, runs, schedule, target, fleet)
     by_name = {r.name: r for r in results}
     out = []
     for j, name in enumerate(schedule.names):

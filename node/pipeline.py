@@ -25,6 +25,7 @@ from node.align import AlignedSample
 from node.bundle import Bundle
 from node.ocdetect import OCDetector, Phase
 from node.ocmodel import OCRuntime
+from node.runcurve import RUN_CURVE, RunCurve
 
 FS = 40.0
 CLEAR_SAMPLES = int(RESIDUAL_CLEAR_S * FS)
@@ -77,6 +78,9 @@ class MonitorPipeline:
         self._scale_prior = float(prior) if prior else None
         self._runscale = RunScale(self._scale_prior) if prior else None
         self._zsum, self._zn = 0.0, 0  # squared standardized residuals of the active OC
+        self._curve = None  # this run's own characteristic, when a model takes it as input
+        if RUN_CURVE in self.channels and bundle.curve is not None:
+            self._curve = RunCurve(*bundle.curve)
 
     def _filled(self, values: dict[str, float]) -> dict[str, float]:
         """Hold each channel's last finite value over dropouts (NaN before the first); in place."""
@@ -124,10 +128,15 @@ class MonitorPipeline:
             if self._runscale is not None:
                 self._runscale = RunScale(self._scale_prior)
             self._zsum, self._zn = 0.0, 0
+            if self._curve is not None:
+                self._curve.reset()
         vals = self._filled(sample.values)
         st = self.detector.step(sample.values.get(self.switch, float("nan")))
         oc_msg = None
         names = self._names
+        if self._curve is not None:
+            vals[RUN_CURVE] = self._curve.step(vals[self.switch], vals[self.target],
+                                               st.oc != self._state[0])
         if (st.oc, st.phase) != self._state:
             prev_oc = self._state[0]
             if st.oc != prev_oc:

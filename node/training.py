@@ -22,6 +22,7 @@ from node.errors import OrdervibError
 from node.features import rank_inputs
 from node.ocmodel import Method, OCModel, Trajectory, fit_oc_model, memory
 from node.recording import Run
+from node.runcurve import add_run_curve
 from node.schedule import Schedule
 
 HISTORY_S = 60.0  # seconds of measured past kept before each OC for seeding
@@ -227,8 +228,12 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           inputs: list[str] | None = None, n_inputs: int = 4, grid: dict[str, list] | None = None,
           workers: int | None = None, progress: Callable[[OCResult, int, int], None] | None = None,
           false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
-          cv_undercoverage: float = CV_UNDERCOVERAGE) -> list[OCResult]:
+          cv_undercoverage: float = CV_UNDERCOVERAGE,
+          fleet: tuple[np.ndarray, np.ndarray] | None = None) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
+
+    fleet: the training runs' characteristic curve (speeds, means); given, every run gains
+    the derived ``run_curve`` input (``node.runcurve``), a candidate like any channel.
 
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.alarms.pooled_thresholds``.
@@ -238,6 +243,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
         raise OrdervibError("no runs to train on")
     if any(target not in r.channels for r in runs):
         raise OrdervibError(f"target channel {target!r} is missing from some run")
+    if fleet is not None:
+        runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
     candidates = candidate_channels(runs, target, schedule.switch)
     if inputs is not None:
         missing = [c for c in inputs if c not in candidates]

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
 
     bundle = load_bundle(args.model)
     runs = load_runs(args.recordings, args.quiet)
-    evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target)
+    evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve)
     curve = None
     if bundle.curve is not None:
         curve = CharacteristicCurve()

@@ -137,12 +137,13 @@ def run(args: argparse.Namespace) -> int:
             cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
             print(f"  [{done}/{total}] {r.name}: {cv} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
 
-    results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
-                    n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
-                    false_alarms_per_hour=per_rule, cv_undercoverage=under)
     arrays = [run_arrays(r, args.target, [schedule.switch]) for r in runs]
     curve = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
                                       np.concatenate([a.y for a in arrays]))
+    results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
+                    n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
+                    false_alarms_per_hour=per_rule, cv_undercoverage=under,
+                    fleet=(curve.centres_, curve.means_))
     training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     checks = calibrate_checks(runs, schedule, args.target, per_rule)

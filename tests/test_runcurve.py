@@ -1,0 +1,72 @@
+"""The run's own characteristic curve (``run_curve``): semantics, and node == training."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import orjson
+
+from node.bundle import Bundle
+from node.core import NodeCore
+from node.ocmodel import Method, OCModel
+from node.recording import Run
+from node.runcurve import RUN_CURVE, RunCurve, add_run_curve
+from node.schedule import OperatingCondition, Schedule
+from node.training import Calibration, OCResult
+
+FLEET = (np.array([0.0, 10000.0]), np.array([1.0, 1.0]))  # the fleet says 1.0 everywhere
+
+
+def test_run_curve_uses_earlier_segments_only_and_the_fleet_elsewhere():
+    rc = RunCurve(np.array([0.0, 10000.0]), np.array([0.0, 10.0]))  # fleet: 1 per 1000 rpm
+    assert rc.step(4010.0, 7.0, False) == np.interp(4010.0, [0, 10000], [0, 10])  # not seen yet
+    assert rc.step(4020.0, 9.0, False) == np.interp(4020.0, [0, 10000], [0, 10])  # own segment: no
+    assert rc.step(6000.0, 1.0, True) == 6.0  # a new segment at another speed: the fleet
+    assert rc.step(4030.0, 5.0, True) == 8.0  # back at 4000-4050 rpm: the earlier mean (7 + 9) / 2
+    assert rc.step(4030.0, 5.0, False) == 8.0  # the current segment's 5.0 does not count
+    assert math.isnan(rc.step(math.nan, 5.0, False))
+    assert rc.step(6010.0, math.nan, True) == 1.0  # the 6000 bin from the second segment
+    rc.reset()  # a new run forgets everything
+    assert rc.step(4030.0, 1.0, False) == np.interp(4030.0, [0, 10000], [0, 10])
+
+
+def _profile() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """t (s), nB (rpm), yB (mm/s): 4000 rpm, up to 6000, back to 4000, with dropouts."""
+    fs = 40.0
+    knots_t = [0.0, 20.0, 30.0, 50.0, 60.0, 80.0]
+    knots_v = [4000.0, 4000.0, 6000.0, 6000.0, 4000.0, 4000.0]
+    t = np.arange(0.0, 80.0, 1.0 / fs)
+    nb = np.interp(t, knots_t, knots_v)
+    rng = np.random.default_rng(3)
+    yb = 2.0 + nb / 2000.0 + rng.normal(0.0, 0.05, t.size) + np.where(t > 70.0, 1.5, 0.0)
+    nb[[100, 101, 2500]] = np.nan
+    yb[[50, 1200, 2900]] = np.nan
+    return t, nb, yb
+
+
+def test_the_node_computes_the_very_feature_training_saw():
+    sched = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0)))
+    # a Lasso model "yB = run_curve": the node's prediction is the feature itself
+    model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([0.0]), np.array([1.0]),
+                    coef=np.array([1.0]), intercept=0.0)
+    ocs = [OCResult(n, model, [RUN_CURVE], {}, 8, 0.1, 0.1, Calibration(1.0, 1e9)) for n in ("A", "B")]
+    core = NodeCore(Bundle("lasso", "yB", sched, ocs, 60.0, curve=FLEET))
+    t, nb, yb = _profile()
+    out = []
+    for k in range(t.size):
+        for ch, v in (("nB", nb[k]), ("yB", yb[k])):
+            payload = {"t": float(1000.0 + t[k]), "v": None if np.isnan(v) else float(v)}
+            out += core.handle(f"testbed/b/sensor/{ch}", orjson.dumps(payload))
+    out += core.finish()
+    mon = [m for key, m in out if key.endswith("/yB")]
+    assert len(mon) == t.size
+    run = Run(1000.0 + t, np.column_stack([nb, yb]), ("nB", "yB"), "b", None)
+    offline = add_run_curve(run, sched, "yB", FLEET).column(RUN_CURVE)
+    pred = np.array([np.nan if m["predicted"] is None else m["predicted"] for m in mon])
+    has = np.isfinite(pred)
+    assert has.sum() > 0.6 * t.size
+    np.testing.assert_array_equal(pred[has], offline[has])  # to the last bit
+    # the return to 4000 rpm predicts the first plateau's level, not the +1.5 of its own end
+    back = (t > 72.0) & has
+    assert np.all(np.abs(pred[back] - 4.0) < 0.05)
