@@ -19,6 +19,7 @@ import numpy as np
 from node import __version__
 from node.errors import OrdervibError
 from node.ocmodel import OCModel
+from node.runcurve import RUN_CURVE
 from node.schedule import Schedule
 from node.training import Calibration, OCResult
 
@@ -153,6 +154,8 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
         curve = None
         if "curve/speed" in arrays:
             curve = (arrays["curve/speed"], arrays["curve/mean"])
+        if curve is None and any(RUN_CURVE in r.inputs for r in ocs):
+            raise ValueError(f"an OC takes {RUN_CURVE!r} but the bundle has no characteristic curve")
         return Bundle(manifest["method"], manifest["target"], schedule, ocs,
                       float(manifest["history_s"]), manifest.get("training", {}), curve,
                       _checks(manifest.get("checks", {})))

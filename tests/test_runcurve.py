@@ -70,3 +70,20 @@ def test_the_node_computes_the_very_feature_training_saw():
     # the return to 4000 rpm predicts the first plateau's level, not the +1.5 of its own end
     back = (t > 72.0) & has
     assert np.all(np.abs(pred[back] - 4.0) < 0.05)
+
+
+def test_a_bundle_taking_run_curve_without_a_fleet_curve_is_refused(tmp_path):
+    import pytest
+
+    from node.bundle import load_bundle, save_bundle
+    from node.errors import OrdervibError
+
+    sched = Schedule((OperatingCondition("A", 4000.0),))
+    model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([0.0]), np.array([1.0]),
+                    coef=np.array([1.0]), intercept=0.0)
+    res = OCResult("A", model, [RUN_CURVE], {}, 8, 0.1, 0.1, Calibration(1.0, 5.0))
+    save_bundle(Bundle("lasso", "yB", sched, [res], 60.0, curve=FLEET), tmp_path / "ok")
+    assert load_bundle(tmp_path / "ok").oc("A").inputs == [RUN_CURVE]
+    save_bundle(Bundle("lasso", "yB", sched, [res], 60.0), tmp_path / "bad")
+    with pytest.raises(OrdervibError, match="malformed bundle.*characteristic curve"):
+        load_bundle(tmp_path / "bad")
