@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     from node.commands.train import load_runs
     from node.evaluation import baseline_eps, evaluate
     from node.schedule import load_schedule
-    from node.training import train
+    from node.training import fleet_curve, train
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-bench-"))
     if not args.train:
@@ -47,15 +47,18 @@ def main(argv: list[str] | None = None) -> int:
     test_runs = load_runs([args.test], quiet=True)
     base = baseline_eps(train_runs, test_runs, schedule, "yB")
     rows = []
+    fleet = fleet_curve(train_runs, schedule.switch, "yB")
     for method in args.methods.split(","):
-        t1 = time.perf_counter()
-        results = train(train_runs, schedule, method=method)
-        t_train = time.perf_counter() - t1
-        evals, _ = evaluate(results, test_runs, schedule, "yB")
-        held = np.nanmean([e.eps for e in evals])
-        cv = np.nanmean([r.cv_eps for r in results])
-        alarms = sum(e.alarm_samples for e in evals) / 40.0
-        rows.append((method, t_read + t_train, cv, held, alarms))
+        for curve in (fleet, None):  # as ordervib train does, and without the derived run_curve
+            t1 = time.perf_counter()
+            results = train(train_runs, schedule, method=method, fleet=curve)
+            t_train = time.perf_counter() - t1
+            evals, _ = evaluate(results, test_runs, schedule, "yB", curve)
+            held = np.nanmean([e.eps for e in evals])
+            cv = np.nanmean([r.cv_eps for r in results])
+            alarms = sum(e.alarm_samples for e in evals) / 40.0
+            name = method if curve is not None else f"{method}, no run_curve"
+            rows.append((name, t_read + t_train, cv, held, alarms))
     print(f"\n{len(train_runs)} training runs, {len(test_runs)} held-out runs; reading took {t_read:.1f} s")
     print("| method | train wall s (read + CV + fit) | mean CV eps_td | mean held-out eps_td | "
           "alarm s on normal runs |")

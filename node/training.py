@@ -224,6 +224,16 @@ def candidate_channels(runs: list[Run], target: str, switch: str) -> list[str]:
     return out
 
 
+def fleet_curve(runs: list[Run], switch: str, target: str) -> tuple[np.ndarray, np.ndarray]:
+    """The training runs' characteristic curve (speeds (B,), mean target (B,))."""
+    from node.baseline import CharacteristicCurve
+
+    arrays = [run_arrays(r, target, [switch]) for r in runs]
+    c = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
+                                  np.concatenate([a.y for a in arrays]))
+    return c.centres_, c.means_
+
+
 def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str = "wdmd",
           inputs: list[str] | None = None, n_inputs: int = 4, grid: dict[str, list] | None = None,
           workers: int | None = None, progress: Callable[[OCResult, int, int], None] | None = None,

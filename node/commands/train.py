@@ -98,11 +98,9 @@ def print_ranking(results, top: int = 6, file=None) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from node.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
-    from node.baseline import CharacteristicCurve
     from node.bundle import Bundle, save_bundle, sha256_file
-    from node.dataset import run_arrays
     from node.schedule import load_schedule
-    from node.training import DEFAULT_GRIDS, HISTORY_S, Method, train
+    from node.training import DEFAULT_GRIDS, HISTORY_S, Method, fleet_curve, train
 
     if args.n_inputs < 1:
         raise OrdervibError("--n-inputs must be at least 1")
@@ -137,19 +135,17 @@ def run(args: argparse.Namespace) -> int:
             cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
             print(f"  [{done}/{total}] {r.name}: {cv} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
 
-    arrays = [run_arrays(r, args.target, [schedule.switch]) for r in runs]
-    curve = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
-                                      np.concatenate([a.y for a in arrays]))
+    curve = fleet_curve(runs, schedule.switch, args.target)
     results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
                     n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
                     false_alarms_per_hour=per_rule, cv_undercoverage=under,
-                    fleet=(curve.centres_, curve.means_))
+                    fleet=curve)
     training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     checks = calibrate_checks(runs, schedule, args.target, per_rule)
     checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
     bundle = Bundle(args.method, args.target, schedule, results, HISTORY_S, training,
-                    (curve.centres_, curve.means_), checks)
+                    curve, checks)
     out = save_bundle(bundle, args.out)
     if inputs is None:
         print_ranking(results)
