@@ -14,6 +14,7 @@ The node (``MonitorPipeline``) and training (``add_run_curve``) step the very sa
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 
@@ -33,10 +34,23 @@ class RunCurve:
 
     def __init__(self, fleet_speed: np.ndarray, fleet_mean: np.ndarray,
                  bin_width: float = BIN_WIDTH) -> None:
-        self.fleet_speed = np.asarray(fleet_speed, float)
-        self.fleet_mean = np.asarray(fleet_mean, float)
+        self._xs = [float(x) for x in np.asarray(fleet_speed, float)]
+        self._ys = [float(x) for x in np.asarray(fleet_mean, float)]
+        if not self._xs or len(self._xs) != len(self._ys):
+            raise ValueError("the fleet curve needs as many means as speeds, at least one")
         self.bin_width = bin_width
         self.reset()
+
+    def fleet(self, speed: float) -> float:
+        """The fleet curve at ``speed``: linear between its points, held beyond them."""
+        xs, ys = self._xs, self._ys
+        i = bisect.bisect_right(xs, speed)
+        if i == 0:
+            return ys[0]
+        if i == len(xs):
+            return ys[-1]
+        x0, x1 = xs[i - 1], xs[i]
+        return ys[i - 1] + (ys[i] - ys[i - 1]) * (speed - x0) / (x1 - x0)
 
     def reset(self) -> None:
         """A new run: forget every bin."""
@@ -65,7 +79,7 @@ class RunCurve:
         if n:
             out = self._sum[b] / n
         else:
-            out = float(np.interp(speed, self.fleet_speed, self.fleet_mean))
+            out = self.fleet(speed)
         if math.isfinite(y):
             self._pend_sum[b] = self._pend_sum.get(b, 0.0) + y
             self._pend_n[b] = self._pend_n.get(b, 0) + 1

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import orjson
+import pytest
 
 from node.bundle import Bundle
 from node.core import NodeCore
@@ -20,15 +21,17 @@ FLEET = (np.array([0.0, 10000.0]), np.array([1.0, 1.0]))  # the fleet says 1.0 e
 
 def test_run_curve_uses_earlier_segments_only_and_the_fleet_elsewhere():
     rc = RunCurve(np.array([0.0, 10000.0]), np.array([0.0, 10.0]))  # fleet: 1 per 1000 rpm
-    assert rc.step(4010.0, 7.0, False) == np.interp(4010.0, [0, 10000], [0, 10])  # not seen yet
-    assert rc.step(4020.0, 9.0, False) == np.interp(4020.0, [0, 10000], [0, 10])  # own segment: no
+    assert rc.step(4010.0, 7.0, False) == pytest.approx(4.01)  # not seen yet: the fleet
+    assert rc.step(4020.0, 9.0, False) == pytest.approx(4.02)  # own segment: no
     assert rc.step(6000.0, 1.0, True) == 6.0  # a new segment at another speed: the fleet
     assert rc.step(4030.0, 5.0, True) == 8.0  # back at 4000-4050 rpm: the earlier mean (7 + 9) / 2
     assert rc.step(4030.0, 5.0, False) == 8.0  # the current segment's 5.0 does not count
     assert math.isnan(rc.step(math.nan, 5.0, False))
     assert rc.step(6010.0, math.nan, True) == 1.0  # the 6000 bin from the second segment
     rc.reset()  # a new run forgets everything
-    assert rc.step(4030.0, 1.0, False) == np.interp(4030.0, [0, 10000], [0, 10])
+    assert rc.step(4030.0, 1.0, False) == pytest.approx(4.03)
+    for s in (-5.0, 0.0, 2500.0, 9999.0, 10000.0, 12000.0):  # the fleet curve is np.interp's
+        assert rc.fleet(s) == pytest.approx(float(np.interp(s, [0, 10000], [0, 10])), abs=1e-12)
 
 
 def _profile() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -73,8 +76,6 @@ def test_the_node_computes_the_very_feature_training_saw():
 
 
 def test_a_bundle_taking_run_curve_without_a_fleet_curve_is_refused(tmp_path):
-    import pytest
-
     from node.bundle import load_bundle, save_bundle
     from node.errors import OrdervibError
 
