@@ -70,7 +70,7 @@ class NodeCore:
         st = self.stats.beds.get(bed)
         if st is None:
             pipe = MonitorPipeline(self.bundle)
-            st = BedState(Aligner(pipe.channels), pipe)
+            st = BedState(Aligner(pipe.sensor_channels), pipe)
             self.stats.beds[bed] = st
         return st
 

@@ -62,6 +62,8 @@ class MonitorPipeline:
         self.detector = OCDetector(bundle.schedule, FS)
         self._names = bundle.schedule.names  # a tuple built on each access: keep one
         self.channels = sorted({self.switch, self.target, *bundle.inputs})
+        # what the test bed publishes: the derived run_curve is computed here, never awaited
+        self.sensor_channels = [c for c in self.channels if c != RUN_CURVE]
         self._hist: deque[tuple[float, ...]] = deque(maxlen=int(bundle.history_s * FS))
         self._last: dict[str, float] = dict.fromkeys(self.channels, math.nan)  # in channel order
         self._state: tuple[int | None, Phase] = (None, Phase.OFF)
