@@ -447,7 +447,7 @@ def main(argv: list[str] | None = None) -> int:
                  str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
                  "--method", "lasso", "--quiet"])
     bundle = load_bundle(args.model)
-    needed = set(MonitorPipeline(bundle).channels)
+    needed = set(MonitorPipeline(bundle).sensor_channels)  # what the test bed publishes
     stream = load_stream(args.recording, args.seconds, args.offset, needed)
     channels = sorted({c for s in stream.slots for c, _ in s})
     print(f"{args.recording}: {len(stream.slots)} samples of {len(channels)} channels per bed "
