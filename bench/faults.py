@@ -27,6 +27,7 @@ import json
 import math
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 
 from node.cli import main as cli
@@ -161,9 +162,7 @@ def main(argv: list[str] | None = None) -> int:
             mine = [r for r in rows if r[1] == fault and r[2] == size]
             hit = sum(1 for r in mine if r[6] <= DELAY_TARGET_S)
             print(f"{fault} size {size:g}: flagged within {DELAY_TARGET_S:.0f} s in {hit}/{len(mine)}")
-    reasons: dict = {}
-    for e in false:
-        reasons[e["reason"]] = reasons.get(e["reason"], 0) + 1
+    reasons = dict(Counter(e["reason"] for e in false))
     print(f"normal held-out runs: {len(seeds)} x {args.normal_runs} runs, {hours:.2f} h of data, "
           f"{len(false)} alarm episode(s) {reasons or ''} = {rate:.2f} per hour "
           f"(target <= {FALSE_ALARM_TARGET_PER_H:g}): "

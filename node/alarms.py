@@ -69,6 +69,10 @@ class RunScale:
 
     def __init__(self, prior: float = RUN_SCALE_PRIOR_OCS) -> None:
         self.prior = prior
+        self.reset()
+
+    def reset(self) -> None:
+        """A new run: typical until its OCs say otherwise."""
         self.total = 0.0
         self.count = 0
         self.factor = 1.0

@@ -77,8 +77,7 @@ class MonitorPipeline:
         thr = bundle.checks.get("step_threshold")
         self._jump = StepCheck(float(thr), FS) if thr else None
         prior = bundle.checks.get("run_scale_prior_ocs")
-        self._scale_prior = float(prior) if prior else None
-        self._runscale = RunScale(self._scale_prior) if prior else None
+        self._runscale = RunScale(float(prior)) if prior else None
         self._zsum, self._zn = 0.0, 0  # squared standardized residuals of the active OC
         self._curve = None  # this run's own characteristic, when a model takes it as input
         if RUN_CURVE in self.channels and bundle.curve is not None:
@@ -128,7 +127,7 @@ class MonitorPipeline:
             if self._jump is not None:
                 self._jump.reset()
             if self._runscale is not None:
-                self._runscale = RunScale(self._scale_prior)
+                self._runscale.reset()
             self._zsum, self._zn = 0.0, 0
             if self._curve is not None:
                 self._curve.reset()
@@ -136,12 +135,12 @@ class MonitorPipeline:
         st = self.detector.step(sample.values.get(self.switch, float("nan")))
         oc_msg = None
         names = self._names
+        prev_oc = self._state[0]
+        oc_changed = st.oc != prev_oc
         if self._curve is not None:
-            vals[RUN_CURVE] = self._curve.step(vals[self.switch], vals[self.target],
-                                               st.oc != self._state[0])
-        if (st.oc, st.phase) != self._state:
-            prev_oc = self._state[0]
-            if st.oc != prev_oc:
+            vals[RUN_CURVE] = self._curve.step(vals[self.switch], vals[self.target], oc_changed)
+        if oc_changed or st.phase != self._state[1]:
+            if oc_changed:
                 self._activate(st.oc)
             oc_msg = {"t": sample.t, "oc": None if st.oc is None else names[st.oc],
                       "phase": st.phase.value, "previous": None if prev_oc is None else names[prev_oc]}

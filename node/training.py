@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from node.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds
+from node.baseline import CharacteristicCurve
 from node.dataset import Segment, run_arrays, segment_runs
 from node.errors import OrdervibError
 from node.features import rank_inputs
@@ -226,8 +227,6 @@ def candidate_channels(runs: list[Run], target: str, switch: str) -> list[str]:
 
 def fleet_curve(runs: list[Run], switch: str, target: str) -> tuple[np.ndarray, np.ndarray]:
     """The training runs' characteristic curve (speeds (B,), mean target (B,))."""
-    from node.baseline import CharacteristicCurve
-
     arrays = [run_arrays(r, target, [switch]) for r in runs]
     c = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
                                   np.concatenate([a.y for a in arrays]))

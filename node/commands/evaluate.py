@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -82,9 +83,7 @@ def node_alarms(model: str, recordings: list[str]) -> str:
         episodes += s["alarm_episodes"]
         samples += sum(b["samples"] for b in s["beds"].values())
     hours = samples / 40.0 / 3600.0
-    rules: dict[str, int] = {}
-    for e in episodes:
-        rules[e["reason"]] = rules.get(e["reason"], 0) + 1
+    rules = Counter(e["reason"] for e in episodes)
     by_rule = ", ".join(f"{k} {v}" for k, v in sorted(rules.items())) or "none"
     rate = len(episodes) / hours if hours else 0.0
     return (f"node alarms (ordervib replay): {len(episodes)} episode(s) in {hours * 60:.1f} min of data "
