@@ -2,7 +2,7 @@
 
     python -m bench faults [--seeds 11,12] [--train-runs 8] [--normal-runs 10] [--instances 3]
                            [--method wdmd] [--workdir DIR] [--faults drift,stiffness]
-                           [--sizes 1,2,4]
+                           [--sizes 1,2,4] [--schedule S.toml] [--noise-scale X]
 
 Per simulated engine (one per seed): the first ``--train-runs`` runs train the model (the CLI's
 ``ordervib train``, cross-validation on those runs only); the next ``--normal-runs``
@@ -24,11 +24,18 @@ step and flatline rules see other signatures (a jump, a stuck value).
 onsets), to find the smallest fault flagged within 60 s; ``--faults`` picks the kinds. Size 1
 keeps the recording names ``{fault}-{i}.mcap``, other sizes are ``{fault}-{i}-x{size}.mcap``.
 The false-alarm part does not depend on either.
+
+``--schedule`` and ``--noise-scale`` go to every simulation (``simulate --schedule``,
+``--noise-scale``): the engines run that schedule's OCs, with that sensor noise. Every
+recording's truth JSON records both (and which runs it holds); a recording in the work dir
+made with other ones is simulated again, and a model whose training data changed (its stamp
+``model-METHOD.trained-on.json`` names the sha256 of the training truth JSON) is trained again.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import tempfile
@@ -42,17 +49,49 @@ from bench.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_eff
 from node.bundle import Bundle, load_bundle
 from node.cli import main as cli
 from node.commands.replay import replay_offline
+from node.errors import OrdervibError
 from node.recording import Run, read_runs
+from simulator.schedule import BUILT_IN_SCHEDULE, SimSchedule, load_sim_schedule
 
 FAULTS = ("imbalance", "stiffness", "stuck-sensor", "drift")
 DELAY_TARGET_S = 60.0
 FALSE_ALARM_TARGET_PER_H = 1.0
 
 
+class Setup:
+    """What every simulation of a bench run shares: the schedule and the noise scale."""
+
+    def __init__(self, schedule: SimSchedule = BUILT_IN_SCHEDULE, noise_scale: float = 1.0) -> None:
+        self.schedule = schedule
+        self.noise_scale = float(noise_scale)
+
+    def argv(self) -> list[str]:
+        out = [] if self.schedule.built_in else ["--schedule", self.schedule.source]
+        return out + (["--noise-scale", repr(self.noise_scale)] if self.noise_scale != 1.0 else [])
+
+    def matches(self, truth: dict | None, first: int, count: int) -> bool:
+        """Whether a recording's truth JSON is this setup's, with runs first .. first + count - 1.
+
+        Truth files from before --schedule / --noise-scale carry neither: built-in and 1.
+        """
+        if truth is None:
+            return False
+        digest = truth.get("schedule", {}).get("sha256", BUILT_IN_SCHEDULE.digest())
+        return (digest == self.schedule.digest()
+                and truth.get("noise_scale", 1.0) == self.noise_scale
+                and [r.get("index") for r in truth.get("runs", [])] == list(range(first, first + count)))
+
+
+def _truth(rec: Path) -> dict | None:
+    """The truth JSON beside a recording, None if either is missing."""
+    path = rec.with_suffix(".truth.json")
+    return json.loads(path.read_text()) if rec.exists() and path.exists() else None
+
+
 def _simulate(out: Path, runs: int, seed: int, skip: int, fault: str | None = None,
-              fault_seed: int | None = None, size: float = 1.0) -> dict:
+              fault_seed: int | None = None, size: float = 1.0, setup: Setup | None = None) -> dict:
     argv = ["simulate", "--runs", str(runs), "--seed", str(seed), "--skip", str(skip),
-            "--out", str(out), "--quiet"]
+            "--out", str(out), "--quiet", *(setup or Setup()).argv()]
     if fault:
         argv += ["--fault", fault, "--fault-seed", str(fault_seed)]
         if size != 1.0:
@@ -67,17 +106,17 @@ def _fault_name(fault: str, i: int, size: float) -> str:
 
 
 def _fault_row(work: Path, seed: int, n: int, model: Path, s: dict, fault: str, i: int,
-               size: float, bundle: Bundle, twin: Run) -> tuple:
+               size: float, bundle: Bundle, twin: Run, setup: Setup) -> tuple:
     """One fault recording (simulated unless present), replayed; its row of the table.
 
     twin: the first normal held-out run, which is this run without the fault.
     """
     rec = work / _fault_name(fault, i, size)
-    truth_path = rec.with_suffix(".truth.json")
-    truth = json.loads(truth_path.read_text()) if rec.exists() and truth_path.exists() else None
+    truth = _truth(rec)
     # recordings made before --fault-size carry no size: they are size 1
-    if truth is None or truth["runs"][-1]["fault"].get("size", 1.0) != size:
-        truth = _simulate(rec, n + 1, seed, n, fault, i, size)
+    if (not setup.matches(truth, n, 1) or "fault" not in truth["runs"][-1]
+            or truth["runs"][-1]["fault"].get("size", 1.0) != size):
+        truth = _simulate(rec, n + 1, seed, n, fault, i, size, setup)
     f = truth["runs"][-1]["fault"]
     eps = replay_offline(str(rec), str(model), None, quiet=True)["alarm_episodes"]
     # an alarm the same run raises by the same rule without the fault is not a detection
@@ -100,21 +139,34 @@ def _fault_row(work: Path, seed: int, n: int, model: Path, s: dict, fault: str, 
 
 
 def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: str, t0: float,
-                faults: tuple[str, ...] = FAULTS, sizes: tuple[float, ...] = (1.0,)
-                ) -> tuple[list[tuple], float, list[dict]]:
-    """One engine: simulate, train, replay; returns (fault rows, hours of normal data, false episodes)."""
+                faults: tuple[str, ...] = FAULTS, sizes: tuple[float, ...] = (1.0,),
+                setup: Setup | None = None) -> tuple[list[tuple], float, list[dict]]:
+    """One engine: simulate, train, replay; returns (fault rows, hours of normal data, false episodes).
+
+    Recordings and the model already in ``work`` are reused only if they match ``setup`` and
+    the run counts (see ``Setup.matches`` and the model's stamp).
+    """
+    setup = setup or Setup()
     work.mkdir(parents=True, exist_ok=True)
     train, normal, model = work / "train.mcap", work / "normal.mcap", work / f"model-{method}"
-    if not train.exists():
+    stamp = work / f"model-{method}.trained-on.json"
+    if not setup.matches(_truth(train), 0, n):
         print(f"[engine {seed}] simulating {n} training runs ...", flush=True)
-        _simulate(train, n, seed, 0)
-    if not normal.exists():
+        stamp.unlink(missing_ok=True)  # the model, if any, was trained on other data
+        _simulate(train, n, seed, 0, setup=setup)
+    if not setup.matches(_truth(normal), n, m):
         print(f"[engine {seed}] simulating {m} held-out normal runs ...", flush=True)
-        _simulate(normal, n + m, seed, n)
-    if not (model / "manifest.json").exists():
+        _simulate(normal, n + m, seed, n, setup=setup)
+    trained_on = hashlib.sha256(train.with_suffix(".truth.json").read_bytes()).hexdigest()
+    old = json.loads(stamp.read_text()).get("train_truth_sha256") if stamp.exists() else None
+    if not (model / "manifest.json").exists() or old != trained_on:
         print(f"[engine {seed}] training {method} on the training runs ...", flush=True)
-        cli(["train", str(train), "--schedule", str(work / "train.schedule.toml"), "--out", str(model),
-             "--method", method, "--quiet"])
+        stamp.unlink(missing_ok=True)
+        argv = ["train", str(train), "--schedule", str(work / "train.schedule.toml"), "--out",
+                str(model), "--method", method, "--quiet"]
+        if cli(argv) != 0:
+            raise SystemExit(f"train failed: {argv}")
+        stamp.write_text(json.dumps({"train_truth_sha256": trained_on}) + "\n")
     s = replay_offline(str(normal), str(model), None, quiet=True)
     hours = sum(b["samples"] for b in s["beds"].values()) / 40.0 / 3600.0
     bundle = load_bundle(model)
@@ -123,7 +175,7 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
     for fault in faults:
         for size in _sizes_of(fault, sizes):
             for i in range(1, instances + 1):
-                rows.append(_fault_row(work, seed, n, model, s, fault, i, size, bundle, twin))
+                rows.append(_fault_row(work, seed, n, model, s, fault, i, size, bundle, twin, setup))
             print(f"[engine {seed}] {fault} x{size:g}: done ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
     return rows, hours, s["alarm_episodes"]
@@ -146,7 +198,18 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"fault kinds, comma-separated (default all: {','.join(FAULTS)})")
     ap.add_argument("--sizes", default="1",
                     help="fault sizes (simulate --fault-size), comma-separated (default 1)")
+    ap.add_argument("--schedule", default=None, metavar="S.toml",
+                    help="simulate this schedule's OCs (simulate --schedule; default the built-in 12)")
+    ap.add_argument("--noise-scale", type=float, default=1.0, metavar="X",
+                    help="scale every sensor's noise (simulate --noise-scale; default 1)")
     args = ap.parse_args(argv)
+    if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
+        ap.error(f"--noise-scale must be > 0 and finite, got {args.noise_scale!r}")
+    try:
+        setup = Setup(BUILT_IN_SCHEDULE if args.schedule is None else load_sim_schedule(args.schedule),
+                      args.noise_scale)
+    except OrdervibError as e:
+        ap.error(f"--schedule: {e}")
     faults = tuple(x.strip() for x in args.faults.split(",") if x.strip())
     if not faults or any(f not in FAULTS for f in faults) or len(set(faults)) != len(faults):
         ap.error(f"--faults must be distinct names among {','.join(FAULTS)}, got {args.faults!r}")
@@ -162,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     rows, hours, false = [], 0.0, []
     for seed in seeds:
         r, h, f = engine_rows(work / f"engine{seed}", seed, args.train_runs, args.normal_runs,
-                              args.instances, args.method, t0, faults, sizes)
+                              args.instances, args.method, t0, faults, sizes, setup)
         rows += r
         hours += h
         false += f
@@ -171,6 +234,9 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(f"engines {seeds}: {args.method} trained on each engine's first {args.train_runs} runs; "
           f"work dir {work}")
+    print(f"schedule {setup.schedule.source} ({len(setup.schedule.ocs)} OCs: "
+          f"{', '.join(f'{o.name} {o.speed:g}' for o in setup.schedule.ocs)} rpm); "
+          f"noise scale {setup.noise_scale:g}")
     print()
     w = f"{DELAY_TARGET_S:.0f} s"
     print("| engine | fault | size | instance | onset OC | onset s into run | first alarm after onset, s "

@@ -3,7 +3,11 @@
 Pure numerics: returns arrays and a ground-truth dictionary; writing files is
 ``simulator.export``'s job. Randomness: engine from child 0 of the seed, run r
 from child r + 1 and faults from a separate child, so the first N runs of a
-longer campaign equal an N-run campaign with the same seed, fault or not.
+longer campaign equal an N-run campaign with the same seed, fault or not, and a
+fault run equals the same run without the fault before the onset (its twin).
+The schedule and the noise scale change what is drawn from those streams, never
+which stream draws what: the same seed with the built-in schedule and noise
+scale 1 gives the very same numbers as before either option existed.
 """
 
 from __future__ import annotations
@@ -15,14 +19,24 @@ import numpy as np
 from node.recording import SENSOR_CHANNELS
 from simulator import gaspath, rotor, thermal
 from simulator.engine import SHAFTS, Engine, build_engine
-from simulator.schedule import DEFAULT_OCS, DT, OC, Profile, make_profile
+from simulator.schedule import (
+    BUILT_IN_SCHEDULE,
+    DEFAULT_OCS,
+    DT,
+    OC,
+    Profile,
+    SimSchedule,
+    fault_candidates,
+    make_profile,
+)
 
 FAULTS = ("imbalance", "stiffness", "stuck-sensor", "drift")
 CAMPAIGN_START = 1767600000.0  # 2026-01-05 08:00:00 UTC, epoch seconds
 OFF_FRACTION = 0.05  # contract: engine off when every shaft speed is below 5 % of its maximum
 MAX_SPEEDS = {"nA": gaspath.NA_TOP, "nB": gaspath.NB_TOP, "nC": gaspath.NC_TOP}
 
-# Sensor noise: sigma = absolute + relative * |value|; then rounded to `decimals`.
+# Sensor noise: sigma = (absolute + relative * |value|) x noise scale (default 1); then
+# rounded to `decimals` (the rounding does not scale).
 NOISE: dict[str, tuple[float, float, int]] = {
     #        absolute  relative  decimals
     "n": (1.0, 3e-4, 0),
@@ -57,7 +71,12 @@ class Campaign:
 
     runs: list[SimRun]
     channels: tuple[str, ...] = SENSOR_CHANNELS
-    ocs: tuple[OC, ...] = DEFAULT_OCS
+    schedule: SimSchedule = BUILT_IN_SCHEDULE
+    noise_scale: float = 1.0
+
+    @property
+    def ocs(self) -> tuple[OC, ...]:
+        return self.schedule.ocs
 
 
 def _noise_spec(channel: str) -> tuple[float, float, int]:
@@ -74,15 +93,22 @@ def _first_on(speeds: dict[str, np.ndarray]) -> tuple[int, int]:
 
 
 def _measure(
-    rng: np.random.Generator, clean: dict[str, np.ndarray], channels: tuple[str, ...]
+    rng: np.random.Generator,
+    clean: dict[str, np.ndarray],
+    channels: tuple[str, ...],
+    noise_scale: float = 1.0,
 ) -> np.ndarray:
-    """Add noise, quantise, clip amplitudes, insert dropouts: (K, C) float with NaN."""
+    """Add noise, quantise, clip amplitudes, insert dropouts: (K, C) float with NaN.
+
+    noise_scale multiplies every sigma (absolute and relative part); the draws are the
+    same for every scale (x 1.0 is exact: scale 1 gives the very same numbers).
+    """
     k = len(clean["nB"])
     data = np.empty((k, len(channels)))
     for j, name in enumerate(channels):
         absolute, relative, decimals = _noise_spec(name)
         x = clean[name]
-        noisy = x + rng.standard_normal(k) * (absolute + relative * np.abs(x))
+        noisy = x + rng.standard_normal(k) * (noise_scale * (absolute + relative * np.abs(x)))
         if name[0] in "ny":
             noisy = np.clip(noisy, 0.0, None)
         data[:, j] = np.round(noisy, decimals)
@@ -96,8 +122,11 @@ def _measure(
 
 
 def _fault_onset(rng: np.random.Generator, profile: Profile) -> tuple[float, str]:
-    """Onset (s from run start) inside the plateau of one of OC6..OC10, and that OC."""
-    candidates = [s for s in profile.segments if s.name in ("OC6", "OC7", "OC8", "OC9", "OC10")]
+    """Onset (s from run start) inside the plateau of one of the middle OCs, and that OC.
+
+    The middle OCs: ``schedule.fault_candidates`` (OC6..OC10 of the built-in schedule).
+    """
+    candidates = fault_candidates(profile.segments)
     seg = candidates[rng.integers(len(candidates))]
     return seg.steady_start + rng.uniform(0.2, 0.6) * (seg.end - seg.steady_start), seg.name
 
@@ -111,15 +140,16 @@ def simulate_run(
     fault_rng: np.random.Generator | None = None,
     plateau_scale: float = 1.0,
     fault_size: float = 1.0,
+    ocs: tuple[OC, ...] = DEFAULT_OCS,
 ) -> tuple[dict[str, np.ndarray], Profile, dict, dict]:
     """Simulate one run's clean signals.
 
     shutdown: seconds since the previous run stopped (inf for a cold engine);
     history: the previous run's end state ({"metal", "slow", "ambient"}), or {}.
-    fault_size: scales the fault's magnitude (see ``simulate_campaign``).
+    fault_size: scales the fault's magnitude (see ``simulate_campaign``); ocs: the schedule.
     Returns (clean signals by channel, profile, run truth, end state).
     """
-    profile = make_profile(rng, plateau_scale=plateau_scale)
+    profile = make_profile(rng, ocs, plateau_scale=plateau_scale)
     ambient = gaspath.Ambient(
         temperature=float(np.clip(rng.normal(12.0, 7.0), -15.0, 35.0)),
         pressure=float(rng.normal(101.3, 1.2)),
@@ -217,6 +247,8 @@ def simulate_campaign(
     plateau_scale: float = 1.0,
     fault_seed: int | None = None,
     fault_size: float = 1.0,
+    schedule: SimSchedule | None = None,
+    noise_scale: float = 1.0,
 ) -> Campaign:
     """Simulate ``runs`` consecutive pass-off runs of one engine; the fault hits the last run.
 
@@ -226,7 +258,13 @@ def simulate_campaign(
     imbalance of plane 1), the stiffness loss (factor 1 - (1 - STIFFNESS_FAULT) x size, which
     must stay > 0) and the drift rate (DRIFT_RATE); a stuck sensor ignores it. Same draws for
     every size, so sizes differ only in magnitude.
+    schedule: the OCs each run goes through (default the built-in 12, ``BUILT_IN_SCHEDULE``;
+    ``schedule.load_sim_schedule`` reads a file). noise_scale: multiplies every sensor noise
+    sigma (> 0, default 1); same draws for every scale.
     """
+    schedule = BUILT_IN_SCHEDULE if schedule is None else schedule
+    if not (np.isfinite(noise_scale) and noise_scale > 0):
+        raise ValueError(f"noise_scale must be > 0 and finite, got {noise_scale!r}")
     if runs < 1:
         raise ValueError("runs must be >= 1")
     if fault is not None and fault not in FAULTS:
@@ -263,11 +301,12 @@ def simulate_campaign(
             if is_faulty else None,
             plateau_scale,
             fault_size,
+            schedule.ocs,
         )
         on_first, on_last = _first_on(sig)
         start = clock if last_stop is None else last_stop + gap - on_first * DT
         t = start + profile.t
-        data = _measure(rng, sig, SENSOR_CHANNELS)
+        data = _measure(rng, sig, SENSOR_CHANNELS, noise_scale)
         onset = truth_run.get("fault", {}).get("onset_s")
         _sensor_fault(data, profile.t, fault if is_faulty else None, onset, fault_size)
         truth_run.update(
@@ -294,4 +333,4 @@ def simulate_campaign(
             truth_run["fault"]["onset"] = float(start + truth_run["fault"]["onset_s"])
         out.append(SimRun(t=t, data=data, truth=truth_run))
         last_stop = float(t[on_last] + DT)
-    return Campaign(runs=out)
+    return Campaign(runs=out, schedule=schedule, noise_scale=float(noise_scale))

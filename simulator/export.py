@@ -16,7 +16,6 @@ import orjson
 
 from node.recording import RecordingWriter, sensor_key
 from simulator.campaign import Campaign, SimRun
-from simulator.schedule import schedule_toml
 
 JITTER_SIGMA = 0.4e-3  # acquisition jitter, s
 JITTER_MAX = 1.5e-3  # never more (a slot is 25 ms wide)
@@ -100,6 +99,8 @@ def truth_document(
         "bed": bed,
         "channels": list(campaign.channels if channels is None else channels),
         "sample_rate_hz": 40.0,
+        "noise_scale": campaign.noise_scale,
+        "schedule": campaign.schedule.truth(),
         "notes": (
             "times are seconds since the Unix epoch; shutdown_before_s is the time from the "
             "previous run's engine stop (every shaft speed below 5 % of its maximum) to this "
@@ -121,7 +122,7 @@ def write_sidecars(
     stem = mcap_path[:-5] if mcap_path.endswith(".mcap") else mcap_path
     schedule_path, truth_path = stem + ".schedule.toml", stem + ".truth.json"
     with open(schedule_path, "w", encoding="utf-8") as f:
-        f.write(schedule_toml(campaign.ocs))
+        f.write(campaign.schedule.toml())
     with open(truth_path, "w", encoding="utf-8") as f:
         json.dump(truth_document(campaign, bed, seed, first_run, channels), f, indent=1)
         f.write("\n")

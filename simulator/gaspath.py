@@ -11,9 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from simulator.lag import lag, lag_varying
-from simulator.schedule import DT, IDLE_NB
+from simulator.schedule import DT, IDLE_NB, TOP_NB
 
-NB_TOP = 9800.0  # top IP speed of the schedule, rpm (normalisation of the maps)
+NB_TOP = TOP_NB  # top IP speed of the schedule, 9800 rpm (normalisation of the maps)
 NA_TOP = 3300.0  # LP speed at NB_TOP, rpm
 NC_TOP = 13200.0  # HP speed at NB_TOP, rpm
 

@@ -207,3 +207,234 @@ def test_missing_output_directory(tmp_path: Path, capsys: pytest.CaptureFixture[
     code = main(["simulate", "--out", str(tmp_path / "no" / "x.mcap"), "--quiet"])
     assert code == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+# --- --schedule and --noise-scale ---------------------------------------------------------
+
+OTHER = """
+switch = "nB"
+tolerance = 0.03
+
+[[oc]]
+name = "low"
+speed = 4300.0
+plateau = 60
+rate = 80
+
+[[oc]]
+name = "res1"
+speed = 8200.0
+plateau = 90.5
+
+[[oc]]
+name = "back"
+speed = 6100.0
+rate = 140
+
+[[oc]]
+name = "res2"
+speed = 9450.0
+plateau = 75
+rate = 60
+
+[[oc]]
+name = "idle-ish"
+speed = 3000.0
+"""
+
+
+def _sched(tmp_path: Path, text: str = OTHER, name: str = "s.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_custom_schedule_is_run(tmp_path: Path) -> None:
+    from node.schedule import load_schedule
+    from simulator.schedule import load_sim_schedule
+
+    path = _sched(tmp_path)
+    out = tmp_path / "o.mcap"
+    argv = ["simulate", "--runs", "2", "--seed", "4", "--schedule", str(path), "--out", str(out),
+            "--channels", "nB,yB", "--plateau-scale", "0.1", "--quiet"]
+    assert main(argv) == 0
+    truth = json.loads(out.with_suffix(".truth.json").read_text())
+    want = [("low", 4300.0, 60.0, 80.0), ("res1", 8200.0, 90.5, 90.0), ("back", 6100.0, 40.0, 140.0),
+            ("res2", 9450.0, 75.0, 60.0), ("idle-ish", 3000.0, 40.0, 90.0)]
+    sched = truth["schedule"]
+    assert sched["source"] == str(path) and sched["tolerance"] == 0.03
+    assert [(o["name"], o["speed"], o["plateau_s"], o["rate_rpm_s"]) for o in sched["oc"]] == want
+    assert truth["noise_scale"] == 1.0
+    # the sidecar is that schedule: the node reads the same OCs from both files
+    assert load_schedule(out.with_suffix(".schedule.toml")) == load_schedule(path)
+    # ... and the simulator's: the same OCs with their timing (the same digest)
+    assert load_sim_schedule(out.with_suffix(".schedule.toml")).digest() == sched["sha256"]
+    runs = read_runs(out, ["nB"])
+    prev = 2600.0
+    for run, tr in zip(runs, truth["runs"], strict=True):
+        assert [(o["name"], o["speed"]) for o in tr["ocs"]] == [w[:2] for w in want]
+        for oc, (_, speed, plateau, rate) in zip(tr["ocs"], want, strict=True):
+            steady = oc["end"] - oc["steady_start"]
+            assert 0.8 * 0.1 * plateau - 1e-9 <= steady <= 1.25 * 0.1 * plateau + 1e-9
+            ramp = oc["steady_start"] - oc["transition_start"]
+            assert ramp == pytest.approx(max(abs(speed - prev) / (rate * 1.7), 1.0), rel=1.0)
+            assert abs(speed - prev) / (rate * 1.7) - 1e-9 <= ramp
+            assert ramp <= max(abs(speed - prev) / (rate * 0.6), 1.0) + 1e-9
+            prev = speed
+            # the spool has settled by the plateau's last second: nB at the schedule's speed
+            last = (run.t >= oc["end"] - 1.0) & (run.t < oc["end"])
+            assert np.nanmedian(run.column("nB")[last]) == pytest.approx(speed, rel=0.005)
+        prev = 2600.0
+
+
+def test_fault_onset_in_the_middle_ocs() -> None:
+    from simulator.schedule import DEFAULT_OCS, OC, SimSchedule, fault_candidates, make_profile
+
+    prof = make_profile(np.random.default_rng(0), DEFAULT_OCS)
+    assert [s.name for s in fault_candidates(prof.segments)] == ["OC6", "OC7", "OC8", "OC9", "OC10"]
+    eight = tuple(OC(f"S{i}", 3000.0 + 800 * i, 30.0, 90.0) for i in range(8))
+    prof8 = make_profile(np.random.default_rng(0), eight)
+    assert [s.name for s in fault_candidates(prof8.segments)] == ["S3", "S4", "S5"]
+    one = make_profile(np.random.default_rng(0), eight[:1])
+    assert [s.name for s in fault_candidates(one.segments)] == ["S0"]
+    sched = SimSchedule(eight, source="eight")
+    for seed in range(4):
+        run = simulate_campaign(1, seed, fault="drift", plateau_scale=0.1, schedule=sched).runs[0]
+        f = run.truth["fault"]
+        assert f["oc"] in ("S3", "S4", "S5")
+        oc = next(o for o in run.truth["ocs"] if o["name"] == f["oc"])
+        assert oc["steady_start"] < f["onset"] < oc["end"]
+
+
+def test_twins_hold_with_a_schedule_and_noise_scale(tmp_path: Path) -> None:
+    from simulator.schedule import load_sim_schedule
+
+    sched = load_sim_schedule(_sched(tmp_path))
+    kw = dict(plateau_scale=0.1, schedule=sched, noise_scale=2.0)
+    healthy = simulate_campaign(2, 8, **kw)
+    j = SENSOR_CHANNELS.index("yB")
+    for kind in ("imbalance", "stiffness", "drift"):
+        faulty = simulate_campaign(2, 8, fault=kind, **kw)
+        np.testing.assert_array_equal(healthy.runs[0].data, faulty.runs[0].data)
+        a, b = healthy.runs[1], faulty.runs[1]
+        before = b.t < b.truth["fault"]["onset"]
+        np.testing.assert_array_equal(a.data[before], b.data[before])
+        assert not np.array_equal(a.data[~before, j], b.data[~before, j], equal_nan=True)
+
+
+def test_noise_scale_2_doubles_the_noise() -> None:
+    from simulator.campaign import _measure, _noise_spec
+
+    k = 200_000
+    typical = {"n": 5000.0, "y": 5.0, "t": 300.0, "p": 200.0, "M1": 1.0, "M2": 50.0}
+    clean = {c: np.full(k, typical.get(c) or typical[c[0]]) for c in SENSOR_CHANNELS}
+    measured = {}
+    for scale in (1.0, 2.0):
+        m = _measure(np.random.default_rng(5), clean, SENSOR_CHANNELS, scale)
+        measured[scale] = m
+    # same draws: the same dropouts, and the noise itself doubled (up to the rounding)
+    np.testing.assert_array_equal(np.isnan(measured[1.0]), np.isnan(measured[2.0]))
+    for j, c in enumerate(SENSOR_CHANNELS):
+        absolute, relative, decimals = _noise_spec(c)
+        sigma = absolute + relative * clean[c][0]
+        q2 = (10.0 ** -decimals) ** 2 / 12.0  # rounding adds a uniform error's variance
+        for scale in (1.0, 2.0):
+            e = measured[scale][:, j] - clean[c]
+            e = e[~np.isnan(e)]
+            assert np.std(e) == pytest.approx(np.sqrt((scale * sigma) ** 2 + q2), rel=0.03), c
+    # through the CLI: the truth records the scale, and the run is the default run's clean
+    # signal plus twice its noise (the same draws): difference = the default noise, sigma 0.4 C
+    one = simulate_campaign(1, 2, plateau_scale=0.1).runs[0]
+    two = simulate_campaign(1, 2, plateau_scale=0.1, noise_scale=2.0).runs[0]
+    j = SENSOR_CHANNELS.index("tB")
+    d = (two.data[:, j] - one.data[:, j])
+    assert np.nanstd(d) == pytest.approx(np.sqrt(0.4**2 + 2 * 0.1**2 / 12), rel=0.05)
+
+
+def test_noise_scale_in_truth(tmp_path: Path) -> None:
+    out = tmp_path / "n.mcap"
+    assert main(["simulate", "--runs", "1", "--seed", "2", "--noise-scale", "2.5", "--out", str(out),
+                 "--channels", "nB", *FAST]) == 0
+    truth = json.loads(out.with_suffix(".truth.json").read_text())
+    assert truth["noise_scale"] == 2.5 and truth["schedule"]["source"] == "built-in"
+
+
+# sha256 of simulate_campaign's numbers (t, data, run truth) as the simulator made them before
+# --schedule and --noise-scale existed: the defaults must keep every number.
+GOLDEN = {
+    ("drift", None): "d2c30f6ce7796a69febf2d38cb0115b7e9977bba0e7d37a5f6787fd97fd71660",
+    ("imbalance", 3): "816c6267a60e83380e85054497528f21c0194de8a4b19f17cb194a9e97d10ec4",
+}
+
+
+def _digest(campaign) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    for r in campaign.runs:
+        h.update(r.t.tobytes())
+        h.update(r.data.tobytes())
+        h.update(json.dumps(r.truth, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def test_default_output_unchanged(tmp_path: Path) -> None:
+    from simulator.schedule import DEFAULT_OCS, load_sim_schedule, schedule_toml
+
+    for (fault, fault_seed), want in GOLDEN.items():
+        c = simulate_campaign(2, 7, fault=fault, fault_seed=fault_seed, plateau_scale=0.05)
+        assert _digest(c) == want
+    # the built-in OCs written as a file (with their timing) are the very same simulation
+    text = "switch = \"nB\"\ntolerance = 0.02\n" + "".join(
+        f'[[oc]]\nname = "{o.name}"\nspeed = {o.speed}\nplateau = {o.plateau}\nrate = {o.rate}\n'
+        for o in DEFAULT_OCS)
+    as_file = load_sim_schedule(_sched(tmp_path, text, "builtin.toml"))
+    c = simulate_campaign(2, 7, fault="drift", plateau_scale=0.05, schedule=as_file, noise_scale=1.0)
+    assert _digest(c) == GOLDEN[("drift", None)]
+    # the sidecar of the default run, as it always was
+    assert schedule_toml() == (
+        "# Pass-off schedule of the ordervib simulator (INTERFACE.md section 4).\n"
+        'switch = "nB"\ntolerance = 0.02\n\n'
+        + "".join(f'[[oc]]\nname = "{o.name}"\nspeed = {o.speed:.1f}\n\n' for o in DEFAULT_OCS)
+    )[:-1]
+
+
+BAD_SCHEDULES = {
+    "switch": OTHER.replace('switch = "nB"', 'switch = "nA"'),
+    "fast": OTHER.replace("speed = 9450.0", "speed = 10450.0"),
+    "slow": OTHER.replace("speed = 3000.0", "speed = 2000.0"),
+    "plateau": OTHER.replace("plateau = 60", 'plateau = "long"'),
+    "rate": OTHER.replace("rate = 80", "rate = 0"),
+    "dup": OTHER.replace('name = "back"', 'name = "low"'),
+    "no-oc": 'switch = "nB"\n',
+    "no-speed": '[[oc]]\nname = "a"\n',
+    "toml": "[[oc]\n",
+}
+
+
+@pytest.mark.parametrize("case", [*BAD_SCHEDULES, "missing"])
+def test_bad_schedule_one_line_exit_2(
+    case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "missing.toml" if case == "missing" else _sched(tmp_path, BAD_SCHEDULES[case])
+    out = tmp_path / "x.mcap"
+    code = main(["simulate", "--runs", "1", "--schedule", str(path), "--out", str(out), *FAST])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert str(path) in err
+    expect = {"switch": "switch is 'nA'", "fast": "outside the simulated engine's range",
+              "slow": "outside the simulated engine's range", "missing": "not found",
+              "rate": "rate 0"}
+    if case in expect:
+        assert expect[case] in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("x", ["0", "-1", "nan", "inf"])
+def test_bad_noise_scale(x: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "x.mcap"
+    assert main(["simulate", "--runs", "1", f"--noise-scale={x}", "--out", str(out), *FAST]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--noise-scale" in err
+    assert not out.exists()

@@ -1,8 +1,10 @@
 """``ordervib simulate``: pass-off runs of the built-in test-bed simulator, to MCAP.
 
 Writes REC.mcap (contract sections 1 and 3), REC.schedule.toml (section 4) and
-REC.truth.json (run times, shutdown times, OC intervals, fault onset). The same
-seed gives byte-identical files.
+REC.truth.json (run times, shutdown times, OC intervals, fault onset, schedule
+origin, noise scale). The same seed gives byte-identical files. ``--schedule``
+runs the OCs of a contract schedule file instead of the built-in 12;
+``--noise-scale`` scales every sensor's noise.
 """
 
 from __future__ import annotations
@@ -49,6 +51,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "imbalance adds X x 0.9 x the base imbalance of plane 1; stiffness lowers the 0.95 "
         "mode's stiffness by X x 10 %% over 20 s (X < 10); drift ramps yB by X x 0.5 mm/s "
         "per minute; stuck-sensor ignores it",
+    )
+    p.add_argument(
+        "--schedule",
+        default=None,
+        metavar="S.toml",
+        help="run the OCs of this contract schedule (INTERFACE.md section 4; switch \"nB\"; "
+        "speeds 2600-9800 rpm, in test order) instead of the built-in 12; each [[oc]] may add "
+        "plateau = nominal plateau length in s (default 40) and rate = nominal transition rate "
+        "in rpm/s (default 90). The sidecar REC.schedule.toml is then this schedule",
+    )
+    p.add_argument(
+        "--noise-scale",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="multiply every channel's sensor noise sigma (absolute and relative part) by X > 0 "
+        "(default 1); recorded in the truth JSON",
     )
     p.add_argument("--bed", default="bed1", metavar="NAME", help="test-bed name (default bed1)")
     p.add_argument(
@@ -108,6 +127,8 @@ def _check(args: argparse.Namespace) -> None:
         raise OrdervibError(f"--bed must be letters, digits, '_', '-' or '.', got {args.bed!r}")
     if not 0.05 <= args.plateau_scale <= 10.0:
         raise OrdervibError(f"--plateau-scale must be between 0.05 and 10, got {args.plateau_scale}")
+    if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
+        raise OrdervibError(f"--noise-scale must be > 0 and finite, got {args.noise_scale:g}")
     if not 0 <= args.skip < args.runs:
         raise OrdervibError(f"--skip must be between 0 and runs - 1, got {args.skip}")
     check_output_file(args.out, "--out", ".mcap")
@@ -137,6 +158,9 @@ def run(args: argparse.Namespace) -> int:
     channels = _channels(args.channels)
     from simulator.campaign import simulate_campaign
     from simulator.export import write_recording, write_sidecars
+    from simulator.schedule import load_sim_schedule
+
+    schedule = None if args.schedule is None else load_sim_schedule(args.schedule)
 
     start = time.perf_counter()
     campaign = simulate_campaign(
@@ -146,6 +170,8 @@ def run(args: argparse.Namespace) -> int:
         args.plateau_scale,
         args.fault_seed,
         fault_size=1.0 if args.fault_size is None else args.fault_size,
+        schedule=schedule,
+        noise_scale=args.noise_scale,
     )
     part = args.out + ".part"
     progress = _Progress(not args.quiet)
