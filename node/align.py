@@ -13,8 +13,11 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from itertools import compress, repeat
+
+import numpy as np
 
 FS = 40.0
 RUN_GAP = 60.0  # s without data: a new run (contract section 3)
@@ -52,6 +55,7 @@ class Aligner:
         self.channels = list(channels)
         self._known = frozenset(self.channels)
         self._n = len(self.channels)
+        self._code = {c: i for i, c in enumerate(self.channels)}
         self.fs = fs
         self.wait_slots = max(1, math.ceil(max_wait * fs))
         self.stats = AlignStats()
@@ -155,12 +159,102 @@ class Aligner:
         self._t0, self._next, self._newest, self._last_t = t0, nxt, newest, last
         return done
 
+    def push_columns(self, channels: Sequence[str], ts: Sequence[float], vs: Sequence[float | None]
+                     ) -> list[tuple[int, list[AlignedSample]]]:
+        """``push_many`` of ``(i, channels[i], ts[i], vs[i])`` for every i, with the very same effects.
+
+        ts: finite floats; vs: floats or None. Inside a run that has emitted already, where no
+        message of the batch can start a new run (the common case), the batch is aligned at once
+        with numpy; otherwise message by message.
+        """
+        n, last = len(ts), self._last_t
+        t = np.fromiter(ts, dtype=np.float64, count=n)
+        if (not self._emitted or last is None or not n or t.max() - last >= RUN_GAP
+                or len(self._code) != self._n):
+            return self.push_many(zip(range(n), channels, ts, vs))
+        ci = np.fromiter(map(self._code.get, channels, repeat(-1)), dtype=np.int64, count=n)
+        if (ci < 0).any():
+            self.stats.unknown.update(compress(channels, (ci < 0).tolist()))
+        at = np.flatnonzero(ci >= 0)  # the messages of known channels
+        if not len(at):
+            return []
+        t = t[at]
+        v = np.fromiter(vs, dtype=np.float64, count=n)[at]  # None: NaN
+        c = ci[at]
+        k = np.rint((t - self._t0) * self.fs).astype(np.int64)  # round((t - t0) fs)
+        newest = np.maximum.accumulate(np.maximum(k, self._newest))  # after each message
+        taken, emit_at = self._plan(k, c, newest)
+        self._fill(k[taken], c[taken], v[taken])
+        self._newest = int(newest[-1])
+        self._last_t = max(last, float(t.max()))
+        done: list[tuple[int, list[AlignedSample]]] = []
+        for tag in at[emit_at].tolist():  # the message after which each next slot is emitted
+            if done and done[-1][0] == tag:
+                done[-1][1].append(self._emit(self._next))
+            else:
+                done.append((tag, [self._emit(self._next)]))
+        return done
+
+    def _plan(self, k: np.ndarray, c: np.ndarray, newest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What ``push`` would do with messages of slots k and channel codes c (no new run among
+        them, the run has emitted): which messages enter their slot (neither late nor duplicate;
+        late and duplicates are counted), and after which message each next slot is emitted."""
+        m, nxt, n = len(k), self._next, self._n
+        key = k * n + c
+        first = np.zeros(m, dtype=bool)
+        first[np.unique(key, return_index=True)[1]] = True  # first message of its slot and channel
+        held = [s * n + self._code[ch] for s, slot in self._open.items() for ch in slot]
+        if held:
+            first &= ~np.isin(key, held)  # already in its open slot
+        # slot s = nxt + i completes with the message bringing its last missing channel (complete[i])
+        # and expires with the first message whose slot is s + wait or later (expire[i])
+        span = max(int(k.max()), *self._open, nxt - 1) - nxt + 1
+        need = np.full(span, n, dtype=np.int64)
+        for s, slot in self._open.items():
+            if nxt <= s < nxt + span:
+                need[s - nxt] -= len(slot)
+        cand = np.flatnonzero(first & (k >= nxt))  # in arrival order
+        order = cand[np.argsort(k[cand], kind="stable")]  # by slot, then arrival
+        slot_of = k[order] - nxt
+        rank = np.arange(len(order)) - np.searchsorted(slot_of, slot_of, side="left")
+        complete = np.where(need > 0, m, -1)
+        last_one = rank == need[slot_of] - 1
+        complete[slot_of[last_one]] = order[last_one]
+        expire = np.searchsorted(newest, np.arange(nxt, nxt + span) + self.wait_slots, side="left")
+        emitted = np.maximum.accumulate(np.minimum(complete, expire))  # slots go out in order
+        emit_at = emitted[:np.searchsorted(emitted, m, side="left")]
+        rel = k - nxt
+        late = rel < 0  # its slot went out before it arrived
+        gone = ~late & (rel < len(emit_at))
+        late[gone] = emit_at[rel[gone]] < np.flatnonzero(gone)
+        self.stats.late += int(late.sum())
+        self.stats.duplicates += int((~late & ~first).sum())
+        return first & ~late, emit_at
+
+    def _fill(self, k: np.ndarray, c: np.ndarray, v: np.ndarray) -> None:
+        """Add the values v of channel codes c to their open slots k, in arrival order."""
+        if not len(k):
+            return
+        order = np.argsort(k, kind="stable")
+        k = k[order]
+        names = list(map(self.channels.__getitem__, c[order].tolist()))
+        values = v[order].tolist()
+        slots, starts = np.unique(k, return_index=True)
+        ends = [*starts[1:].tolist(), len(k)]
+        opened = self._open
+        for s, a, b in zip(slots.tolist(), starts.tolist(), ends, strict=True):
+            slot = opened.get(s)
+            if slot is None:
+                slot = opened[s] = {}
+            slot.update(zip(names[a:b], values[a:b]))
+
     def _emit(self, k: int) -> AlignedSample:
         vals = self._open.pop(k, {})
-        for c in self.channels:
-            if c not in vals:
-                self.stats.missing[c] += 1
-                vals[c] = float("nan")
+        if len(vals) < self._n:  # else every channel is there
+            for c in self.channels:
+                if c not in vals:
+                    self.stats.missing[c] += 1
+                    vals[c] = float("nan")
         self._next = k + 1
         self._emitted = True
         self.stats.samples += 1

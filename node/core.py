@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from operator import itemgetter
 
 import orjson
 
@@ -49,6 +50,24 @@ def _check(t: object, v: object) -> tuple[float, float | None] | None:
         return (float(t), None if v is None else float(v)) if ok else None
     except OverflowError:  # an integer too large for a float
         return None
+
+
+_T, _V = itemgetter("t"), itemgetter("v")
+_FLOAT_OR_NULL = frozenset((float, type(None)))
+
+
+def decode_clean(payloads: Sequence[bytes]) -> tuple[list[float], list[float | None]] | None:
+    """The t and v columns of a batch of sensor payloads, decoded without a per-message loop,
+    when every one holds a finite float t and a float or null v; None when any does not (the
+    rule of ``decode_sample`` then decides message by message)."""
+    try:
+        ds = list(map(orjson.loads, payloads))
+        ts, vs = list(map(_T, ds)), list(map(_V, ds))
+    except (orjson.JSONDecodeError, TypeError, KeyError):
+        return None
+    if set(map(type, ts)) == {float} and _FLOAT_OR_NULL.issuperset(map(type, vs)) and math.isfinite(sum(ts)):
+        return ts, vs
+    return None
 
 
 def decode_sample(payload: bytes) -> tuple[float, float | None] | None:
@@ -94,16 +113,59 @@ class NodeCore:
 
         Returns ``(i, outputs)`` for each message i that completed monitor messages.
         """
-        stats = self.stats
-        beds = stats.beds
+        beds = self.stats.beds
+        clean = self._clean_batch(keys, payloads)
+        if clean is not None:
+            bed, columns = clean
+            done = [(i, bed, samples) for i, samples in beds[bed].aligner.push_columns(*columns)]
+        else:
+            per_bed = self._sort_batch(keys, payloads)
+            # each bed's aligner is independent; the pipelines then run in message order
+            done = [(i, bed, samples) for bed, items in per_bed.items()
+                    for i, samples in beds[bed].aligner.push_many(items)]
+            if len(per_bed) > 1:
+                done.sort(key=lambda x: x[0])
+        self.stats.messages += len(keys)
+        return [(i, self._run(bed, beds[bed], samples)) for i, bed, samples in done]
+
+    def _route(self, key: str) -> tuple[str, str] | tuple[()]:
+        """(bed, channel) of a sensor key, () for any other key (cached)."""
+        route = self._routes.get(key)
+        if route is None:
+            route = self._routes[key] = parse_sensor_key(key) or ()
+        return route
+
+    def _clean_batch(self, keys: Sequence[str], payloads: Sequence[bytes]
+                     ) -> tuple[str, tuple[list[str], list[float], list[float | None]]] | None:
+        """The common batch, without a per-message loop: ``(bed, (channels, ts, vs))`` when every
+        key is a sensor key of one bed and every payload is well formed; else None."""
+        if len(keys) != len(payloads):
+            return None
+        routes = {key: self._route(key) for key in set(keys)}
+        beds = {route[0] if route else None for route in routes.values()}
+        if len(beds) != 1 or None in beds:
+            return None
+        columns = decode_clean(payloads)
+        if columns is None:
+            return None
+        bed = beds.pop()
+        if bed not in self.stats.beds:
+            self._bed(bed)
+        channel_of = {key: route[1] for key, route in routes.items()}
+        return bed, (list(map(channel_of.__getitem__, keys)), *columns)
+
+    def _sort_batch(self, keys: Sequence[str], payloads: Sequence[bytes]) -> dict[str, list]:
+        """``{bed: [(i, channel, t, v)] of its valid messages}``, one message at a time; counts
+        foreign keys and malformed payloads."""
+        beds = self.stats.beds
         routes = self._routes
         loads, decode_error = orjson.loads, orjson.JSONDecodeError
-        per_bed: dict[str, list] = {}  # bed -> [(i, channel, t, v)] of its valid messages
+        per_bed: dict[str, list] = {}
         foreign = malformed = 0
         for i, (key, payload) in enumerate(zip(keys, payloads, strict=True)):
             route = routes.get(key)
             if route is None:
-                route = routes[key] = parse_sensor_key(key) or ()
+                route = self._route(key)
             if not route:
                 foreign += 1
                 continue
@@ -126,15 +188,9 @@ class NodeCore:
                     self._bed(route[0])  # bed states are made in order of first valid message
                 items = per_bed[route[0]] = []
             items.append((i, route[1], t, v))
-        stats.messages += len(keys)
-        stats.foreign += foreign
-        stats.malformed += malformed
-        # each bed's aligner is independent; the pipelines then run in message order
-        done = [(i, bed, samples) for bed, items in per_bed.items()
-                for i, samples in beds[bed].aligner.push_many(items)]
-        if len(per_bed) > 1:
-            done.sort(key=lambda x: x[0])
-        return [(i, self._run(bed, beds[bed], samples)) for i, bed, samples in done]
+        self.stats.foreign += foreign
+        self.stats.malformed += malformed
+        return per_bed
 
     def _run(self, bed: str, st: BedState, samples) -> list[Output]:
         out: list[Output] = []

@@ -19,6 +19,10 @@ Layout, following the MCAP specification (https://mcap.dev/spec):
 - Summary: Schemas, Channels, Statistics, Chunk Indexes; Summary Offsets;
   Footer with the summary CRC; closing magic.
 
+With ``background=True`` chunks are compressed (and their CRC computed) in a
+worker thread while the caller goes on adding messages; they reach the stream
+in order, so the bytes are the same. ``flush()`` and ``finish()`` wait for them.
+
 ``flush()`` closes the open chunk and pushes everything to the stream, so a
 killed process loses only what it wrote after its last flush; a linear scan
 (``node.recording.iter_messages``, ``ordervib recover``) reads such a file.
@@ -29,7 +33,9 @@ from __future__ import annotations
 
 import struct
 import zlib
+from collections import deque
 from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import IO
 
 import numpy as np
@@ -56,7 +62,7 @@ _LE_U64 = np.dtype("<u8")
 _BYTE8 = np.arange(8, dtype=np.int64)
 _HEAD_DTYPE = np.dtype([("op", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
                         ("log_time", "<u8"), ("publish_time", "<u8")])
-_HEAD_RANGE = np.arange(_HEAD_DTYPE.itemsize, dtype=np.int64)
+_HEAD_BYTES = np.dtype((np.void, _HEAD_DTYPE.itemsize))  # a header as one opaque item
 assert _HEAD_DTYPE.itemsize == MESSAGE_HEAD.size
 
 
@@ -104,11 +110,12 @@ class FastMcapWriter:
     ``add(cid, log_time, publish_time, data)`` appends one message (times in ns).
     The stream is expected to be positioned at its start (offsets are counted
     from the first byte written) and is not closed by ``finish()``.
+    ``background=True``: chunks are packed (compressed, CRC) in a worker thread.
     """
 
     def __init__(self, stream: IO[bytes], *, chunk_size: int = 1 << 20, compression: str = "zstd",
                  message_index: bool = True, profile: str = "", library: str = "",
-                 zstd_level: int = 1) -> None:
+                 zstd_level: int = 1, background: bool = False) -> None:
         if compression not in ("zstd", "lz4", "none"):
             raise ValueError(f"unknown compression {compression!r}")
         self._stream = stream
@@ -121,13 +128,16 @@ class FastMcapWriter:
         self._pending = bytearray()  # records outside chunks not yet handed to the stream
         self._buf = bytearray()  # the open chunk's records
         self._offs: list[int] = []  # offset of each message record in the open chunk (add)
-        self._off_blocks: list[np.ndarray] = []  # the same, from add_columns
+        self._blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # add_columns: offsets,
+        # channel ids and log times of its messages in the open chunk
         self._chunk_indexes: list[bytes] = []
         self._counts: dict[int, int] = {}
         self.message_count = 0  # messages in closed chunks
         self._t_min: int | None = None
         self._t_max = 0
         self._finished = False
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-chunks") if background else None
+        self._packing: deque[tuple[Future, tuple]] = deque()  # chunks in the worker thread, in order
         self._pending += MAGIC + record(OP_HEADER, _string(profile) + _string(library))
 
     # -- registration
@@ -135,6 +145,7 @@ class FastMcapWriter:
         sid = len(self._schemas) + 1
         rec = schema_record(sid, name, encoding, data)
         self._schemas.append(rec)
+        self._wait()  # after the chunks closed before it
         self._pending += rec
         return sid
 
@@ -143,6 +154,7 @@ class FastMcapWriter:
         cid = len(self._channels) + 1
         rec = channel_record(cid, topic, message_encoding, schema_id, metadata)
         self._channels.append(rec)
+        self._wait()  # after the chunks closed before it
         self._pending += rec
         return cid
 
@@ -175,7 +187,7 @@ class FastMcapWriter:
 
     def add_columns(self, cids: Sequence[int], log_times: Sequence[int], publish_times: Sequence[int],
                     payloads: Sequence[bytes]) -> None:
-        """Append many messages at once: record headers built and interleaved with numpy."""
+        """Append many messages at once: record headers built with numpy, joined with the payloads."""
         n = len(payloads)
         if n == 0:
             return
@@ -189,29 +201,25 @@ class FastMcapWriter:
                 self.add_columns(cids[:j], log_times[:j], publish_times[:j], payloads[:j])
                 self.add_columns(cids[j:], log_times[j:], publish_times[j:], payloads[j:])
                 return
-        starts = ends - (lens + MESSAGE_HEAD.size)
         head = np.empty(n, dtype=_HEAD_DTYPE)
         head["op"] = OP_MESSAGE
         head["length"] = lens + 22
         head["channel"] = cids
         head["sequence"] = 0
-        head["log_time"] = np.fromiter(log_times, dtype=np.uint64, count=n)
-        head["publish_time"] = np.fromiter(publish_times, dtype=np.uint64, count=n)
-        out = np.empty(int(ends[-1]), dtype=np.uint8)
-        out[(starts[:, None] + _HEAD_RANGE).ravel()] = head.view(np.uint8)
-        data = np.frombuffer(b"".join(payloads), dtype=np.uint8)
-        if len(data):
-            shift = starts + MESSAGE_HEAD.size - (np.cumsum(lens) - lens)
-            out[np.repeat(shift, lens) + np.arange(len(data))] = data
-        self._off_blocks.append(starts + base)
-        self._buf += out.tobytes()
+        head["log_time"] = np.asarray(log_times, dtype=np.uint64)
+        head["publish_time"] = np.asarray(publish_times, dtype=np.uint64)
+        records: list[bytes] = [b""] * (2 * n)
+        records[::2] = head.view(_HEAD_BYTES).tolist()  # each header as one bytes object
+        records[1::2] = payloads
+        self._blocks.append((ends - (lens + MESSAGE_HEAD.size) + base, head["channel"], head["log_time"]))
+        self._buf += b"".join(records)
         if len(self._buf) >= self.chunk_size:
             self.close_chunk()
 
     @property
     def open_messages(self) -> int:
         """Messages in the open chunk (not yet in the file)."""
-        return len(self._offs) + sum(len(b) for b in self._off_blocks)
+        return len(self._offs) + sum(len(b[0]) for b in self._blocks)
 
     @property
     def bytes_out(self) -> int:
@@ -224,22 +232,45 @@ class FastMcapWriter:
         if n == 0:
             return
         data = self._buf
-        offs = np.fromiter(self._offs, dtype=np.int64, count=len(self._offs))
-        if self._off_blocks:
-            offs = np.sort(np.concatenate([offs, *self._off_blocks]))
-        raw = np.frombuffer(data, dtype=np.uint8)
-        cids = raw[offs + 9].astype(np.int64) | (raw[offs + 10].astype(np.int64) << 8)
-        times = np.ascontiguousarray(raw[(offs + 15)[:, None] + _BYTE8]).view(_LE_U64).ravel()
+        columns = self._index_columns()
+        self._buf = bytearray()
+        self._offs = []
+        self._blocks = []
+        if self._pool is None:
+            self._queue_chunk(*self._pack(data), len(data), *columns)
+            self._push()
+        else:
+            self._packing.append((self._pool.submit(self._pack, data), (len(data), *columns)))
+            self._collect(wait=False)
+
+    def _pack(self, data: bytearray) -> tuple[bytes, int]:
+        """The compressed chunk and the CRC of its records (in the worker thread if any)."""
+        return self._comp.compress(data), zlib.crc32(data)
+
+    def _collect(self, wait: bool) -> None:
+        """Queue the chunks packed in the worker thread, in order: all of them when ``wait``,
+        else those done."""
+        while self._packing and (wait or self._packing[0][0].done()):
+            job, columns = self._packing.popleft()
+            self._queue_chunk(*job.result(), *columns)
+        self._push()
+
+    def _wait(self) -> None:
+        """Queue every chunk still in the worker thread."""
+        if self._packing:
+            self._collect(wait=True)
+
+    def _queue_chunk(self, comp: bytes, crc: int, size: int, offs: np.ndarray, cids: np.ndarray,
+                     times: np.ndarray) -> None:
+        """A packed chunk, its message indexes and its chunk index, after what is queued so far."""
         t0, t1 = int(times.min()), int(times.max())
-        comp = self._comp.compress(data)
-        chunk = (struct.pack("<QQQI", t0, t1, len(data), zlib.crc32(data))
-                 + _string(self._comp.name) + _U64.pack(len(comp)))
+        chunk = (struct.pack("<QQQI", t0, t1, size, crc) + _string(self._comp.name) + _U64.pack(len(comp)))
         chunk_start = self.bytes_out
         pending = self._pending
         pending += _REC.pack(OP_CHUNK, len(chunk) + len(comp)) + chunk
         pending += comp
         chunk_len = self.bytes_out - chunk_start
-        order = np.argsort(cids, kind="stable")
+        order = np.argsort(cids, kind="stable")  # a radix sort of the 16-bit ids
         ids, starts, counts = np.unique(cids[order], return_index=True, return_counts=True)
         index_offsets = bytearray()
         index_start = self.bytes_out
@@ -258,14 +289,25 @@ class FastMcapWriter:
             OP_CHUNK_INDEX,
             struct.pack("<QQQQ", t0, t1, chunk_start, chunk_len)
             + _U32.pack(len(index_offsets)) + bytes(index_offsets) + _U64.pack(index_len)
-            + _string(self._comp.name) + struct.pack("<QQ", len(comp), len(data))))
-        self.message_count += n
+            + _string(self._comp.name) + struct.pack("<QQ", len(comp), size)))
+        self.message_count += len(offs)
         self._t_min = t0 if self._t_min is None else min(self._t_min, t0)
         self._t_max = max(self._t_max, t1)
-        self._buf = bytearray()
-        self._offs = []
-        self._off_blocks = []
-        self._push()
+
+    def _index_columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Offsets, channel ids (uint16) and log times of the open chunk's messages, in file order."""
+        blocks = list(self._blocks)
+        if self._offs:  # messages from add(): read their ids and times back from the records
+            offs = np.array(self._offs, dtype=np.int64)
+            raw = np.frombuffer(self._buf, dtype=np.uint8)
+            cids = (raw[offs + 9].astype(np.uint16) | (raw[offs + 10].astype(np.uint16) << 8))
+            times = np.ascontiguousarray(raw[(offs + 15)[:, None] + _BYTE8]).view(_LE_U64).ravel()
+            blocks.append((offs, cids, times))
+        offs, cids, times = (np.concatenate(c) for c in zip(*blocks, strict=True))
+        if self._offs and self._blocks:
+            order = np.argsort(offs)
+            offs, cids, times = offs[order], cids[order], times[order]
+        return offs, cids, times
 
     def _push(self) -> None:
         if self._pending:
@@ -276,6 +318,7 @@ class FastMcapWriter:
     def flush(self) -> None:
         """Close the open chunk and push everything to the stream (and flush it; no fsync)."""
         self.close_chunk()
+        self._wait()
         self._push()
         self._stream.flush()
 
@@ -284,7 +327,12 @@ class FastMcapWriter:
         if self._finished:
             return
         self._finished = True
-        self.close_chunk()
+        try:
+            self.close_chunk()
+            self._wait()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown()
         self._pending += record(OP_DATA_END, _U32.pack(0))
         summary_start = self.bytes_out
         summary = bytearray()

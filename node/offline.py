@@ -10,7 +10,9 @@ With ``workers=1`` (the default on a machine with two cores or more, where
 ``fork`` exists) the node's logic runs in one forked worker process while this
 process reads the next batch and writes the previous one; the worker sees the
 messages in the same order, so the output bytes are identical to
-``workers=0`` (everything in this process).
+``workers=0`` (everything in this process). The output's chunks are compressed
+in a thread of this process (``RecordingWriter(background=True)``), on whichever
+core has room, in order: the same bytes again.
 """
 
 from __future__ import annotations
@@ -21,11 +23,13 @@ import os
 import queue
 import time
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from itertools import islice
 from operator import itemgetter
 from typing import Any
 
+import numpy as np
 import orjson
 
 from node.bundle import Bundle
@@ -172,28 +176,34 @@ def default_workers() -> int:
     return 1 if ok else 0
 
 
-def _write_batch(writer: RecordingWriter, columns: tuple[list, list, list, list],
+def _write_batch(writer: RecordingWriter, columns: tuple[list, np.ndarray, np.ndarray, list],
                  done: list[tuple[int, list[Encoded]]]) -> None:
     """The batch's inputs (keys, log times, publish times, payloads), each completing input
-    followed by its monitor messages."""
+    followed by its monitor messages (published when that input arrived)."""
     keys, logs, pubs, payloads = columns
     if done:
-        k, lt, pt, pl = [], [], [], []
+        k, pl, after, out_logs = [], [], [], []
         prev = 0
         for i, outs in done:
             k += keys[prev:i + 1]
-            lt += logs[prev:i + 1]
-            pt += pubs[prev:i + 1]
             pl += payloads[prev:i + 1]
-            pub = logs[i]  # published when the completing input arrived
             for key, log, data in outs:
                 k.append(key)
-                lt.append(log)
-                pt.append(pub)
                 pl.append(data)
+                after.append(i)
+                out_logs.append(log)
             prev = i + 1
-        keys, logs, pubs, payloads = k + keys[prev:], lt + logs[prev:], pt + pubs[prev:], pl + payloads[prev:]
+        k += keys[prev:]
+        pl += payloads[prev:]
+        at = np.array(after, dtype=np.int64)
+        keys, payloads = k, pl
+        logs, pubs = np.insert(logs, at + 1, out_logs), np.insert(pubs, at + 1, logs[at])
     writer.write_columns(keys, logs, pubs, payloads)
+
+
+def _u64(values: Iterable[int], n: int) -> np.ndarray:
+    """n integers (nanoseconds) as an array, for the writer."""
+    return np.fromiter(values, dtype=np.uint64, count=n)
 
 
 def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None = None) -> ReplayReport:
@@ -207,14 +217,15 @@ def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None 
     writer = None
     n_in = 0
     try:
-        writer = RecordingWriter(out) if out else None
+        writer = RecordingWriter(out, background=True) if out else None  # chunks packed in a thread
         flight: deque = deque()  # columns of the batches handed over and not yet written
 
-        def submit(batch: list) -> None:
-            keys, payloads = list(map(_KEY, batch)), list(map(_PAYLOAD, batch))
+        def submit(batch: list, keys: list[str]) -> None:
+            payloads = list(map(_PAYLOAD, batch))
             engine.submit(keys, payloads)
             if writer:
-                flight.append((keys, list(map(_LOG, batch)), list(map(_PUB, batch)), payloads))
+                n = len(batch)
+                flight.append((keys, _u64(map(_LOG, batch), n), _u64(map(_PUB, batch), n), payloads))
             else:
                 flight.append(None)
             while len(flight) > IN_FLIGHT:
@@ -228,12 +239,14 @@ def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None 
 
         messages = iter_messages_fast(recording, stats=stats)
         while batch := list(islice(messages, BATCH)):
-            if any("/monitor/" in key for key in set(map(_KEY, batch))):
+            keys = list(map(_KEY, batch))
+            if any("/monitor/" in key for key in set(keys)):
                 # a node's own recording: recompute its monitor messages, do not copy them
                 batch = [m for m in batch if "/monitor/" not in m[0]]
+                keys = list(map(_KEY, batch))
             n_in += len(batch)
             if batch:
-                submit(batch)
+                submit(batch, keys)
         while flight:
             drain()
         final, rep = engine.finish()

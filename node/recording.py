@@ -81,7 +81,8 @@ class RecordingWriter:
 
     Use as a context manager, or call ``close()``. ``flush()`` closes the open
     chunk and pushes it to the file, so a crash loses nothing written before it.
-    Output is deterministic: no wall clock is written anywhere.
+    Output is deterministic: no wall clock is written anywhere. ``background=True``
+    compresses the chunks in a worker thread (same bytes; for bulk writers).
     """
 
     def __init__(
@@ -91,6 +92,7 @@ class RecordingWriter:
         chunk_size: int = 1 << 20,
         compression: str = "zstd",
         message_index: bool = True,
+        background: bool = False,
     ) -> None:
         if compression not in ("zstd", "lz4", "none"):
             raise OrdervibError(f"unknown compression {compression!r} (zstd, lz4, none)")
@@ -103,7 +105,8 @@ class RecordingWriter:
         else:
             self._file, stream = None, path
         self._writer = FastMcapWriter(stream, chunk_size=chunk_size, compression=compression,
-                                      message_index=message_index, library=LIBRARY)
+                                      message_index=message_index, library=LIBRARY,
+                                      background=background)
         self._schemas: dict[bytes, int] = {}
         self._channels: dict[str, int] = {}
         self._closed = False
@@ -160,11 +163,13 @@ class RecordingWriter:
         if self._closed:
             raise OrdervibError("recording already closed")
         channels = self._channels
-        if not channels.keys() >= set(keys):
+        try:
+            cids = np.fromiter(map(channels.__getitem__, keys), dtype=np.uint16, count=len(keys))
+        except KeyError:
             for k in keys:  # register new keys in order of first appearance
                 if k not in channels:
                     self.channel_id(k)
-        cids = list(map(channels.__getitem__, keys))
+            cids = np.fromiter(map(channels.__getitem__, keys), dtype=np.uint16, count=len(keys))
         self._writer.add_columns(cids, log_times, publish_times, payloads)
         self.count += len(cids)
 

@@ -110,6 +110,25 @@ def test_aligner_push_many_matches_the_reference(seed: int) -> None:
     assert fast.stats == ref.stats
 
 
+def _key_in_order(s: AlignedSample):
+    return (s.t, s.new_run, [(c, None if math.isnan(v) else v) for c, v in s.values.items()])
+
+
+@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("size", [1, 5, 40, 333, 2000])
+def test_aligner_push_columns_matches_the_reference(seed: int, size: int) -> None:
+    fast, ref = Aligner(["a", "b", "c"]), ReferenceAligner(["a", "b", "c"])
+    msgs = _stream(seed)
+    want = [(i, _key_in_order(s)) for i, (c, t, v) in enumerate(msgs) for s in ref.push(c, t, v)]
+    got = []
+    for a in range(0, len(msgs), size):
+        channels, ts, vs = (list(x) for x in zip(*msgs[a:a + size], strict=True))
+        got += [(a + i, _key_in_order(s)) for i, out in fast.push_columns(channels, ts, vs) for s in out]
+    assert got == want and len(got) > 1000
+    assert [_key_in_order(s) for s in fast.flush()] == [_key_in_order(s) for s in ref.flush()]
+    assert fast.stats == ref.stats and fast.stats.late > 0 and fast.stats.duplicates > 0
+
+
 def test_handle_many_equals_handle_one_by_one() -> None:
     sched = Schedule((OperatingCondition("A", 4000.0),))
     bundle = Bundle("wdmd", "yB", sched, [], 60.0)
@@ -141,6 +160,30 @@ def test_handle_many_equals_handle_one_by_one() -> None:
     assert set(many.stats.beds) == set(one.stats.beds) == {"b1", "b2"}
     for b in many.stats.beds:
         assert many.stats.beds[b].aligner.stats == one.stats.beds[b].aligner.stats
+
+
+def test_handle_many_of_clean_single_bed_batches_equals_handle() -> None:
+    """The common batch (one bed, every payload well formed) takes the columnar path; a few
+    batches with a malformed payload or an integer time take the message by message one."""
+    sched = Schedule((OperatingCondition("A", 4000.0),))
+    bundle = Bundle("wdmd", "yB", sched, [], 60.0)
+    names = {"a": "nB", "b": "yB", "c": "tA", "x": "zz"}  # tA and zz: not needed by the model
+    msgs = [(f"testbed/b1/sensor/{names[c]}", orjson.dumps({"t": t, "v": v}))
+            for c, t, v in _stream(11, 3000)]
+    msgs[5000] = (msgs[5000][0], b'{"t": 1000, "v": 1.0}')
+    msgs[7000] = (msgs[7000][0], b"{")
+    one, many = NodeCore(bundle), NodeCore(bundle)
+    want = [(i, out) for i, (k, p) in enumerate(msgs) if (out := one.handle(k, p))]
+    got = []
+    for a in range(0, len(msgs), 500):
+        keys, payloads = zip(*msgs[a:a + 500], strict=True)
+        got += [(a + i, out) for i, out in many.handle_many(keys, payloads)]
+    assert orjson.dumps(got) == orjson.dumps(want) and len(got) > 1000
+    for f in ("messages", "malformed", "foreign", "published"):
+        assert getattr(many.stats, f) == getattr(one.stats, f), f
+    assert many.stats.malformed == 1
+    a, b = many.stats.beds["b1"].aligner.stats, one.stats.beds["b1"].aligner.stats
+    assert a == b and a.late > 0 and a.duplicates > 0 and a.unknown["zz"] > 0
 
 
 @pytest.fixture(scope="module")
