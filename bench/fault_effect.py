@@ -55,6 +55,23 @@ def band_per_sample(run: Run, bundle: Bundle, schedule: Schedule, fs: float = 40
     return out
 
 
+def on_common_samples(run: Run, twin: Run) -> tuple[Run, Run]:
+    """The fault run and its twin on the time stamps both hold.
+
+    ``read_runs`` drops a run's off samples (every speed below 5 % of the *file's* top speed),
+    so the one-run fault file and the ten-run normal file can cut the same run's rundown a
+    sample apart. Unchanged when they share less than 99 % of their samples (then they are
+    not twins, and ``fault_effect`` says so).
+    """
+    if np.array_equal(run.t, twin.t):
+        return run, twin
+    _, i, j = np.intersect1d(run.t, twin.t, assume_unique=True, return_indices=True)
+    if len(i) < 0.99 * max(len(run.t), len(twin.t)):
+        return run, twin
+    return (Run(run.t[i], run.data[i], run.channels, run.bed, run.shutdown_before),
+            Run(twin.t[j], twin.data[j], twin.channels, twin.bed, twin.shutdown_before))
+
+
 def fault_effect(fault_run: Run, twin: Run, target: str, onset: float, band: np.ndarray,
                  window: float = 60.0, fs: float = 40.0) -> FaultEffect:
     """Effect of the fault (from ``onset``, epoch s) on ``target`` within ``window`` s, against ``band``.

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_effect
+from bench.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_effect, on_common_samples
 from node.bundle import Bundle, load_bundle
 from node.cli import main as cli
 from node.commands.replay import replay_offline
@@ -105,23 +105,6 @@ def _fault_name(fault: str, i: int, size: float) -> str:
     return f"{fault}-{i}.mcap" if size == 1.0 else f"{fault}-{i}-x{size:g}.mcap"
 
 
-def _on_common_samples(run: Run, twin: Run) -> tuple[Run, Run]:
-    """The fault run and its twin on the time stamps both hold.
-
-    ``read_runs`` drops a run's off samples (every speed below 5 % of the *file's* top speed),
-    so the one-run fault file and the ten-run normal file can cut the same run's rundown a
-    sample apart. Unchanged when they share less than 99 % of their samples (then they are
-    not twins, and ``fault_effect`` says so).
-    """
-    if np.array_equal(run.t, twin.t):
-        return run, twin
-    _, i, j = np.intersect1d(run.t, twin.t, assume_unique=True, return_indices=True)
-    if len(i) < 0.99 * max(len(run.t), len(twin.t)):
-        return run, twin
-    return (Run(run.t[i], run.data[i], run.channels, run.bed, run.shutdown_before),
-            Run(twin.t[j], twin.data[j], twin.channels, twin.bed, twin.shutdown_before))
-
-
 def _fault_row(work: Path, seed: int, n: int, model: Path, s: dict, fault: str, i: int,
                size: float, bundle: Bundle, twin: Run, setup: Setup) -> tuple:
     """One fault recording (simulated unless present), replayed; its row of the table.
@@ -144,7 +127,7 @@ def _fault_row(work: Path, seed: int, n: int, model: Path, s: dict, fault: str, 
     first = after[0] if after else None
     delay = max(0.0, first["start"] - f["onset"]) if first else float("inf")
     cols = [bundle.schedule.switch, bundle.target]
-    run, twin = _on_common_samples(read_runs(rec, cols)[-1], twin)
+    run, twin = on_common_samples(read_runs(rec, cols)[-1], twin)
     try:
         effect = fault_effect(run, twin, bundle.target, f["onset"],
                               band_per_sample(run, bundle, bundle.schedule), DELAY_TARGET_S)

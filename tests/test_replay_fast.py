@@ -129,6 +129,19 @@ def test_aligner_push_columns_matches_the_reference(seed: int, size: int) -> Non
     assert fast.stats == ref.stats and fast.stats.late > 0 and fast.stats.duplicates > 0
 
 
+def _one_and_many(bundle: Bundle, msgs: list[tuple[str, bytes]], batch: int
+                  ) -> tuple[NodeCore, NodeCore, list, list]:
+    """Two cores fed the same messages, one by ``handle``, one by ``handle_many`` in batches;
+    with what each returned as ``(message index, outputs)``."""
+    one, many = NodeCore(bundle), NodeCore(bundle)
+    want = [(i, out) for i, (k, p) in enumerate(msgs) if (out := one.handle(k, p))]
+    got = []
+    for a in range(0, len(msgs), batch):
+        keys, payloads = zip(*msgs[a:a + batch], strict=True)
+        got += [(a + i, out) for i, out in many.handle_many(keys, payloads)]
+    return one, many, want, got
+
+
 def test_handle_many_equals_handle_one_by_one() -> None:
     sched = Schedule((OperatingCondition("A", 4000.0),))
     bundle = Bundle("wdmd", "yB", sched, [], 60.0)
@@ -147,12 +160,7 @@ def test_handle_many_equals_handle_one_by_one() -> None:
         if i % 211 == 0:
             key = "some/other/key"
         msgs.append((key, payload))
-    one, many = NodeCore(bundle), NodeCore(bundle)
-    want = [(i, out) for i, (k, p) in enumerate(msgs) if (out := one.handle(k, p))]
-    got = []
-    for a in range(0, len(msgs), 256):
-        keys, payloads = zip(*msgs[a:a + 256], strict=True)
-        got += [(a + i, out) for i, out in many.handle_many(keys, payloads)]
+    one, many, want, got = _one_and_many(bundle, msgs, 256)
     assert orjson.dumps(got) == orjson.dumps(want) and len(got) > 100
     for f in ("messages", "malformed", "foreign", "published"):
         assert getattr(many.stats, f) == getattr(one.stats, f), f
@@ -172,12 +180,7 @@ def test_handle_many_of_clean_single_bed_batches_equals_handle() -> None:
             for c, t, v in _stream(11, 3000)]
     msgs[5000] = (msgs[5000][0], b'{"t": 1000, "v": 1.0}')
     msgs[7000] = (msgs[7000][0], b"{")
-    one, many = NodeCore(bundle), NodeCore(bundle)
-    want = [(i, out) for i, (k, p) in enumerate(msgs) if (out := one.handle(k, p))]
-    got = []
-    for a in range(0, len(msgs), 500):
-        keys, payloads = zip(*msgs[a:a + 500], strict=True)
-        got += [(a + i, out) for i, out in many.handle_many(keys, payloads)]
+    one, many, want, got = _one_and_many(bundle, msgs, 500)
     assert orjson.dumps(got) == orjson.dumps(want) and len(got) > 1000
     for f in ("messages", "malformed", "foreign", "published"):
         assert getattr(many.stats, f) == getattr(one.stats, f), f

@@ -440,20 +440,20 @@ def test_bad_noise_scale(x: str, tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert not out.exists()
 
 
-def test_bench_faults_compares_twins_on_common_samples() -> None:
+def test_bench_faults_compares_twinson_common_samples() -> None:
     """bench faults: a fault file's run may keep one rundown sample more than the normal file's
     (read_runs trims off samples against each file's top speed); the twins are compared on the
     samples both hold, and runs that are not twins are left for fault_effect to refuse."""
-    from bench.faults import _on_common_samples
+    from bench.fault_effect import on_common_samples
     from node.recording import Run
 
     t = 1000.0 + 0.025 * np.arange(400)
     data = np.arange(800.0).reshape(400, 2)
     full = Run(t, data, ("nB", "yB"), "b", None)
     short = Run(t[:-1], data[:-1], ("nB", "yB"), "b", None)
-    a, b = _on_common_samples(full, short)
+    a, b = on_common_samples(full, short)
     np.testing.assert_array_equal(a.t, b.t)
     np.testing.assert_array_equal(a.data, short.data)
     other = Run(t + 0.0125, data, ("nB", "yB"), "b", None)
-    a, b = _on_common_samples(full, other)
+    a, b = on_common_samples(full, other)
     assert a is full and b is other
