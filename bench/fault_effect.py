@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.bundle import Bundle
-from node.ocdetect import OCDetector
-from node.recording import Run
-from node.schedule import Schedule
+from node.models.bundle import Bundle
+from node.runtime.ocdetect import OCDetector
+from node.mcap.recording import Run
+from node.contract.schedule import Schedule
 
 SMOOTH_S = 2.0  # the effect is averaged over this window (s) before it is set against the band
 

@@ -46,11 +46,11 @@ from pathlib import Path
 import numpy as np
 
 from bench.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_effect, on_common_samples
-from node.bundle import Bundle, load_bundle
+from node.models.bundle import Bundle, load_bundle
 from node.cli import main as cli
-from node.commands.replay import replay_offline
-from node.errors import OrdervibError
-from node.recording import Run, read_runs
+from node.cli.replay import replay_offline
+from node.contract.errors import OrdervibError
+from node.mcap.recording import Run, read_runs
 from simulator.schedule import BUILT_IN_SCHEDULE, SimSchedule, load_sim_schedule
 
 FAULTS = ("imbalance", "stiffness", "stuck-sensor", "drift")

@@ -61,7 +61,7 @@ class Stream:
 
 def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
     """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
-    from node.recording import iter_messages_fast, parse_sensor_key
+    from node.mcap.recording import iter_messages_fast, parse_sensor_key
     n = int(round(seconds * FS))
     run0 = last_t = cut = t0 = None
     slots: dict[int, list[tuple[str, bytes]]] = {}
@@ -114,7 +114,7 @@ class Bench:
     def __init__(self, endpoint: str, beds: list[str], channels: list[str], reply_keys: str) -> None:
         import zenoh
 
-        from node.live import open_session, zenoh_config
+        from node.live.node import open_session, zenoh_config
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.beds = beds
         self.arrivals: list[tuple[str, bytes, int]] = []
@@ -195,7 +195,7 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
     """
     import zenoh
 
-    from node.live import SENSOR_KEYS, open_session, zenoh_config
+    from node.live.node import SENSOR_KEYS, open_session, zenoh_config
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
     pubs: dict[str, object] = {}
     counts: dict[tuple[str, int], int] = {}
@@ -435,9 +435,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.peer:
         return peer_main(args.peer, args.port, args.t0, set(args.needed.split(",")))
-    from node.bundle import load_bundle
+    from node.models.bundle import load_bundle
     from node.cli import main as cli
-    from node.pipeline import MonitorPipeline
+    from node.runtime.pipeline import MonitorPipeline
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-live-"))
     if not args.model:

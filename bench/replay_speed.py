@@ -35,9 +35,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="runs per figure, the best kept (default 3)")
     args = ap.parse_args(argv)
     from node.cli import main as cli
-    from node.commands.replay import replay_offline
-    from node.offline import default_workers
-    from node.recording import iter_messages_fast
+    from node.cli.replay import replay_offline
+    from replay.offline import default_workers
+    from node.mcap.recording import iter_messages_fast
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-replay-"))
     if not args.model:

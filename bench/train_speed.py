@@ -27,10 +27,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--schedule")
     ap.add_argument("--methods", default="wdmd,delay-dmd,lasso")
     args = ap.parse_args(argv)
-    from node.commands.train import load_runs
-    from node.evaluation import baseline_eps, evaluate
-    from node.schedule import load_schedule
-    from node.training import fleet_curve, train
+    from node.cli.train import load_runs
+    from node.training.evaluation import baseline_eps, evaluate
+    from node.contract.schedule import load_schedule
+    from node.training.train import fleet_curve, train
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-bench-"))
     if not args.train:

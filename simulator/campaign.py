@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.recording import SENSOR_CHANNELS
+from node.mcap.recording import SENSOR_CHANNELS
 from simulator import gaspath, rotor, thermal
 from simulator.engine import SHAFTS, Engine, build_engine
 from simulator.schedule import (

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from node.recording import SENSOR_CHANNELS, read_runs
+from node.mcap.recording import SENSOR_CHANNELS, read_runs
 from simulator.gaspath import NB_TOP
 
 RESONANCE_BANDS = ((0.80, 0.85), (0.94, 0.965))  # dissertation, sections 3.3 and 5.2

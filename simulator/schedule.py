@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.errors import OrdervibError
+from node.contract.errors import OrdervibError
 
 FS = 40.0  # sample rate, Hz
 DT = 1.0 / FS
@@ -152,7 +152,7 @@ def load_sim_schedule(path: str | os.PathLike) -> SimSchedule:
     schedule loader ignores them. The switch must be ``nB`` and every speed within the
     simulated engine's range, idle (IDLE_NB) to the top speed (TOP_NB).
     """
-    from node.schedule import Schedule
+    from node.contract.schedule import Schedule
 
     path = str(path)
     try:

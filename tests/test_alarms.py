@@ -1,4 +1,4 @@
-"""Alarm calibration, the stuck-sensor check and alarm episodes (node.alarms)."""
+"""Alarm calibration, the stuck-sensor check and alarm episodes (node.runtime.alarms)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import orjson
 import pytest
 from scipy import stats
 
-from node.alarms import (
+from node.runtime.alarms import (
     THRESHOLD_MARGIN,
     EpisodeLog,
     FlatlineCheck,
@@ -87,9 +87,9 @@ def test_episode_log_merges_close_alarm_samples():
 
 
 def test_pipeline_flags_a_stuck_target_without_a_model():
-    from node.bundle import Bundle
-    from node.core import NodeCore
-    from node.schedule import OperatingCondition, Schedule
+    from node.models.bundle import Bundle
+    from node.runtime.core import NodeCore
+    from node.contract.schedule import OperatingCondition, Schedule
 
     sched = Schedule((OperatingCondition("A", 4000.0),))
     core = NodeCore(Bundle("wdmd", "yB", sched, [], 60.0, checks={"flatline_samples": 80}))
@@ -109,7 +109,7 @@ def test_pipeline_flags_a_stuck_target_without_a_model():
 
 
 def test_step_check_finds_a_step_in_noise_and_ignores_a_slow_trend():
-    from node.alarms import StepCheck
+    from node.runtime.alarms import StepCheck
 
     rng = np.random.default_rng(5)
     k = np.arange(1200)
@@ -134,8 +134,8 @@ def test_step_check_finds_a_step_in_noise_and_ignores_a_slow_trend():
 
 
 def test_calibrated_step_threshold_is_above_every_normal_plateau():
-    from node.alarms import calibrate_checks
-    from node.schedule import OperatingCondition, Schedule
+    from node.runtime.alarms import calibrate_checks
+    from node.contract.schedule import OperatingCondition, Schedule
 
     class R:  # two runs: ramp to a plateau at 4000 rpm, hold, noisy target
         def __init__(self, seed):
@@ -155,7 +155,7 @@ def test_calibrated_step_threshold_is_above_every_normal_plateau():
 
 
 def test_step_check_leaves_the_settling_start_of_a_plateau_out():
-    from node.alarms import StepCheck
+    from node.runtime.alarms import StepCheck
 
     chk = StepCheck(threshold=8.0)
     y = np.r_[np.linspace(0.0, 5.0, chk.n_settle), np.full(400, 5.0)]  # settles, then flat
@@ -166,7 +166,7 @@ def test_step_check_leaves_the_settling_start_of_a_plateau_out():
 
 
 def test_run_scale_grows_only_for_an_unusual_run():
-    from node.alarms import RunScale
+    from node.runtime.alarms import RunScale
 
     typical = RunScale(prior=3.0)
     for m in (1.0, 0.5, 1.2, 0.8):
@@ -182,8 +182,8 @@ def test_run_scale_grows_only_for_an_unusual_run():
 
 
 def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
-    from node.alarms import RunScale
-    from node.training import Calibration, run_scaled_peaks
+    from node.runtime.alarms import RunScale
+    from node.training.train import Calibration, run_scaled_peaks
 
     a = Calibration(1.0, 0.0, peaks=[2.0, 3.0], segments=[(0, 100, 9.0), (1, 100, 1.0)])
     b = Calibration(1.0, 0.0, peaks=[4.0, 5.0], segments=[(0, 500, 4.0), (1, 500, 1.0)])
@@ -196,12 +196,12 @@ def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
 
 
 def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
-    from node.alarms import RESIDUAL_CLEAR_S
-    from node.bundle import Bundle
-    from node.core import NodeCore
-    from node.ocmodel import Method, OCModel
-    from node.schedule import OperatingCondition, Schedule
-    from node.training import Calibration, OCResult
+    from node.runtime.alarms import RESIDUAL_CLEAR_S
+    from node.models.bundle import Bundle
+    from node.runtime.core import NodeCore
+    from node.models.ocmodel import Method, OCModel
+    from node.contract.schedule import OperatingCondition, Schedule
+    from node.training.train import Calibration, OCResult
 
     # an OC whose model predicts yB = 2 whatever nB does (Lasso with a zero weight)
     model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([4000.0]), np.array([1.0]),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.fault_effect import SMOOTH_S, fault_effect
-from node.recording import SENSOR_CHANNELS, Run
+from node.mcap.recording import SENSOR_CHANNELS, Run
 from simulator.campaign import DRIFT_RATE, simulate_campaign
 
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node.errors import OrdervibError
-from node.ocdetect import OCDetector, Phase
-from node.schedule import OperatingCondition, Schedule, load_schedule
+from node.contract.errors import OrdervibError
+from node.runtime.ocdetect import OCDetector, Phase
+from node.contract.schedule import OperatingCondition, Schedule, load_schedule
 
 FS = 40.0
 SCHED = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0),

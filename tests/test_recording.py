@@ -1,4 +1,4 @@
-"""node.recording: writer layout, streaming reader on unfinished files, read_runs, errors."""
+"""node.mcap.recording: writer layout, streaming reader on unfinished files, read_runs, errors."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 from mcap.reader import make_reader
 
 from node.cli import main
-from node.errors import OrdervibError
-from node.recording import (
+from node.contract.errors import OrdervibError
+from node.mcap.recording import (
     ReadStats,
     RecordingWriter,
     iter_messages,

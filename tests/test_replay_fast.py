@@ -9,10 +9,10 @@ import numpy as np
 import orjson
 import pytest
 
-from node.align import RUN_GAP, AlignedSample, Aligner
-from node.bundle import Bundle
-from node.core import NodeCore
-from node.schedule import OperatingCondition, Schedule
+from node.runtime.align import RUN_GAP, AlignedSample, Aligner
+from node.models.bundle import Bundle
+from node.runtime.core import NodeCore
+from node.contract.schedule import OperatingCondition, Schedule
 
 REC = Path(__file__).resolve().parents[1] / "recordings" / "engine1_fault.mcap"
 
@@ -196,8 +196,8 @@ def model(tmp_path_factory) -> Path:
 
 
 def test_worker_process_gives_the_same_bytes(model: Path) -> None:
-    from node.commands.replay import replay_offline
-    from node.recording import iter_messages
+    from node.cli.replay import replay_offline
+    from node.mcap.recording import iter_messages
     a, b = model / "w0.mcap", model / "w1.mcap"
     s0 = replay_offline(str(model / "test.mcap"), str(model / "m"), str(a), quiet=True, workers=0)
     s1 = replay_offline(str(model / "test.mcap"), str(model / "m"), str(b), quiet=True, workers=1)
@@ -227,9 +227,9 @@ def test_worker_process_gives_the_same_bytes(model: Path) -> None:
 
 
 def test_a_failing_worker_ends_the_replay_with_one_line(model: Path, monkeypatch) -> None:
-    import node.offline as off
-    from node.bundle import load_bundle
-    from node.errors import OrdervibError
+    import replay.offline as off
+    from node.models.bundle import load_bundle
+    from node.contract.errors import OrdervibError
 
     def boom(self, keys, payloads):
         raise ValueError("bad model")

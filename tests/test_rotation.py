@@ -10,9 +10,9 @@ import orjson
 import pytest
 from mcap.reader import make_reader
 
-from node.errors import OrdervibError
-from node.recording import ReadStats, iter_messages, log_time_ns
-from node.rotation import RotatingRecorder, rotated_path
+from node.contract.errors import OrdervibError
+from node.mcap.recording import ReadStats, iter_messages, log_time_ns
+from node.mcap.rotation import RotatingRecorder, rotated_path
 
 T0 = 1767600000.0
 KEYS = ["testbed/b/sensor/nB", "testbed/b/sensor/yB", "testbed/b/monitor/yB"]
@@ -118,10 +118,10 @@ def test_live_node_records_into_rotating_files(tmp_path: Path) -> None:
     pytest.importorskip("zenoh")
     import socket
 
-    from node.bundle import Bundle
+    from node.models.bundle import Bundle
     from node.cli import main
-    from node.live import LiveNode, publish_recording
-    from node.schedule import OperatingCondition, Schedule
+    from node.live.node import LiveNode, publish_recording
+    from node.contract.schedule import OperatingCondition, Schedule
 
     sim = tmp_path / "sim.mcap"
     assert main(["simulate", "--runs", "1", "--seed", "3", "--out", str(sim), "--channels", "nB,yB,tF",

@@ -13,7 +13,7 @@ import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
 from node.cli import main
-from node.recording import SENSOR_CHANNELS, read_runs
+from node.mcap.recording import SENSOR_CHANNELS, read_runs
 from simulator.campaign import simulate_campaign
 
 KEY = re.compile(r"^testbed/([^/]+)/sensor/([^/]+)$")
@@ -250,7 +250,7 @@ def _sched(tmp_path: Path, text: str = OTHER, name: str = "s.toml") -> Path:
 
 
 def test_custom_schedule_is_run(tmp_path: Path) -> None:
-    from node.schedule import load_schedule
+    from node.contract.schedule import load_schedule
     from simulator.schedule import load_sim_schedule
 
     path = _sched(tmp_path)
@@ -445,7 +445,7 @@ def test_bench_faults_compares_twinson_common_samples() -> None:
     (read_runs trims off samples against each file's top speed); the twins are compared on the
     samples both hold, and runs that are not twins are left for fault_effect to refuse."""
     from bench.fault_effect import on_common_samples
-    from node.recording import Run
+    from node.mcap.recording import Run
 
     t = 1000.0 + 0.025 * np.arange(400)
     data = np.arange(800.0).reshape(400, 2)

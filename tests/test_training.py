@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from node.bundle import Bundle, load_bundle, save_bundle
+from node.models.bundle import Bundle, load_bundle, save_bundle
 from node.cli import main
-from node.errors import OrdervibError
-from node.evaluation import predict_segments
-from node.recording import SENSOR_CHANNELS, Run
-from node.schedule import OperatingCondition, Schedule
-from node.training import train
+from node.contract.errors import OrdervibError
+from node.training.evaluation import predict_segments
+from node.mcap.recording import SENSOR_CHANNELS, Run
+from node.contract.schedule import OperatingCondition, Schedule
+from node.training.train import train
 from simulator.campaign import simulate_campaign
 
 ROOT = Path(__file__).resolve().parents[1]

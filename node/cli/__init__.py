@@ -1,0 +1,73 @@
+"""The ``ordervib`` console command: a thin dispatcher over ``node.cli``.
+
+Every expected failure (bad file, bad option, bad data) ends with one line on
+stderr and a non-zero exit status; tracebacks are reserved for bugs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from node.contract.errors import OrdervibError
+
+# Sub-command modules, in the order they appear in ``ordervib --help``.
+COMMAND_MODULES: tuple[str, ...] = (
+    "node.cli.simulate",
+    "node.cli.train",
+    "node.cli.evaluate",
+    "node.cli.schedule",
+    "node.cli.replay",
+    "node.cli.run",
+    "node.cli.demo",
+    "node.cli.view",
+    "node.cli.recover",
+)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a bad option in one line and exits with status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"ordervib: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="ordervib", description="Tracked-order vibration monitoring node.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for mod_name in COMMAND_MODULES:
+        try:
+            mod = importlib.import_module(mod_name)
+        except ModuleNotFoundError as exc:  # a command whose module is not there yet
+            if exc.name == mod_name:
+                continue
+            raise
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except OrdervibError as exc:
+        print(f"ordervib {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
+        print(f"ordervib {args.command}: {exc.strerror}: {exc.filename}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:  # output piped into a reader that stopped (e.g. head)
+        sys.stderr.close()
+        return 0
+    except KeyboardInterrupt:
+        print(f"ordervib {args.command}: interrupted", file=sys.stderr)
+        return 130
+

@@ -1,0 +1,125 @@
+"""``ordervib evaluate``: a trained model on held-out recordings: per-OC errors, false alarms, PNG."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+NAME = "evaluate"
+HELP = "evaluate a trained model on held-out recordings (table, false alarms, PNG)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("model", metavar="MODEL", help="model bundle directory")
+    p.add_argument("recordings", nargs="+", metavar="REC.mcap", help="held-out recordings")
+    p.add_argument("--png", default=None, metavar="OUT.png",
+                   help="plot of predicted against measured per OC (default MODEL/evaluation.png)")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def run(args: argparse.Namespace) -> int:
+    from node.models.baseline import CharacteristicCurve
+    from node.models.bundle import load_bundle
+    from node.cli.train import load_runs
+    from node.training.dataset import run_arrays
+    from node.training.evaluation import evaluate
+
+    bundle = load_bundle(args.model)
+    runs = load_runs(args.recordings, args.quiet)
+    evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve)
+    curve = None
+    if bundle.curve is not None:
+        curve = CharacteristicCurve()
+        curve.centres_, curve.means_ = bundle.curve
+    sw = bundle.schedule.switch
+    arrays = [run_arrays(r, bundle.target, [sw]) for r in runs]
+    rows = [["OC", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td"]]
+    hold, base = [], []
+    for e in evals:
+        res = bundle.oc(e.name)
+        b = float("nan")
+        if curve is not None and e.n_segments:
+            mine = [p for p in preds if bundle.schedule.names[p.oc] == e.name]
+            num = sum(float(np.sum((p.measured - curve.predict(_speed(arrays, runs, p))) ** 2)) for p in mine)
+            den = sum(float(np.sum(p.measured ** 2)) for p in mine)
+            b = float(np.sqrt(num / den)) if den else float("nan")
+        rows.append([e.name, str(e.n_segments), _f(e.eps), _f(res.cv_eps if res else float("nan")),
+                     _f(b)])
+        if np.isfinite(e.eps):
+            hold.append(e.eps)
+            base.append(b)
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    for i, r in enumerate(rows):
+        print("  ".join(c.ljust(w) for c, w in zip(r, widths)))
+        if i == 0:
+            print("  ".join("-" * w for w in widths))
+    if hold:
+        print(f"mean held-out eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
+              f"(characteristic-curve baseline {np.nanmean(base):.3f})")
+    print(node_alarms(args.model, args.recordings))
+    png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
+    if _plot(bundle, preds, png):
+        print(f"plot written to {png}")
+    return 0
+
+
+def _speed(arrays, runs, p) -> np.ndarray:
+    r = runs[p.run]
+    k0 = int(np.searchsorted(r.t, p.t[0]))
+    return arrays[p.run].U[k0:k0 + p.t.size, 0]
+
+
+def node_alarms(model: str, recordings: list[str]) -> str:
+    """The node's own alarms over the recordings (``ordervib replay``'s code): one line."""
+    from node.cli.replay import replay_offline
+
+    episodes, samples = [], 0
+    for rec in recordings:
+        s = replay_offline(rec, model, None, quiet=True)
+        episodes += s["alarm_episodes"]
+        samples += sum(b["samples"] for b in s["beds"].values())
+    hours = samples / 40.0 / 3600.0
+    rules = Counter(e["reason"] for e in episodes)
+    by_rule = ", ".join(f"{k} {v}" for k, v in sorted(rules.items())) or "none"
+    rate = len(episodes) / hours if hours else 0.0
+    return (f"node alarms (ordervib replay): {len(episodes)} episode(s) in {hours * 60:.1f} min of data "
+            f"= {rate:.2f} per hour; by rule: {by_rule}")
+
+
+def _f(x: float) -> str:
+    return f"{x:.3f}" if np.isfinite(x) else "-"
+
+
+def _plot(bundle, preds, png: Path) -> bool:
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("(matplotlib not installed: no plot)", file=sys.stderr)
+        return False
+    names = bundle.schedule.names
+    present = sorted({p.oc for p in preds})
+    cols = 3
+    rows = -(-len(present) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 2.6 * rows), squeeze=False)
+    for ax, oc in zip(axes.ravel(), present):
+        for p in [q for q in preds if q.oc == oc]:
+            t = p.t - p.t[0]
+            line, = ax.plot(t, p.measured, lw=1.0)
+            ax.plot(t, p.predicted, "--", lw=1.0, color=line.get_color())
+        ax.set_title(f"{names[oc]} (solid measured, dashed predicted)", fontsize=9)
+        ax.set_xlabel("s since the OC switch", fontsize=8)
+        ax.set_ylabel(f"{bundle.target} (mm/s)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in axes.ravel()[len(present):]:
+        ax.axis("off")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
+    return True

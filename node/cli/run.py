@@ -1,0 +1,45 @@
+"""``ordervib run``: the live node."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "run"
+HELP = "the live node: subscribe to test beds over Zenoh, predict, publish, record to MCAP"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, metavar="MODEL", help="model bundle directory")
+    p.add_argument("--record", required=True, metavar="OUT.mcap",
+                   help="recording to write; with --rotate-mb/--rotate-minutes, successive files "
+                        "OUT.0000.mcap, OUT.0001.mcap, ... each a complete recording")
+    p.add_argument("--rotate-mb", type=float, metavar="N",
+                   help="start the next file once the current one holds N MB (10**6 bytes)")
+    p.add_argument("--rotate-minutes", type=float, metavar="M",
+                   help="start the next file once the current one spans M minutes of receive time")
+    p.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="Zenoh endpoint to listen on (repeatable); the default tcp/127.0.0.1:7447 "
+                        "applies only when neither --listen, --connect nor the --zenoh-config file "
+                        "gives endpoints")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="Zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--zenoh-config", metavar="FILE.json5",
+                   help="Zenoh configuration file (TLS, access control; see docs/zenoh/); "
+                        "--listen replaces its listen endpoints, --connect its connect endpoints")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--quiet", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from node.models.bundle import load_bundle
+    from node.live.node import DEFAULT_ENDPOINT, config_file_endpoints, run_node
+    listen = args.listen
+    if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):
+        listen = [DEFAULT_ENDPOINT]
+    bundle = load_bundle(args.model)
+    record = args.record
+    if args.rotate_mb is not None or args.rotate_minutes is not None:
+        from node.mcap.rotation import RotatingRecorder
+        record = RotatingRecorder(args.record, max_mb=args.rotate_mb, max_minutes=args.rotate_minutes)
+    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, args.quiet)
+    return 0

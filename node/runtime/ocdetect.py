@@ -1,0 +1,236 @@
+"""Causal operating-condition detection from the switch speed (``nB``), with hysteresis.
+
+One detector serves training (segments) and the live node (switches), so the
+model of an OC is trained on exactly the samples it will be run on.
+
+States, per sample:
+
+* ``steady`` in OC i: the speed has held within ``tolerance`` of OC i's
+  plateau for ``confirm_s`` with little spread;
+* ``transition`` into OC i: the speed has left the speed it held (by half the
+  tolerance and still moving away, for ``depart_s``) heading for OC i, the
+  next OC of the schedule that lies in that direction; a transition that goes
+  past its target's band is re-targeted the same way (or ends ``off``);
+* ``off``: the engine is stopped, starting, at idle or at any held speed that
+  is not a scheduled plateau (oc None).
+
+A plateau reached that is not the expected one (an aborted or re-run OC, a
+departure with no later OC in its direction) takes over once it has held
+for ``settle_s``. Non-finite speeds hold the
+previous state. All memory is a few seconds of smoothed speed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from enum import StrEnum
+from typing import NamedTuple
+
+import numpy as np
+
+from node.contract.schedule import Schedule
+
+
+class Phase(StrEnum):
+    TRANSITION = "transition"
+    STEADY = "steady"
+    OFF = "off"
+
+
+class OCState(NamedTuple):
+    oc: int | None  # index into the schedule, None outside any OC
+    phase: Phase
+
+
+class _Extremes:
+    """Max and min of the last ``n`` values pushed, in O(1) amortized per push (monotonic queues)."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self._i = 0
+        self._hi: deque[tuple[int, float]] = deque()
+        self._lo: deque[tuple[int, float]] = deque()
+
+    def push(self, v: float) -> None:
+        i = self._i = self._i + 1
+        hi, lo = self._hi, self._lo
+        while hi and hi[-1][1] <= v:
+            hi.pop()
+        hi.append((i, v))
+        if hi[0][0] <= i - self.n:
+            hi.popleft()
+        while lo and lo[-1][1] >= v:
+            lo.pop()
+        lo.append((i, v))
+        if lo[0][0] <= i - self.n:
+            lo.popleft()
+
+    @property
+    def high(self) -> float:
+        return self._hi[0][1]
+
+    @property
+    def low(self) -> float:
+        return self._lo[0][1]
+
+
+class OCDetector:
+    """Stateful, causal OC detector (``step`` one sample at a time).
+
+    Args:
+        schedule: the pass-off schedule.
+        fs: sample rate, Hz.
+        smooth_s: causal moving-average length applied to the speed, s.
+        confirm_s: time within the band of the expected plateau to call it steady, s.
+        depart_s: time beyond half the band around the plateau to call a departure, s.
+        settle_s: time of near-constant speed to accept an unexpected plateau, s.
+        off_fraction: below this fraction of the highest plateau the engine is off.
+    """
+
+    def __init__(self, schedule: Schedule, fs: float = 40.0, smooth_s: float = 0.25,
+                 confirm_s: float = 1.0, depart_s: float = 0.25, settle_s: float = 5.0,
+                 off_fraction: float = 0.05) -> None:
+        self.schedule = schedule
+        self.speeds = np.array([oc.speed for oc in schedule.ocs])
+        self.tol = schedule.tolerance
+        self.n_smooth = max(1, round(smooth_s * fs))
+        self.n_confirm = max(1, round(confirm_s * fs))
+        self.n_depart = max(1, round(depart_s * fs))
+        self.n_settle = max(self.n_confirm, round(settle_s * fs))
+        self.off_level = off_fraction * float(self.speeds.max())
+        self.reset()
+
+    def reset(self) -> None:
+        self.state = OCState(None, Phase.OFF)
+        self._raw: deque[float] = deque(maxlen=self.n_smooth)
+        self._hist: deque[float] = deque(maxlen=self.n_settle)
+        self._ext = {n: _Extremes(n) for n in (self.n_settle, self.n_confirm)}  # for _held
+        self._anchor: float | None = None  # speed of the plateau last held
+        self._last: int = -1  # last OC reached steady in this run
+        self._away = 0  # consecutive samples away from the anchor
+        self._direction = 1.0  # of the transition under way: +1 up, -1 down
+        self._since = 0  # samples since the state last changed
+
+    # -- helpers --------------------------------------------------------------
+    def _held(self, n: int, centre: float, band: float) -> bool:
+        """The last n smoothed speeds all lie within centre +- band."""
+        if len(self._hist) < n:
+            return False
+        ext = self._ext.get(n)
+        if ext is not None:
+            return ext.high <= centre + band and ext.low >= centre - band
+        recent = list(self._hist)[-n:]
+        return max(recent) <= centre + band and min(recent) >= centre - band
+
+    def _target(self, direction: float) -> int | None:
+        """The OC a departure from the anchor heads for."""
+        ahead = [j for j in range(len(self.speeds))
+                 if direction * (self.speeds[j] - self._anchor) > self.tol * self._anchor]
+        if not ahead:
+            return None
+        later = [j for j in ahead if j > self._last]
+        return later[0] if later else None
+
+    # -- the step ---------------------------------------------------------------
+    def step(self, speed: float) -> OCState:
+        """Advance by one sample of the switch speed (rpm); returns the state in force."""
+        if not math.isfinite(speed):
+            return self.state
+        self._raw.append(float(speed))
+        self._since += 1
+        s = sum(self._raw) / len(self._raw)
+        self._hist.append(s)
+        for ext in self._ext.values():
+            ext.push(s)
+        oc, phase = self.state
+
+        if speed < self.off_level:
+            self._anchor, self._last, self._away = None, -1, 0
+            self._set(OCState(None, Phase.OFF))
+            return self.state
+
+        if phase is Phase.STEADY:
+            nominal = float(self.speeds[oc])
+            before = self._hist[-1 - self.n_depart] if len(self._hist) > self.n_depart else s
+            if abs(s - nominal) < abs(before - nominal) or abs(s - nominal) <= 0.25 * self.tol * nominal:
+                # still settling onto the plateau: the held speed follows
+                self._anchor += (s - self._anchor) / self.n_confirm
+                self._anchor = min(max(self._anchor, nominal * (1 - self.tol)), nominal * (1 + self.tol))
+            self._count_away(s, nominal)
+            return self.state
+
+        if phase is Phase.TRANSITION:
+            band = self.tol * self.speeds[oc]
+            if self._held(self.n_confirm, self.speeds[oc], band):
+                self._arrive(oc)
+                return self.state
+            if (s - self.speeds[oc]) * self._direction > band:  # went past the target
+                self._anchor = s
+                self._depart(s, self._direction)
+                return self.state
+        # transition to an unexpected plateau, or off / idle / held elsewhere
+        if self._since >= self.n_settle and self._held(self.n_settle, s, 0.25 * self.tol * s):
+            near = np.flatnonzero(np.abs(self.speeds - s) <= self.tol * self.speeds)
+            if near.size:
+                later = [int(j) for j in near if j > self._last]
+                self._arrive(later[0] if later else int(near[0]))
+            else:
+                self._anchor = s
+                self._set(OCState(None, Phase.OFF))
+            return self.state
+        if phase is Phase.OFF and self._anchor is not None:
+            self._count_away(s, self._anchor)
+        return self.state
+
+    def _count_away(self, s: float, nominal: float) -> None:
+        """Departure: beyond half the band around the held speed and moving away from it.
+
+        The held speed (anchor) follows the speed while it settles onto the plateau
+        (approaching it, or within a quarter band), never beyond the plateau's band,
+        so a ramp away cannot drag it along.
+        """
+        before = self._hist[-1 - self.n_depart] if len(self._hist) > self.n_depart else s
+        off = s - self._anchor
+        if abs(off) > 0.5 * self.tol * self._anchor and (s - before) * off > 0:
+            self._away += 1
+        else:
+            self._away = 0
+        if self._away >= self.n_depart:
+            self._depart(s)
+
+    def _arrive(self, j: int) -> None:
+        self._last = j
+        recent = list(self._hist)[-self.n_confirm:]
+        self._anchor = sum(recent) / len(recent)
+        self._away = 0
+        self._set(OCState(j, Phase.STEADY))
+
+    def _depart(self, s: float, direction: float | None = None) -> None:
+        self._direction = math.copysign(1.0, s - self._anchor) if direction is None else direction
+        target = self._target(self._direction)
+        self._away = 0
+        if target is None:
+            self._anchor = None
+            self._set(OCState(None, Phase.OFF))
+        else:
+            self._set(OCState(target, Phase.TRANSITION))
+
+    def _set(self, state: OCState) -> None:
+        if state != self.state:
+            self._since = 0
+        self.state = state
+
+    def label(self, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Run over a speed series (K,): OC index per sample (-1: none) and phase codes.
+
+        Phase codes: 0 off, 1 transition, 2 steady. Continues from the current state.
+        """
+        codes = {Phase.OFF: 0, Phase.TRANSITION: 1, Phase.STEADY: 2}
+        oc = np.empty(len(speed), dtype=np.int64)
+        ph = np.empty(len(speed), dtype=np.int8)
+        for k, v in enumerate(np.asarray(speed, dtype=float)):
+            st = self.step(v)
+            oc[k] = -1 if st.oc is None else st.oc
+            ph[k] = codes[st.phase]
+        return oc, ph

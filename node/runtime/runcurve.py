@@ -1,0 +1,125 @@
+"""This run's own characteristic curve, as a derived model input (``run_curve``); no I/O.
+
+A tracked order's amplitude at a given shaft speed depends on this run's imbalance and
+thermal bow, vector sums whose phases no gas-path input carries: the same engine crosses
+a resonance with a peak in one run and a dip in the next. What the run did at the same
+speed earlier tells: the run-up predicts the run-down. ``RunCurve`` gives, per sample,
+the mean target amplitude this run showed at the current switch speed (bins of
+``BIN_WIDTH``) in its *earlier* OC segments, and the fleet's characteristic curve
+(the training runs' mean) where this run has not been yet. Samples of the current
+segment never count, so a fault inside it is not explained away by its own samples.
+
+The node (``MonitorPipeline``) and training (``add_run_curve``) step the very same object.
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+
+import numpy as np
+
+RUN_CURVE = "run_curve"  # the derived input channel's name
+BIN_WIDTH = 50.0  # speed bin, in the switch channel's unit (rpm)
+
+
+class RunCurve:
+    """Stateful, bounded memory (one sum per speed bin visited).
+
+    Args:
+        fleet_speed, fleet_mean: the fleet characteristic curve (B,), (B,), speeds ascending.
+        bin_width: speed bin, rpm.
+    """
+
+    def __init__(self, fleet_speed: np.ndarray, fleet_mean: np.ndarray,
+                 bin_width: float = BIN_WIDTH) -> None:
+        self._xs = [float(x) for x in np.asarray(fleet_speed, float)]
+        self._ys = [float(x) for x in np.asarray(fleet_mean, float)]
+        if not self._xs or len(self._xs) != len(self._ys):
+            raise ValueError("the fleet curve needs as many means as speeds, at least one")
+        self.bin_width = bin_width
+        self.reset()
+
+    def fleet(self, speed: float) -> float:
+        """The fleet curve at ``speed``: linear between its points, held beyond them."""
+        xs, ys = self._xs, self._ys
+        i = bisect.bisect_right(xs, speed)
+        if i == 0:
+            return ys[0]
+        if i == len(xs):
+            return ys[-1]
+        x0, x1 = xs[i - 1], xs[i]
+        return ys[i - 1] + (ys[i] - ys[i - 1]) * (speed - x0) / (x1 - x0)
+
+    def reset(self) -> None:
+        """A new run: forget every bin."""
+        self._sum: dict[int, float] = {}
+        self._n: dict[int, int] = {}
+        self._pend_sum: dict[int, float] = {}
+        self._pend_n: dict[int, int] = {}
+
+    def _commit(self) -> None:
+        for b, v in self._pend_sum.items():
+            self._sum[b] = self._sum.get(b, 0.0) + v
+            self._n[b] = self._n.get(b, 0) + self._pend_n[b]
+        self._pend_sum, self._pend_n = {}, {}
+
+    def step(self, speed: float, y: float, new_segment: bool) -> float:
+        """Feature for this sample (target unit); ``new_segment``: the OC changed at it.
+
+        speed, y: this sample's switch speed and target (NaN: unknown; a NaN speed gives NaN).
+        """
+        if new_segment:
+            self._commit()
+        if not math.isfinite(speed):
+            return math.nan
+        b = int(speed // self.bin_width)
+        n = self._n.get(b)
+        if n:
+            out = self._sum[b] / n
+        else:
+            out = self.fleet(speed)
+        if math.isfinite(y):
+            self._pend_sum[b] = self._pend_sum.get(b, 0.0) + y
+            self._pend_n[b] = self._pend_n.get(b, 0) + 1
+        return out
+
+
+def _hold_last(x: np.ndarray) -> np.ndarray:
+    """Each NaN replaced by the last finite value before it (NaN before the first), (K,)."""
+    ok = np.isfinite(x)
+    idx = np.where(ok, np.arange(x.size), 0)
+    np.maximum.accumulate(idx, out=idx)
+    out = x[idx]
+    out[: int(np.argmax(ok)) if ok.any() else x.size] = np.nan
+    return out
+
+
+def run_curve_column(speed: np.ndarray, y: np.ndarray, oc_codes: np.ndarray,
+                     fleet: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The feature over one run, as the node computes it sample by sample: (K,).
+
+    speed, y: (K,) raw (NaN at dropouts: held, as the node holds them); oc_codes: (K,)
+    the OC detector's labels (-1 outside every OC).
+    """
+    rc = RunCurve(*fleet)
+    sp, yy = _hold_last(np.asarray(speed, float)), _hold_last(np.asarray(y, float))
+    out = np.empty(sp.size)
+    prev = None
+    for k, (s, v, c) in enumerate(zip(sp.tolist(), yy.tolist(), np.asarray(oc_codes).tolist())):
+        out[k] = rc.step(s, v, prev is not None and c != prev)
+        prev = c
+    return out
+
+
+def add_run_curve(run, schedule, target: str, fleet: tuple[np.ndarray, np.ndarray]):
+    """``run`` (a ``node.mcap.recording.Run``) with the ``run_curve`` column appended."""
+    from node.runtime.ocdetect import OCDetector
+
+    if RUN_CURVE in run.channels or schedule.switch not in run.channels or target not in run.channels:
+        return run
+    codes = OCDetector(schedule).label(run.column(schedule.switch))[0]
+    col = run_curve_column(run.column(schedule.switch), run.column(target), codes, fleet)
+    return dataclasses.replace(run, data=np.column_stack([run.data, col]),
+                               channels=(*run.channels, RUN_CURVE))

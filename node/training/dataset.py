@@ -1,0 +1,94 @@
+"""From recorded runs to per-OC training segments (eq. 5.22: an OC's trajectories
+are its segments in every training run).
+
+A segment is the samples of one run that the causal OC detector assigns to one
+OC (its transition, then its plateau), plus the index where it starts, so the
+samples before it serve as the history that seeds the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from node.contract.errors import OrdervibError
+from node.runtime.ocdetect import OCDetector
+from node.mcap.recording import Run
+from node.contract.schedule import Schedule
+
+
+@dataclass(frozen=True)
+class Segment:
+    """Samples [start, stop) of run ``run`` belong to OC ``oc`` (schedule index)."""
+
+    run: int
+    oc: int
+    start: int
+    stop: int
+    steady_start: int  # first steady sample (== stop if the plateau was never reached)
+
+    @property
+    def length(self) -> int:
+        return self.stop - self.start
+
+
+def fill_gaps(X: np.ndarray) -> np.ndarray:
+    """Hold the last finite value of each column over NaN (the first finite value before it).
+
+    X (K, c) -> (K, c); a column with no finite value stays NaN.
+    """
+    out = np.array(X, dtype=float, copy=True)
+    for j in range(out.shape[1]):
+        col = out[:, j]
+        ok = np.isfinite(col)
+        if ok.all() or not ok.any():
+            continue
+        idx = np.where(ok, np.arange(col.size), 0)
+        np.maximum.accumulate(idx, out=idx)
+        idx[: int(np.argmax(ok))] = int(np.argmax(ok))
+        out[:, j] = col[idx]
+    return out
+
+
+def segment_runs(runs: list[Run], schedule: Schedule, min_samples: int = 40) -> list[Segment]:
+    """Label every run with the causal OC detector and cut it into OC segments.
+
+    Segments shorter than ``min_samples`` (1 s at 40 Hz) are dropped.
+    """
+    segs: list[Segment] = []
+    for r, run in enumerate(runs):
+        if schedule.switch not in run.channels:
+            raise OrdervibError(f"run {r} has no {schedule.switch!r} channel, needed to find the OCs")
+        oc, ph = OCDetector(schedule).label(run.column(schedule.switch))
+        k = 0
+        K = len(oc)
+        while k < K:
+            j = k
+            while j < K and oc[j] == oc[k]:
+                j += 1
+            if oc[k] >= 0 and j - k >= min_samples:
+                steady = np.flatnonzero(ph[k:j] == 2)
+                segs.append(Segment(r, int(oc[k]), k, j, k + int(steady[0]) if steady.size else j))
+            k = j
+    return segs
+
+
+@dataclass
+class RunArrays:
+    """A run's target (K,) and inputs (K, m) with gaps held, plus its sample mask."""
+
+    y: np.ndarray
+    U: np.ndarray
+    valid: np.ndarray  # (K,) target and every input were measured
+
+
+def run_arrays(run: Run, target: str, inputs: list[str]) -> RunArrays:
+    """Target and inputs of a run; a missing channel is an OrdervibError naming it."""
+    missing = [c for c in [target, *inputs] if c not in run.channels]
+    if missing:
+        raise OrdervibError(f"channel(s) {missing} not in the recording (has {list(run.channels)})")
+    raw = np.column_stack([run.column(c) for c in [target, *inputs]])
+    valid = np.all(np.isfinite(raw), axis=1)
+    filled = fill_gaps(raw)
+    return RunArrays(filled[:, 0], filled[:, 1:], valid)

@@ -1,0 +1,116 @@
+"""Held-out evaluation of a trained switching model, the way the node runs it:
+per OC segment, seeded from the measured past, free run across the OC."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from node.models.baseline import CharacteristicCurve
+from node.training.dataset import run_arrays, segment_runs
+from node.contract.errors import OrdervibError
+from node.models.ocmodel import Trajectory
+from node.mcap.recording import Run
+from node.runtime.runcurve import RUN_CURVE, add_run_curve
+from node.contract.schedule import Schedule
+from node.training.train import FS, HISTORY_S, OCResult, ewma_scores, pooled_eps
+
+
+@dataclass
+class SegmentPrediction:
+    run: int
+    oc: int
+    t: np.ndarray  # (K,) s
+    measured: np.ndarray  # (K,)
+    predicted: np.ndarray  # (K,)
+
+
+@dataclass
+class OCEvaluation:
+    name: str
+    eps: float  # pooled over the held-out segments; nan when the OC has no model or data
+    n_segments: int
+    alarm_samples: int  # samples flagged (persistent smoothed score beyond threshold)
+    samples: int
+
+
+def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedule,
+                     target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None
+                     ) -> list[SegmentPrediction]:
+    """Free-run predictions of every OC segment found in ``runs`` that has a model.
+
+    fleet: the bundle's characteristic curve, needed when a model takes ``run_curve``.
+    """
+    by_oc = {schedule.index(r.name): r for r in results if r.model is not None}
+    out = []
+    hist = int(HISTORY_S * FS)
+    inputs_needed = sorted({c for r in by_oc.values() for c in r.inputs})
+    if RUN_CURVE in inputs_needed:
+        if fleet is None:
+            raise OrdervibError("the model takes run_curve but has no characteristic curve")
+        runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
+    arrays = [run_arrays(run, target, inputs_needed) for run in runs]
+    for s in segment_runs(runs, schedule):
+        res = by_oc.get(s.oc)
+        if res is None:
+            continue
+        ra = arrays[s.run]
+        cols = [inputs_needed.index(c) for c in res.inputs]
+        lo = max(0, s.start - hist)
+        traj = Trajectory(ra.y[lo:s.stop], ra.U[lo:s.stop][:, cols], s.start - lo)
+        with np.errstate(all="ignore"):
+            pred = res.model.predict(traj)
+        out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], traj.seg_y, pred))
+    return out
+
+
+def alarm_mask(residual: np.ndarray, res: OCResult) -> np.ndarray:
+    """Samples where the smoothed standardized residual has exceeded the threshold persistently.
+
+    Per segment, so without the node's run scale and off-delay (``node.runtime.pipeline``): a
+    quick per-OC view; the node's own figures come from ``ordervib replay``.
+    """
+    c = res.calibration
+    e = np.abs(ewma_scores(residual, c.sigma, c.ewma_alpha)) > c.threshold
+    run = np.zeros(e.size, dtype=np.int64)
+    count = 0
+    for k, v in enumerate(e):
+        count = count + 1 if v else 0
+        run[k] = count
+    return run >= c.persist
+
+
+def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
+             target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None
+             ) -> tuple[list[OCEvaluation], list[SegmentPrediction]]:
+    preds = predict_segments(results, runs, schedule, target, fleet)
+    by_name = {r.name: r for r in results}
+    out = []
+    for j, name in enumerate(schedule.names):
+        mine = [p for p in preds if p.oc == j]
+        res = by_name.get(name)
+        if not mine or res is None or res.calibration is None:
+            out.append(OCEvaluation(name, float("nan"), len(mine), 0, sum(p.t.size for p in mine)))
+            continue
+        alarms = sum(int(alarm_mask(p.measured - p.predicted, res).sum()) for p in mine)
+        out.append(OCEvaluation(name, pooled_eps([(p.measured, p.predicted) for p in mine]),
+                                len(mine), alarms, sum(p.t.size for p in mine)))
+    return out, preds
+
+
+def baseline_eps(train_runs: list[Run], test_runs: list[Run], schedule: Schedule,
+                 target: str) -> list[float]:
+    """Per-OC eps_td of the characteristic-curve baseline fitted on the training runs."""
+    sw = schedule.switch
+    tr = [run_arrays(r, target, [sw]) for r in train_runs]
+    cc = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in tr]),
+                                   np.concatenate([a.y for a in tr]))
+    te = [run_arrays(r, target, [sw]) for r in test_runs]
+    segs = segment_runs(test_runs, schedule)
+    out = []
+    for j in range(len(schedule.ocs)):
+        pairs = [(te[s.run].y[s.start:s.stop], cc.predict(te[s.run].U[s.start:s.stop, 0]))
+                 for s in segs if s.oc == j]
+        out.append(pooled_eps(pairs) if pairs else float("nan"))
+    return out

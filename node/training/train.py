@@ -1,0 +1,326 @@
+"""Training the switching model: per OC, leave-one-run-out cross-validation of the
+hyper-parameters (and of the MS-DPCCA input choice), a final fit on every run,
+and residual calibration from the held-out folds.
+
+Each model is evaluated the way the node runs it: seeded from the measured
+samples before the OC switch, then free-running across the OC.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds
+from node.models.baseline import CharacteristicCurve
+from node.training.dataset import Segment, run_arrays, segment_runs
+from node.contract.errors import OrdervibError
+from node.training.features import rank_inputs
+from node.models.ocmodel import Method, OCModel, Trajectory, fit_oc_model, memory
+from node.mcap.recording import Run
+from node.runtime.runcurve import add_run_curve
+from node.contract.schedule import Schedule
+
+HISTORY_S = 60.0  # seconds of measured past kept before each OC for seeding
+EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
+PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
+FS = 40.0
+
+DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
+    Method.WDMD: {"levels": [1, 2, 3, 4, 5], "rcond": [1e-8]},
+    Method.DELAY_DMD: {"delays": [1, 2, 4, 8, 16], "rcond": [1e-8]},
+    Method.LASSO: {"alpha": [1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0]},
+}
+
+
+def grid_points(grid: dict[str, list]) -> list[dict]:
+    keys = sorted(grid)
+    return [dict(zip(keys, vals)) for vals in itertools.product(*(grid[k] for k in keys))]
+
+
+@dataclass
+class Calibration:
+    """Residual statistics of one OC: sigma (target units) and the alarm rule.
+
+    threshold is on the smoothed standardized score (sigma units); peaks are the CV
+    segments' peak |scores| it was calibrated from (see ``node.runtime.alarms``).
+    """
+
+    sigma: float
+    threshold: float
+    ewma_alpha: float = 2.0 / (EWMA_SPAN_S * FS + 1.0)
+    persist: int = int(PERSIST_S * FS)
+    peaks: list[float] = field(default_factory=list)
+    segments: list[tuple[int, int, float]] = field(default_factory=list)  # CV: (run, start, mean z^2)
+
+
+@dataclass
+class OCResult:
+    """What training learned and measured for one OC."""
+
+    name: str
+    model: OCModel | None
+    inputs: list[str]
+    params: dict
+    n_runs: int
+    train_eps: float
+    cv_eps: float
+    calibration: Calibration | None
+    ranking: list[tuple[str, float]] = field(default_factory=list)
+    cv_scores: list[tuple[dict, float]] = field(default_factory=list)
+    note: str = ""
+
+
+def ewma_scores(residual: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
+    """Smoothed standardized residual e_k = (1 - a) e_(k-1) + a r_k / sigma, from 0: (K,)."""
+    from scipy.signal import lfilter
+    return lfilter([alpha], [1.0, alpha - 1.0], residual / sigma)
+
+
+def pooled_eps(pairs: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """sqrt(sum (y - yhat)^2 / sum y^2) over several segments; inf if any prediction is not finite."""
+    num = sum(float(np.sum((y - p) ** 2)) for y, p in pairs)
+    den = sum(float(np.sum(y ** 2)) for y, _ in pairs)
+    if not np.isfinite(num) or den == 0:
+        return float("inf")
+    return float(np.sqrt(num / den))
+
+
+@dataclass
+class OCData:
+    """Everything one OC's CV needs, per training run: the candidate channels' arrays."""
+
+    name: str
+    target: str
+    candidates: list[str]
+    runs: list[int]  # run index of each segment
+    y: list[np.ndarray]  # target from the history start to the segment end
+    X: list[np.ndarray]  # candidates, same rows
+    start: list[int]  # index of the OC's first sample in y / X
+    at: list[int] = field(default_factory=list)  # index of the OC's first sample in its run
+
+
+def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int
+                   ) -> tuple[list[str], list[tuple[str, float]]]:
+    if inputs is not None:
+        return inputs, []
+    segs = [np.column_stack([d.y[i], d.X[i]])[d.start[i]:] for i in rows]
+    score = rank_inputs(segs, 0)[1:]
+    order = np.argsort(-score)
+    ranking = [(d.candidates[j], float(score[j])) for j in order]
+    return [d.candidates[j] for j in order[:k]], ranking
+
+
+def _trajs(d: OCData, rows: list[int], inputs: list[str]) -> list[Trajectory]:
+    cols = [d.candidates.index(c) for c in inputs]
+    return [Trajectory(d.y[i], d.X[i][:, cols], d.start[i]) for i in rows]
+
+
+def _predict_pairs(model: OCModel, trajs: list[Trajectory]) -> list[tuple[np.ndarray, np.ndarray]]:
+    out = []
+    for t in trajs:
+        with np.errstate(all="ignore"):
+            try:
+                p = model.predict(t)
+            except (np.linalg.LinAlgError, ValueError):
+                p = np.full(t.seg_y.shape, np.nan)
+        out.append((t.seg_y, np.where(np.isfinite(p), p, np.inf)))
+    return out
+
+
+def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | None,
+             n_inputs: int) -> OCResult:
+    """Leave-one-run-out CV over ``grid`` (inputs chosen inside each fold), then the final fit."""
+    meth = Method(method)
+    folds = sorted(set(d.runs))
+    if len(folds) < 2:
+        return OCResult(d.name, None, [], {}, len(folds), float("nan"), float("nan"), None,
+                        note=f"seen in {len(folds)} run(s); at least 2 are needed")
+    fold_inputs = {}
+    for f in folds:
+        rows = [i for i, r in enumerate(d.runs) if r != f]
+        fold_inputs[f] = _choose_inputs(d, rows, inputs, n_inputs)[0]
+    cv_scores = []
+    best: tuple[float, dict, list] | None = None
+    for params in grid_points(grid):
+        pairs_all = []
+        for f in folds:
+            train_rows = [i for i, r in enumerate(d.runs) if r != f]
+            test_rows = [i for i, r in enumerate(d.runs) if r == f]
+            chosen = fold_inputs[f]
+            try:
+                m = fit_oc_model(method, params, _trajs(d, train_rows, chosen))
+            except (np.linalg.LinAlgError, ValueError):
+                pairs_all = []
+                break
+            pairs_all += _predict_pairs(m, _trajs(d, test_rows, chosen))
+        score = pooled_eps(pairs_all) if pairs_all else float("inf")
+        cv_scores.append((params, score))
+        if best is None or score < best[0]:
+            best = (score, params, pairs_all)
+    cv_eps, params, pairs = best
+    all_rows = list(range(len(d.runs)))
+    chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs)
+    trajs = _trajs(d, all_rows, chosen)
+    model = fit_oc_model(method, params, trajs)
+    train_eps = pooled_eps(_predict_pairs(model, trajs))
+    calib = None
+    if np.isfinite(cv_eps):
+        res = [y - p for y, p in pairs]
+        sigma = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
+        sigma = max(sigma, 1e-9)
+        c = Calibration(sigma, float("inf"))
+        c.peaks = [float(np.max(np.abs(ewma_scores(r, sigma, c.ewma_alpha)))) for r in res]
+        rows = [i for f in folds for i, r in enumerate(d.runs) if r == f]  # the order of ``pairs``
+        c.segments = [(d.runs[i], d.at[i], float(np.mean((r / sigma) ** 2))) for i, r in zip(rows, res)]
+        calib = c
+    note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
+    if meth is not Method.LASSO and not np.isfinite(cv_eps):
+        note = "no stable candidate in cross-validation"
+    return OCResult(d.name, model, chosen, params, len(folds), train_eps, cv_eps, calib,
+                    ranking, cv_scores, note)
+
+
+def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: list[str],
+                segments: list[Segment] | None = None, history_s: float = HISTORY_S) -> list[OCData]:
+    """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it."""
+    segments = segment_runs(runs, schedule) if segments is None else segments
+    arrays = [run_arrays(run, target, candidates) for run in runs]
+    hist = int(history_s * FS)
+    out = []
+    for j, name in enumerate(schedule.names):
+        d = OCData(name, target, list(candidates), [], [], [], [])
+        for s in segments:
+            if s.oc != j:
+                continue
+            lo = max(0, s.start - hist)
+            ra = arrays[s.run]
+            d.runs.append(s.run)
+            d.y.append(ra.y[lo:s.stop])
+            d.X.append(ra.U[lo:s.stop])
+            d.start.append(s.start - lo)
+            d.at.append(s.start)
+        out.append(d)
+    return out
+
+
+def candidate_channels(runs: list[Run], target: str, switch: str) -> list[str]:
+    """Channels usable as inputs: present and mostly finite in every run, not vibration outputs."""
+    common = [c for c in runs[0].channels if all(c in r.channels for r in runs)]
+    out = []
+    for c in common:
+        if c == target or c.startswith("y"):
+            continue
+        finite = min(float(np.mean(np.isfinite(r.column(c)))) for r in runs)
+        if finite >= 0.5:
+            out.append(c)
+    if switch in out:  # the switch speed first: a sensible default input
+        out.remove(switch)
+        out.insert(0, switch)
+    return out
+
+
+def fleet_curve(runs: list[Run], switch: str, target: str) -> tuple[np.ndarray, np.ndarray]:
+    """The training runs' characteristic curve (speeds (B,), mean target (B,))."""
+    arrays = [run_arrays(r, target, [switch]) for r in runs]
+    c = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in arrays]),
+                                  np.concatenate([a.y for a in arrays]))
+    return c.centres_, c.means_
+
+
+def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str = "wdmd",
+          inputs: list[str] | None = None, n_inputs: int = 4, grid: dict[str, list] | None = None,
+          workers: int | None = None, progress: Callable[[OCResult, int, int], None] | None = None,
+          false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
+          cv_undercoverage: float = CV_UNDERCOVERAGE,
+          fleet: tuple[np.ndarray, np.ndarray] | None = None) -> list[OCResult]:
+    """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
+
+    fleet: the training runs' characteristic curve (speeds, means); given, every run gains
+    the derived ``run_curve`` input (``node.runtime.runcurve``), a candidate like any channel.
+
+    Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
+    (per hour of OC time in normal runs), see ``node.runtime.alarms.pooled_thresholds``.
+    """
+    meth = Method(method)
+    if not runs:
+        raise OrdervibError("no runs to train on")
+    if any(target not in r.channels for r in runs):
+        raise OrdervibError(f"target channel {target!r} is missing from some run")
+    if fleet is not None:
+        runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
+    candidates = candidate_channels(runs, target, schedule.switch)
+    if inputs is not None:
+        missing = [c for c in inputs if c not in candidates]
+        if missing:
+            raise OrdervibError(f"input channel(s) {missing} missing or mostly empty in the recordings")
+        candidates = list(inputs)
+    if not candidates:
+        raise OrdervibError("no usable input channel in the recordings")
+    grid = grid or DEFAULT_GRIDS[meth]
+    datas = oc_datasets(runs, schedule, target, candidates)
+    workers = workers or min(2, os.cpu_count() or 1)
+    jobs = [(d, method, grid, inputs, n_inputs) for d in datas]
+    results: list[OCResult | None] = [None] * len(jobs)
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(train_oc, *job): i for i, job in enumerate(jobs)}
+            from concurrent.futures import as_completed
+            for done, fut in enumerate(as_completed(futures), 1):
+                i = futures[fut]
+                results[i] = fut.result()
+                if progress:
+                    progress(results[i], done, len(jobs))
+    else:
+        for i, job in enumerate(jobs):
+            results[i] = train_oc(*job)
+            if progress:
+                progress(results[i], i + 1, len(jobs))
+    out = [r for r in results if r is not None]
+    set_thresholds(out, datas, false_alarms_per_hour, cv_undercoverage)
+    return out
+
+
+def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float,
+                   undercoverage: float = CV_UNDERCOVERAGE) -> None:
+    """Give every calibrated OC its threshold from the pooled CV peaks and the alarm budget."""
+    hours = sum(y.size - s for d in datas for y, s in zip(d.y, d.start)) / FS / 3600.0
+    segments = sum(len(d.runs) for d in datas)
+    per_hour = segments / hours if hours > 0 else 1.0
+    calibs = {r.name: r.calibration for r in results if r.calibration is not None}
+    for name, scaled in run_scaled_peaks(calibs).items():
+        calibs[name].peaks = scaled
+    levels = pooled_thresholds({n: c.peaks for n, c in calibs.items()}, per_hour, budget, undercoverage)
+    for name, c in calibs.items():
+        c.threshold = levels[name]
+
+
+def run_scaled_peaks(calibs: dict[str, Calibration]) -> dict[str, list[float]]:
+    """CV peaks divided by the run scale the node would have used at each segment's start.
+
+    Within a held-out CV run, its segments (every OC) in time order feed ``RunScale``
+    exactly as the node's pipeline does; an OC without calibrated segments is left as is.
+    """
+    by_run: dict[int, list[tuple[int, str, int]]] = {}
+    for name, c in calibs.items():
+        if len(c.segments) != len(c.peaks):
+            continue
+        for k, (run, at, _) in enumerate(c.segments):
+            by_run.setdefault(run, []).append((at, name, k))
+    out = {name: list(c.peaks) for name, c in calibs.items()}
+    for segs in by_run.values():
+        scale = RunScale()
+        for _, name, k in sorted(segs):
+            out[name][k] = calibs[name].peaks[k] / scale.factor
+            scale.add(calibs[name].segments[k][2])
+    return out
+
+
+def memory_needed(results: list[OCResult]) -> int:
+    """Samples of past the largest model's state needs (for the node's ring buffer)."""
+    return max((memory(r.model.method, r.params) for r in results if r.model), default=0)

@@ -1,0 +1,262 @@
+"""Offline replay: the node's logic over a recording, as fast as two cores allow.
+
+The recording is read in file order (``iter_messages_fast``) in batches of
+messages. Each batch goes to ``NodeCore.handle_many`` (decode, align, predict),
+which reports the messages that completed monitor messages; the batch's inputs
+are then written to the output recording with each monitor message right
+after the input that completed it, exactly where a live node records it.
+
+With ``workers=1`` (the default on a machine with two cores or more, where
+``fork`` exists) the node's logic runs in one forked worker process while this
+process reads the next batch and writes the previous one; the worker sees the
+messages in the same order, so the output bytes are identical to
+``workers=0`` (everything in this process). The output's chunks are compressed
+in a thread of this process (``RecordingWriter(background=True)``), on whichever
+core has room, in order: the same bytes again.
+"""
+
+from __future__ import annotations
+
+import gc
+import multiprocessing
+import os
+import queue
+import time
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from itertools import islice
+from operator import itemgetter
+from typing import Any
+
+import numpy as np
+import orjson
+
+from node.models.bundle import Bundle
+from node.runtime.core import NodeCore
+from node.contract.errors import OrdervibError
+from node.mcap.recording import ReadStats, RecordingWriter, iter_messages_fast
+
+BATCH = 4096  # messages per batch
+IN_FLIGHT = 2  # batches handed to the worker and not yet written
+
+_KEY, _LOG, _PUB, _PAYLOAD = (itemgetter(i) for i in range(4))  # fields of a Message
+Encoded = tuple[str, int, bytes]  # (key, log_time ns, JSON bytes) of a monitor message
+
+
+@dataclass
+class ReplayReport:
+    """What a replay did (the logic's counts come from the process that ran it)."""
+
+    inputs: int = 0
+    published: int = 0
+    malformed: int = 0
+    seconds: float = 0.0
+    truncated: bool = False
+    alarm_episodes: list[dict] = field(default_factory=list)
+    beds: dict[str, dict[str, Any]] = field(default_factory=dict)
+    workers: int = 0
+
+
+class _Logic:
+    """NodeCore plus what replay needs around it: encoded outputs and the report."""
+
+    def __init__(self, bundle: Bundle, encode: bool) -> None:
+        self.core = NodeCore(bundle)
+        self.encode = encode
+
+    def _outputs(self, outs) -> list[Encoded]:
+        if not self.encode:
+            return []
+        return [(key, round(msg["t"] * 1e9), orjson.dumps(msg)) for key, msg in outs]
+
+    def batch(self, keys, payloads) -> list[tuple[int, list[Encoded]]]:
+        return [(i, self._outputs(outs)) for i, outs in self.core.handle_many(keys, payloads)]
+
+    def finish(self) -> tuple[list[Encoded], dict]:
+        final = self._outputs(self.core.finish())
+        c = self.core.stats
+        report = {"published": c.published, "malformed": c.malformed,
+                  "alarm_episodes": c.alarm_log.episodes,
+                  "beds": {b: {"samples": s.aligner.stats.samples, "alarm_samples": s.alarms,
+                               "late": s.aligner.stats.late, "missing": dict(s.aligner.stats.missing)}
+                           for b, s in c.beds.items()}}
+        return final, report
+
+
+class _InProcess:
+    workers = 0
+
+    def __init__(self, bundle: Bundle, encode: bool) -> None:
+        self.logic = _Logic(bundle, encode)
+        self.done: deque = deque()
+
+    def submit(self, keys, payloads) -> None:
+        self.done.append(self.logic.batch(keys, payloads))
+
+    def result(self):
+        return self.done.popleft()
+
+    def finish(self):
+        return self.logic.finish()
+
+    def close(self) -> None:
+        pass
+
+
+def _serve(bundle: Bundle, encode: bool, tasks, results) -> None:
+    """The worker process: batches in, encoded outputs out, in order; None ends."""
+    gc.disable()
+    try:
+        logic = _Logic(bundle, encode)
+        while (task := tasks.get()) is not None:
+            results.put(("batch", logic.batch(*task)))
+        results.put(("finish", logic.finish()))
+    except BaseException as exc:  # noqa: BLE001 - reported to the parent, which raises
+        results.put(("error", f"{type(exc).__name__}: {exc}"))
+
+
+class _Forked:
+    """The logic in one forked worker process; results come back in submission order."""
+
+    workers = 1
+
+    def __init__(self, bundle: Bundle, encode: bool) -> None:
+        self.finished = False
+        ctx = multiprocessing.get_context("fork")
+        self.tasks, self.results = ctx.Queue(), ctx.Queue()
+        self.proc = ctx.Process(target=_serve, args=(bundle, encode, self.tasks, self.results),
+                                name="ordervib-replay", daemon=True)
+        self.proc.start()
+
+    def submit(self, keys, payloads) -> None:
+        self.tasks.put((keys, payloads))
+
+    def _get(self, kind: str):
+        while True:
+            try:
+                got, value = self.results.get(timeout=0.5)
+            except queue.Empty:
+                if not self.proc.is_alive():
+                    raise OrdervibError(f"the replay worker died (exit code {self.proc.exitcode})") from None
+                continue
+            if got == "error":
+                raise OrdervibError(f"replay worker: {value}")
+            assert got == kind, (got, kind)
+            return value
+
+    def result(self):
+        return self._get("batch")
+
+    def finish(self):
+        self.tasks.put(None)
+        value = self._get("finish")
+        self.finished = True
+        return value
+
+    def close(self) -> None:
+        """Wait for a finished worker; stop one that is not (an error on this side)."""
+        if self.finished:
+            self.proc.join(timeout=10)
+        if self.proc.is_alive():
+            self.proc.kill()
+        self.proc.join()
+        for q in (self.tasks, self.results):
+            q.cancel_join_thread()  # batches nobody will read must not hold up the exit
+            q.close()
+
+
+def default_workers() -> int:
+    """1 (logic in a worker process) with two cores or more and ``fork``; else 0.
+
+    ``fork`` keeps the start cheap (the worker inherits the loaded model and modules).
+    """
+    ok = ("fork" in multiprocessing.get_all_start_methods() and (os.cpu_count() or 1) >= 2
+          and not multiprocessing.current_process().daemon)  # a daemon may not have children
+    return 1 if ok else 0
+
+
+def _write_batch(writer: RecordingWriter, columns: tuple[list, np.ndarray, np.ndarray, list],
+                 done: list[tuple[int, list[Encoded]]]) -> None:
+    """The batch's inputs (keys, log times, publish times, payloads), each completing input
+    followed by its monitor messages (published when that input arrived)."""
+    keys, logs, pubs, payloads = columns
+    if done:
+        k, pl, after, out_logs = [], [], [], []
+        prev = 0
+        for i, outs in done:
+            k += keys[prev:i + 1]
+            pl += payloads[prev:i + 1]
+            for key, log, data in outs:
+                k.append(key)
+                pl.append(data)
+                after.append(i)
+                out_logs.append(log)
+            prev = i + 1
+        k += keys[prev:]
+        pl += payloads[prev:]
+        at = np.array(after, dtype=np.int64)
+        keys, payloads = k, pl
+        logs, pubs = np.insert(logs, at + 1, out_logs), np.insert(pubs, at + 1, logs[at])
+    writer.write_columns(keys, logs, pubs, payloads)
+
+
+def _u64(values: Iterable[int], n: int) -> np.ndarray:
+    """n integers (nanoseconds) as an array, for the writer."""
+    return np.fromiter(values, dtype=np.uint64, count=n)
+
+
+def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None = None) -> ReplayReport:
+    """Run the node over every sensor message of ``recording``; write ``out`` if given."""
+    workers = default_workers() if workers is None else workers
+    stats = ReadStats()
+    gc_was_on = gc.isenabled()
+    gc.disable()  # no reference cycles are made here; collections would only cost time
+    t0 = time.perf_counter()
+    engine = (_Forked if workers > 0 else _InProcess)(bundle, encode=out is not None)
+    writer = None
+    n_in = 0
+    try:
+        writer = RecordingWriter(out, background=True) if out else None  # chunks packed in a thread
+        flight: deque = deque()  # columns of the batches handed over and not yet written
+
+        def submit(batch: list, keys: list[str]) -> None:
+            payloads = list(map(_PAYLOAD, batch))
+            engine.submit(keys, payloads)
+            if writer:
+                n = len(batch)
+                flight.append((keys, _u64(map(_LOG, batch), n), _u64(map(_PUB, batch), n), payloads))
+            else:
+                flight.append(None)
+            while len(flight) > IN_FLIGHT:
+                drain()
+
+        def drain() -> None:
+            done = engine.result()
+            b = flight.popleft()
+            if writer:
+                _write_batch(writer, b, done)
+
+        messages = iter_messages_fast(recording, stats=stats)
+        while batch := list(islice(messages, BATCH)):
+            keys = list(map(_KEY, batch))
+            if any("/monitor/" in key for key in set(keys)):
+                # a node's own recording: recompute its monitor messages, do not copy them
+                batch = [m for m in batch if "/monitor/" not in m[0]]
+                keys = list(map(_KEY, batch))
+            n_in += len(batch)
+            if batch:
+                submit(batch, keys)
+        while flight:
+            drain()
+        final, rep = engine.finish()
+        if writer:
+            writer.write_many([(key, log, log, data) for key, log, data in final])
+    finally:
+        engine.close()
+        if writer:
+            writer.close()
+        if gc_was_on:
+            gc.enable()
+    return ReplayReport(inputs=n_in, seconds=time.perf_counter() - t0, truncated=stats.truncated,
+                        workers=engine.workers, **rep)
