@@ -16,10 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.contract import FS
+from node.contract.schedule import Schedule
+from node.mcap.recording import Run
 from node.models.bundle import Bundle
 from node.runtime.ocdetect import OCDetector
-from node.mcap.recording import Run
-from node.contract.schedule import Schedule
 
 SMOOTH_S = 2.0  # the effect is averaged over this window (s) before it is set against the band
 
@@ -37,7 +38,7 @@ class FaultEffect:
     ratio: float
 
 
-def band_per_sample(run: Run, bundle: Bundle, schedule: Schedule, fs: float = 40.0) -> np.ndarray:
+def band_per_sample(run: Run, bundle: Bundle, schedule: Schedule, fs: float = FS) -> np.ndarray:
     """(K,) residual alarm band (threshold x sigma, target units) of the OC in force; NaN without model."""
     det = OCDetector(schedule, fs)
     names = [o.name for o in schedule.ocs]
@@ -73,7 +74,7 @@ def on_common_samples(run: Run, twin: Run) -> tuple[Run, Run]:
 
 
 def fault_effect(fault_run: Run, twin: Run, target: str, onset: float, band: np.ndarray,
-                 window: float = 60.0, fs: float = 40.0) -> FaultEffect:
+                 window: float = 60.0, fs: float = FS) -> FaultEffect:
     """Effect of the fault (from ``onset``, epoch s) on ``target`` within ``window`` s, against ``band``.
 
     fault_run, twin: the same run with and without the fault (ValueError if they differ

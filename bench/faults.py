@@ -46,11 +46,12 @@ from pathlib import Path
 import numpy as np
 
 from bench.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_effect, on_common_samples
-from node.models.bundle import Bundle, load_bundle
 from node.cli import main as cli
 from node.cli.replay import replay_offline
+from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.mcap.recording import Run, read_runs
+from node.models.bundle import Bundle, load_bundle
 from simulator.schedule import BUILT_IN_SCHEDULE, SimSchedule, load_sim_schedule
 
 FAULTS = ("imbalance", "stiffness", "stuck-sensor", "drift")
@@ -168,7 +169,7 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
             raise SystemExit(f"train failed: {argv}")
         stamp.write_text(json.dumps({"train_truth_sha256": trained_on}) + "\n")
     s = replay_offline(str(normal), str(model), None, quiet=True)
-    hours = sum(b["samples"] for b in s["beds"].values()) / 40.0 / 3600.0
+    hours = sum(b["samples"] for b in s["beds"].values()) / FS / 3600.0
     bundle = load_bundle(model)
     twin = read_runs(normal, [bundle.schedule.switch, bundle.target])[0]
     rows = []

@@ -40,9 +40,9 @@ from pathlib import Path
 import numpy as np
 import orjson
 
+from node.contract import FS, RUN_GAP
+
 ROOT = Path(__file__).resolve().parents[1]
-FS = 40.0
-RUN_GAP = 60.0
 WARMUP = 40  # slots (1 s) left out of the latency figures
 LATENCY_P99_MS = 20.0
 
@@ -61,7 +61,8 @@ class Stream:
 
 def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
     """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
-    from node.mcap.recording import iter_messages_fast, parse_sensor_key
+    from node.contract import parse_sensor_key
+    from node.mcap.recording import iter_messages_fast
     n = int(round(seconds * FS))
     run0 = last_t = cut = t0 = None
     slots: dict[int, list[tuple[str, bytes]]] = {}
@@ -195,7 +196,8 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
     """
     import zenoh
 
-    from node.live.node import SENSOR_KEYS, open_session, zenoh_config
+    from node.contract import SENSOR_SUBSCRIPTION
+    from node.live.node import open_session, zenoh_config
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
     pubs: dict[str, object] = {}
     counts: dict[tuple[str, int], int] = {}
@@ -219,7 +221,7 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
                 pub = pubs[bed] = session.declare_publisher(f"echo/{bed}", congestion_control=block)
             pub.put(payload)
 
-    sub = session.declare_subscriber(SENSOR_KEYS, on_sample)
+    sub = session.declare_subscriber(SENSOR_SUBSCRIPTION, on_sample)
     print("ready", flush=True)
     sys.stdin.read()
     sub.undeclare()
@@ -435,8 +437,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.peer:
         return peer_main(args.peer, args.port, args.t0, set(args.needed.split(",")))
-    from node.models.bundle import load_bundle
     from node.cli import main as cli
+    from node.models.bundle import load_bundle
     from node.runtime.pipeline import MonitorPipeline
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-live-"))

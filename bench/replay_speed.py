@@ -23,6 +23,8 @@ from pathlib import Path
 
 import orjson
 
+from node.contract import FS
+
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_X = 50.0  # x real time
 TARGET_RATIO = 0.5  # of the read + decode speed
@@ -36,8 +38,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from node.cli import main as cli
     from node.cli.replay import replay_offline
-    from replay.offline import default_workers
     from node.mcap.recording import iter_messages_fast
+    from replay.offline import default_workers
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-replay-"))
     if not args.model:
@@ -69,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         for name, run in steps:
             best[name] = min(best[name], run())
     n = sum(1 for _ in iter_messages_fast(args.recording))
-    span = sum(b["samples"] for b in summary["beds"].values()) / 40.0  # engine time, gaps excluded
+    span = sum(b["samples"] for b in summary["beds"].values()) / FS  # engine time, gaps excluded
     print(f"{args.recording}: {n} messages, {span:.0f} s of data; best of {args.repeat} runs each")
     print("| step | s | messages/s | x real time |")
     print("|---|---|---|---|")

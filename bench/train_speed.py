@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from node.cli import main as cli
+from node.contract import FS
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -28,8 +29,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default="wdmd,delay-dmd,lasso")
     args = ap.parse_args(argv)
     from node.cli.train import load_runs
-    from node.training.evaluation import baseline_eps, evaluate
     from node.contract.schedule import load_schedule
+    from node.training.evaluation import baseline_eps, evaluate
     from node.training.train import fleet_curve, train
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-bench-"))
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             evals, _ = evaluate(results, test_runs, schedule, "yB", curve)
             held = np.nanmean([e.eps for e in evals])
             cv = np.nanmean([r.cv_eps for r in results])
-            alarms = sum(e.alarm_samples for e in evals) / 40.0
+            alarms = sum(e.alarm_samples for e in evals) / FS
             name = method if curve is not None else f"{method}, no run_curve"
             rows.append((name, t_read + t_train, cv, held, alarms))
     print(f"\n{len(train_runs)} training runs, {len(test_runs)} held-out runs; reading took {t_read:.1f} s")

@@ -32,10 +32,10 @@ from typing import Any
 import numpy as np
 import orjson
 
+from node.contract import OrdervibError, is_monitor_key
+from node.mcap.recording import ReadStats, RecordingWriter, iter_messages_fast
 from node.models.bundle import Bundle
 from node.runtime.core import NodeCore
-from node.contract.errors import OrdervibError
-from node.mcap.recording import ReadStats, RecordingWriter, iter_messages_fast
 
 BATCH = 4096  # messages per batch
 IN_FLIGHT = 2  # batches handed to the worker and not yet written
@@ -240,9 +240,9 @@ def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None 
         messages = iter_messages_fast(recording, stats=stats)
         while batch := list(islice(messages, BATCH)):
             keys = list(map(_KEY, batch))
-            if any("/monitor/" in key for key in set(keys)):
+            if any(map(is_monitor_key, set(keys))):
                 # a node's own recording: recompute its monitor messages, do not copy them
-                batch = [m for m in batch if "/monitor/" not in m[0]]
+                batch = [m for m in batch if not is_monitor_key(m[0])]
                 keys = list(map(_KEY, batch))
             n_in += len(batch)
             if batch:

@@ -31,7 +31,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-RUN_GAP = 60.0  # s: a gap this long separates runs (contract section 3)
+from node.contract import RUN_GAP, Flag
+
 GAP_SHOWN = 10.0  # s: what a gap between runs shrinks to on engine_time
 ALARM_RED = (230, 40, 40)
 COLORS = {
@@ -228,7 +229,7 @@ def log_monitor(data: ViewData, clock: Clock) -> None:
     """Target against prediction with band; residual with ± band; score; alarms marked."""
     m = data.monitor
     assert m is not None
-    alarm = m.flag == "alarm"
+    alarm = m.flag == Flag.ALARM.value
     measured = m.measured
     log_style("target/measured", f"{data.target} measured", COLORS["measured"])
     if not np.isfinite(measured).any() and data.measured is not None:  # fall back on the sensor
@@ -381,7 +382,7 @@ def curve_arrays(data: ViewData, clock: Clock) -> tuple[np.ndarray, ...]:
     """
     if data.monitor is not None and np.isfinite(data.monitor.measured).any():
         t, y = data.monitor.t, data.monitor.measured
-        alarm = data.monitor.flag == "alarm"
+        alarm = data.monitor.flag == Flag.ALARM.value
     elif data.measured is not None:
         t, y = data.measured.t, data.measured.v
         alarm = np.zeros(len(t), dtype=bool)
@@ -406,7 +407,7 @@ def log_view(data: ViewData) -> dict[str, int]:
     if data.monitor is not None:
         log_monitor(data, clock)
         counts["monitor"] = len(data.monitor.t)
-        counts["alarm"] = int(np.sum(data.monitor.flag == "alarm"))
+        counts["alarm"] = int(np.sum(data.monitor.flag == Flag.ALARM.value))
     elif data.measured is not None:
         log_style("target/measured", f"{data.target} measured", COLORS["measured"])
         counts["measured"] = log_scalars("target/measured", data.measured.t, data.measured.v, clock)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.mcap.recording import SENSOR_CHANNELS
+from node.contract import SENSOR_CHANNELS
 from simulator import gaspath, rotor, thermal
 from simulator.engine import SHAFTS, Engine, build_engine
 from simulator.schedule import (

@@ -14,7 +14,8 @@ from collections.abc import Callable
 import numpy as np
 import orjson
 
-from node.mcap.recording import RecordingWriter, sensor_key
+from node.contract import FS, sensor_key
+from node.mcap.recording import RecordingWriter
 from simulator.campaign import Campaign, SimRun
 
 JITTER_SIGMA = 0.4e-3  # acquisition jitter, s
@@ -98,7 +99,7 @@ def truth_document(
         "seed": seed,
         "bed": bed,
         "channels": list(campaign.channels if channels is None else channels),
-        "sample_rate_hz": 40.0,
+        "sample_rate_hz": FS,
         "noise_scale": campaign.noise_scale,
         "schedule": campaign.schedule.truth(),
         "notes": (

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.contract import FS
 from node.contract.errors import OrdervibError
 
-FS = 40.0  # sample rate, Hz
 DT = 1.0 / FS
 
 

@@ -87,9 +87,9 @@ def test_episode_log_merges_close_alarm_samples():
 
 
 def test_pipeline_flags_a_stuck_target_without_a_model():
+    from node.contract.schedule import OperatingCondition, Schedule
     from node.models.bundle import Bundle
     from node.runtime.core import NodeCore
-    from node.contract.schedule import OperatingCondition, Schedule
 
     sched = Schedule((OperatingCondition("A", 4000.0),))
     core = NodeCore(Bundle("wdmd", "yB", sched, [], 60.0, checks={"flatline_samples": 80}))
@@ -134,8 +134,8 @@ def test_step_check_finds_a_step_in_noise_and_ignores_a_slow_trend():
 
 
 def test_calibrated_step_threshold_is_above_every_normal_plateau():
-    from node.runtime.alarms import calibrate_checks
     from node.contract.schedule import OperatingCondition, Schedule
+    from node.runtime.alarms import calibrate_checks
 
     class R:  # two runs: ramp to a plateau at 4000 rpm, hold, noisy target
         def __init__(self, seed):
@@ -196,11 +196,11 @@ def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
 
 
 def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
-    from node.runtime.alarms import RESIDUAL_CLEAR_S
-    from node.models.bundle import Bundle
-    from node.runtime.core import NodeCore
-    from node.models.ocmodel import Method, OCModel
     from node.contract.schedule import OperatingCondition, Schedule
+    from node.models.bundle import Bundle
+    from node.models.ocmodel import Method, OCModel
+    from node.runtime.alarms import RESIDUAL_CLEAR_S
+    from node.runtime.core import NodeCore
     from node.training.train import Calibration, OCResult
 
     # an OC whose model predicts yB = 2 whatever nB does (Lasso with a zero weight)

@@ -77,9 +77,9 @@ def test_gap_starts_a_new_run_on_a_new_grid():
 
 
 def test_malformed_payloads_are_counted_and_skipped(tmp_path):
+    from node.contract.schedule import OperatingCondition, Schedule
     from node.models.bundle import Bundle
     from node.runtime.core import NodeCore
-    from node.contract.schedule import OperatingCondition, Schedule
     sched = Schedule((OperatingCondition("A", 4000.0),))
     core = NodeCore(Bundle("wdmd", "yB", sched, [], 60.0))
     bad = [b"{", b"[1,2]", b'{"t": "x", "v": 1}', b'{"t": 1.0}', b'{"t": NaN, "v": 1}', b"\xff"]

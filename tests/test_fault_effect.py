@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from bench.fault_effect import SMOOTH_S, fault_effect
-from node.mcap.recording import SENSOR_CHANNELS, Run
+from node.contract import SENSOR_CHANNELS
+from node.mcap.recording import Run
 from simulator.campaign import DRIFT_RATE, simulate_campaign
 
 

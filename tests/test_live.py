@@ -49,8 +49,8 @@ def monitor(path: Path) -> list[tuple]:
 
 
 def test_live_node_equals_offline_replay_and_records_every_input(setup):
-    from node.models.bundle import load_bundle
     from node.live.node import LiveNode, publish_recording
+    from node.models.bundle import load_bundle
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(setup / "node.mcap"), listen=[endpoint])
     node.start()
@@ -116,8 +116,8 @@ def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
 
 def test_three_beds_at_40_hz_every_sample_gets_its_monitor_message(setup, tmp_path):
     from bench.live import Bench, latencies, load_stream, wait_for
-    from node.models.bundle import load_bundle
     from node.live.node import LiveNode
+    from node.models.bundle import load_bundle
     from node.runtime.pipeline import MonitorPipeline
     bundle = load_bundle(setup / "m")
     stream = load_stream(str(setup / "test.mcap"), 3.0, 0.0, set(MonitorPipeline(bundle).channels))

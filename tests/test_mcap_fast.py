@@ -14,7 +14,8 @@ import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
 from node.cli import main
-from node.mcap.recording import ReadStats, RecordingWriter, iter_messages, iter_messages_fast, log_time_ns
+from node.contract import log_time_ns
+from node.mcap.recording import ReadStats, RecordingWriter, iter_messages, iter_messages_fast
 
 T0 = 1767600000.0
 KEYS = ["testbed/b/sensor/nB", "testbed/b/sensor/yB", "testbed/b/monitor/yB", "testbed/c/sensor/nB"]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from node.contract.errors import OrdervibError
-from node.runtime.ocdetect import OCDetector, Phase
 from node.contract.schedule import OperatingCondition, Schedule, load_schedule
+from node.runtime.ocdetect import OCDetector, Phase
 
 FS = 40.0
 SCHED = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0),

@@ -11,17 +11,9 @@ import pytest
 from mcap.reader import make_reader
 
 from node.cli import main
+from node.contract import log_time_ns, parse_sensor_key, sensor_key
 from node.contract.errors import OrdervibError
-from node.mcap.recording import (
-    ReadStats,
-    RecordingWriter,
-    iter_messages,
-    log_time_ns,
-    parse_sensor_key,
-    read_payloads,
-    read_runs,
-    sensor_key,
-)
+from node.mcap.recording import ReadStats, RecordingWriter, iter_messages, read_payloads, read_runs
 
 T0 = 1767600000.0
 

@@ -10,7 +10,8 @@ import pytest
 from mcap.reader import make_reader
 
 from node.cli import main
-from node.mcap.recording import RecordingWriter, log_time_ns, sensor_key
+from node.contract import log_time_ns, sensor_key
+from node.mcap.recording import RecordingWriter
 
 T0 = 1767600000.0
 N_FLUSHED = 600  # samples per topic written before the last flush

@@ -9,10 +9,11 @@ import numpy as np
 import orjson
 import pytest
 
-from node.runtime.align import RUN_GAP, AlignedSample, Aligner
-from node.models.bundle import Bundle
-from node.runtime.core import NodeCore
+from node.contract import RUN_GAP
 from node.contract.schedule import OperatingCondition, Schedule
+from node.models.bundle import Bundle
+from node.runtime.align import AlignedSample, Aligner
+from node.runtime.core import NodeCore
 
 REC = Path(__file__).resolve().parents[1] / "recordings" / "engine1_fault.mcap"
 
@@ -228,8 +229,8 @@ def test_worker_process_gives_the_same_bytes(model: Path) -> None:
 
 def test_a_failing_worker_ends_the_replay_with_one_line(model: Path, monkeypatch) -> None:
     import replay.offline as off
-    from node.models.bundle import load_bundle
     from node.contract.errors import OrdervibError
+    from node.models.bundle import load_bundle
 
     def boom(self, keys, payloads):
         raise ValueError("bad model")

@@ -10,8 +10,9 @@ import orjson
 import pytest
 from mcap.reader import make_reader
 
+from node.contract import log_time_ns
 from node.contract.errors import OrdervibError
-from node.mcap.recording import ReadStats, iter_messages, log_time_ns
+from node.mcap.recording import ReadStats, iter_messages
 from node.mcap.rotation import RotatingRecorder, rotated_path
 
 T0 = 1767600000.0
@@ -118,10 +119,10 @@ def test_live_node_records_into_rotating_files(tmp_path: Path) -> None:
     pytest.importorskip("zenoh")
     import socket
 
-    from node.models.bundle import Bundle
     from node.cli import main
-    from node.live.node import LiveNode, publish_recording
     from node.contract.schedule import OperatingCondition, Schedule
+    from node.live.node import LiveNode, publish_recording
+    from node.models.bundle import Bundle
 
     sim = tmp_path / "sim.mcap"
     assert main(["simulate", "--runs", "1", "--seed", "3", "--out", str(sim), "--channels", "nB,yB,tF",

@@ -8,12 +8,12 @@ import numpy as np
 import orjson
 import pytest
 
-from node.models.bundle import Bundle
-from node.runtime.core import NodeCore
-from node.models.ocmodel import Method, OCModel
-from node.mcap.recording import Run
-from node.runtime.runcurve import RUN_CURVE, RunCurve, add_run_curve
 from node.contract.schedule import OperatingCondition, Schedule
+from node.mcap.recording import Run
+from node.models.bundle import Bundle
+from node.models.ocmodel import Method, OCModel
+from node.runtime.core import NodeCore
+from node.runtime.runcurve import RUN_CURVE, RunCurve, add_run_curve
 from node.training.train import Calibration, OCResult
 
 FLEET = (np.array([0.0, 10000.0]), np.array([1.0, 1.0]))  # the fleet says 1.0 everywhere
@@ -79,8 +79,8 @@ def test_the_node_computes_the_very_feature_training_saw():
 
 
 def test_a_bundle_taking_run_curve_without_a_fleet_curve_is_refused(tmp_path):
-    from node.models.bundle import load_bundle, save_bundle
     from node.contract.errors import OrdervibError
+    from node.models.bundle import load_bundle, save_bundle
 
     sched = Schedule((OperatingCondition("A", 4000.0),))
     model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([0.0]), np.array([1.0]),

@@ -13,7 +13,8 @@ import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
 from node.cli import main
-from node.mcap.recording import SENSOR_CHANNELS, read_runs
+from node.contract import SENSOR_CHANNELS
+from node.mcap.recording import read_runs
 from simulator.campaign import simulate_campaign
 
 KEY = re.compile(r"^testbed/([^/]+)/sensor/([^/]+)$")

@@ -8,12 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from node.models.bundle import Bundle, load_bundle, save_bundle
 from node.cli import main
+from node.contract import SENSOR_CHANNELS
 from node.contract.errors import OrdervibError
-from node.training.evaluation import predict_segments
-from node.mcap.recording import SENSOR_CHANNELS, Run
 from node.contract.schedule import OperatingCondition, Schedule
+from node.mcap.recording import Run
+from node.models.bundle import Bundle, load_bundle, save_bundle
+from node.training.evaluation import predict_segments
 from node.training.train import train
 from simulator.campaign import simulate_campaign
 

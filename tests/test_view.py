@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from node.cli import main
-from node.mcap.recording import RecordingWriter, log_time_ns, sensor_key
+from node.contract import log_time_ns, sensor_key
+from node.mcap.recording import RecordingWriter
 from replay.rerun_view import GAP_SHOWN, Clock
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -33,10 +33,10 @@ def _free_port() -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.models.bundle import load_bundle
     from node.cli import main as cli
     from node.contract.errors import OrdervibError
     from node.live.node import LiveNode, publish_recording
+    from node.models.bundle import load_bundle
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from node.contract import FS
+
 NAME = "evaluate"
 HELP = "evaluate a trained model on held-out recordings (table, false alarms, PNG)"
 
@@ -22,9 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from node.cli.train import load_runs
     from node.models.baseline import CharacteristicCurve
     from node.models.bundle import load_bundle
-    from node.cli.train import load_runs
     from node.training.dataset import run_arrays
     from node.training.evaluation import evaluate
 
@@ -82,7 +84,7 @@ def node_alarms(model: str, recordings: list[str]) -> str:
         s = replay_offline(rec, model, None, quiet=True)
         episodes += s["alarm_episodes"]
         samples += sum(b["samples"] for b in s["beds"].values())
-    hours = samples / 40.0 / 3600.0
+    hours = samples / FS / 3600.0
     rules = Counter(e["reason"] for e in episodes)
     by_rule = ", ".join(f"{k} {v}" for k, v in sorted(rules.items())) or "none"
     rate = len(episodes) / hours if hours else 0.0

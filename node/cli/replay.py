@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from node.contract import FS
 from node.contract.errors import OrdervibError
 
 NAME = "replay"
@@ -45,7 +46,7 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
                "beds": {b: {k: s[k] for k in ("samples", "alarm_samples", "late")}
                         for b, s in r.beds.items()}}
     if not quiet:
-        span = sum(s["samples"] for s in r.beds.values()) / 40.0
+        span = sum(s["samples"] for s in r.beds.values()) / FS
         print(f"replayed {r.inputs} input messages ({span:.0f} s of data) in {r.seconds:.1f} s "
               f"({span / max(r.seconds, 1e-9):.0f}x real time); published {r.published} "
               f"monitor messages; {r.malformed} malformed skipped", file=sys.stderr)

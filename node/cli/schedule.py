@@ -7,6 +7,8 @@ import sys
 
 import numpy as np
 
+from node.contract import FS
+
 NAME = "schedule"
 HELP = "schedule tools: 'infer' proposes a schedule from the speed plateaus found in recordings"
 
@@ -22,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default=None, metavar="S.toml", help="write here instead of stdout")
 
 
-def find_plateaus(speed: np.ndarray, tol: float, min_len: int, fs: float = 40.0) -> list[float]:
+def find_plateaus(speed: np.ndarray, tol: float, min_len: int, fs: float = FS) -> list[float]:
     """Mean speeds of the stretches (at least ``min_len`` samples) where the 0.5 s smoothed
     speed changes by less than a tenth of the band per 0.5 s, split where the level moves."""
     from node.training.dataset import fill_gaps

@@ -94,7 +94,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _channels(arg: str | None) -> tuple[str, ...] | None:
-    from node.mcap.recording import SENSOR_CHANNELS
+    from node.contract import SENSOR_CHANNELS
 
     if arg is None:
         return None

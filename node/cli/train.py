@@ -97,9 +97,9 @@ def print_ranking(results, top: int = 6, file=None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
-    from node.models.bundle import Bundle, save_bundle, sha256_file
     from node.contract.schedule import load_schedule
+    from node.models.bundle import Bundle, save_bundle, sha256_file
+    from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.training.train import DEFAULT_GRIDS, HISTORY_S, Method, fleet_curve, train
 
     if args.n_inputs < 1:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import sys
 import time
 from typing import TYPE_CHECKING, Any
@@ -22,19 +21,26 @@ import numpy as np
 import orjson
 
 from node.cli.paths import check_output_file
-from node.contract.errors import OrdervibError
+from node.contract import (
+    OrdervibError,
+    TopicKind,
+    bed_of,
+    health_key,
+    monitor_key,
+    oc_key,
+    parse_monitor_key,
+    sensor_key,
+    topic_kind,
+)
 
 if TYPE_CHECKING:
-    from node.mcap.recording import ReadStats
     from node.contract.schedule import Schedule
+    from node.mcap.recording import ReadStats
     from replay.rerun_view import Health, MonitorColumns, OcSwitches, Series, ViewData
 
 NAME = "view"
 HELP = "show a recording in the Rerun viewer, or save the Rerun file (--save OUT.rrd)"
 
-_MONITOR_RE = re.compile(r"^testbed/([^/]+)/monitor/([^/]+)$")
-_TOPIC_BED_RE = re.compile(r"^testbed/([^/]+)/")
-_RESERVED = ("oc", "health")  # monitor topics that are not targets
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -175,8 +181,9 @@ def switches_from_schedule(speed: Series, schedule: Schedule) -> OcSwitches:
 
     A fresh detector per run (gaps >= 60 s); one switch per change of (oc, phase).
     """
+    from node.contract import RUN_GAP
     from node.runtime.ocdetect import OCDetector
-    from replay.rerun_view import RUN_GAP, OcSwitches
+    from replay.rerun_view import OcSwitches
 
     names = np.array([""] + list(schedule.names), dtype=str)
     phases = np.array(["off", "transition", "steady"], dtype=str)
@@ -197,7 +204,7 @@ def switches_from_schedule(speed: Series, schedule: Schedule) -> OcSwitches:
 
 
 def _pick_bed(topics: list[str], bed: str | None) -> str:
-    beds = sorted({m.group(1) for tp in topics if (m := _TOPIC_BED_RE.match(tp))})
+    beds = sorted({b for tp in topics if (b := bed_of(tp))})
     if not beds:
         raise OrdervibError("no testbed/<bed>/... topic in the recording")
     if bed is None:
@@ -211,9 +218,10 @@ def _pick_bed(topics: list[str], bed: str | None) -> str:
 
 def _pick_target(topics: list[str], bed: str, target: str | None) -> str:
     monitored = sorted(
-        m.group(2)
+        name
         for tp in topics
-        if (m := _MONITOR_RE.match(tp)) and m.group(1) == bed and m.group(2) not in _RESERVED
+        if topic_kind(tp) is TopicKind.MONITOR and (parsed := parse_monitor_key(tp)) and parsed[0] == bed
+        for name in parsed[1:]
     )
     if target is not None:
         return target
@@ -246,25 +254,25 @@ def load_view_data(args: argparse.Namespace) -> tuple[ViewData, str, ReadStats]:
     target = _pick_target(topics, bed, args.target)
     schedule = _schedule_for(args)
     switch = args.switch or (schedule.switch if schedule is not None else "nB")
-    key = f"testbed/{bed}/sensor/{switch}"
+    key = sensor_key(bed, switch)
     if key not in by_topic:
         raise OrdervibError(f"no {switch} speed in the recording (topic {key})")
     speed = series_of(by_topic[key])
     if not len(speed.t):
         raise OrdervibError(f"no valid {switch} sample in the recording (topic {key})")
-    mkey = f"testbed/{bed}/sensor/{target}"
+    mkey = sensor_key(bed, target)
     measured = series_of(by_topic[mkey]) if mkey in by_topic else None
     data = ViewData(bed=bed, switch=switch, target=target, speed=speed, measured=measured)
-    mon = f"testbed/{bed}/monitor/"
-    if mon + target in by_topic:
-        data.monitor = monitor_of(by_topic[mon + target])
+    tkey, hkey, okey = monitor_key(bed, target), health_key(bed), oc_key(bed)
+    if tkey in by_topic:
+        data.monitor = monitor_of(by_topic[tkey])
     if measured is None and data.monitor is None:
-        raise OrdervibError(f"no {target} in the recording (neither {mkey} nor {mon + target})")
-    if mon + "health" in by_topic:
-        data.health = health_of(by_topic[mon + "health"])
+        raise OrdervibError(f"no {target} in the recording (neither {mkey} nor {tkey})")
+    if hkey in by_topic:
+        data.health = health_of(by_topic[hkey])
     source = "none"
-    if mon + "oc" in by_topic:
-        data.switches = switches_of(by_topic[mon + "oc"])
+    if okey in by_topic:
+        data.switches = switches_of(by_topic[okey])
         source = "monitor/oc"
     elif schedule is not None:
         data.switches = switches_from_schedule(speed, schedule)

@@ -1,0 +1,51 @@
+"""The contract with test beds, recordings and outside tools (``INTERFACE.md``), in one place.
+
+Imports nothing else from the project. Keys and channels (``keys``), the sensor
+payload rule (``payload``), the published messages and their JSON Schemas
+(``messages``), the pass-off schedule file (``schedule``) and the one-line error
+every command ends with (``errors``).
+"""
+
+from node.contract.errors import OrdervibError
+from node.contract.keys import (
+    FS,
+    OFF_FRACTION,
+    ORDER_CHANNELS,
+    PHASE_CHANNELS,
+    RUN_GAP,
+    SENSOR_CHANNELS,
+    SENSOR_SUBSCRIPTION,
+    SPEED_CHANNELS,
+    TopicKind,
+    bed_of,
+    health_key,
+    is_monitor_key,
+    liveliness_key,
+    monitor_key,
+    oc_key,
+    parse_monitor_key,
+    parse_sensor_key,
+    sensor_key,
+    topic_kind,
+)
+from node.contract.messages import (
+    Flag,
+    HealthMessage,
+    MonitorMessage,
+    OCMessage,
+    Phase,
+    Reason,
+    SensorSample,
+    json_schema,
+)
+from node.contract.payload import check_sample, decode_sample, decode_samples, log_time_ns
+from node.contract.schedule import OperatingCondition, Schedule, load_schedule
+
+__all__ = [
+    "FS", "OFF_FRACTION", "ORDER_CHANNELS", "PHASE_CHANNELS", "RUN_GAP", "SENSOR_CHANNELS",
+    "SENSOR_SUBSCRIPTION", "SPEED_CHANNELS", "TopicKind", "bed_of", "health_key", "is_monitor_key",
+    "liveliness_key", "monitor_key", "oc_key", "parse_monitor_key", "parse_sensor_key", "sensor_key",
+    "topic_kind", "Flag", "HealthMessage", "MonitorMessage", "OCMessage", "Phase", "Reason",
+    "SensorSample", "json_schema", "check_sample", "decode_sample", "decode_samples", "log_time_ns",
+    "OrdervibError", "OperatingCondition", "Schedule", "load_schedule",
+]

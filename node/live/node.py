@@ -18,13 +18,12 @@ from dataclasses import dataclass
 
 import orjson
 
-from node.models.bundle import Bundle
-from node.runtime.core import NodeCore
-from node.contract.errors import OrdervibError
+from node.contract import SENSOR_SUBSCRIPTION, OrdervibError, health_key, liveliness_key
 from node.mcap.recording import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
+from node.models.bundle import Bundle
+from node.runtime.core import NodeCore
 
-SENSOR_KEYS = "testbed/*/sensor/**"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 CLOSE_GRACE_S = 1.0  # publisher: wait before closing the session, s
 
@@ -105,8 +104,8 @@ class LiveNode:
         import zenoh
         self.session = open_session(self.conf)
         self._zenoh = zenoh
-        self.token = self.session.liveliness().declare_token(f"ordervib/node/{self.session.zid()}")
-        self.sub = self.session.declare_subscriber(SENSOR_KEYS, self._on_sample)
+        self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
+        self.sub = self.session.declare_subscriber(SENSOR_SUBSCRIPTION, self._on_sample)
         self.thread = threading.Thread(target=self._work, name="ordervib-node", daemon=True)
         self.thread.start()
 
@@ -154,7 +153,7 @@ class LiveNode:
                  "lag_ms_p99": lag[int(0.99 * (len(lag) - 1))] if lag else None}
         self._lag = self._lag[-4000:]
         for bed in list(self.core.stats.beds):
-            self._publish(f"testbed/{bed}/monitor/health", self.core.health(bed, now, extra))
+            self._publish(health_key(bed), self.core.health(bed, now, extra))
         self.writer.flush()
 
     def stop(self) -> None:
@@ -195,7 +194,8 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
 
     Connects to ``connect``, else to the endpoints of ``config_file``, else to DEFAULT_ENDPOINT.
     """
-    from node.mcap.recording import iter_messages, parse_sensor_key
+    from node.contract import parse_sensor_key
+    from node.mcap.recording import iter_messages
     if connect:
         endpoints = [connect]
     else:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import struct
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -25,55 +24,28 @@ import orjson
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader
 
-from node.contract.errors import OrdervibError
+from node.contract import (
+    FS,
+    OFF_FRACTION,
+    RUN_GAP,
+    SENSOR_CHANNELS,
+    SPEED_CHANNELS,
+    OrdervibError,
+    TopicKind,
+    json_schema,
+    log_time_ns,
+    parse_sensor_key,
+    topic_kind,
+)
 from node.mcap.fast import FastMcapWriter
 
-# Contract section 1, in table order.
-SENSOR_CHANNELS: tuple[str, ...] = (
-    "nA", "nB", "nC",
-    "yA", "yB", "yC",
-    "tA", "tB", "tC", "tD", "tE", "tF", "tG", "tH", "tI",
-    "pA", "pB", "pC", "pD",
-    "M1", "M2",
-)  # fmt: skip
-SPEED_CHANNELS: tuple[str, ...] = ("nA", "nB", "nC")
-FS = 40.0  # nominal sample rate per channel, Hz
-RUN_GAP = 60.0  # a gap this long (s) separates two runs (contract section 3)
-OFF_FRACTION = 0.05  # engine off: every shaft speed below 5 % of its maximum
 MIN_RUN = 10.0  # shorter stretches of "engine on" are not runs (noise), s
 
 MAGIC = b"\x89MCAP0\r\n"
 LIBRARY = "ordervib"
-_SENSOR_RE = re.compile(r"^testbed/([^/]+)/sensor/([^/]+)$")
-
-SENSOR_SCHEMA = orjson.dumps(
-    {
-        "title": "ordervib sensor sample",
-        "type": "object",
-        "properties": {
-            "t": {"type": "number", "description": "acquisition time, s since the Unix epoch"},
-            "v": {"type": ["number", "null"], "description": "value; null for a dropout"},
-        },
-        "required": ["t", "v"],
-    }
-)
-OBJECT_SCHEMA = orjson.dumps({"title": "ordervib message", "type": "object"})
-
-
-def sensor_key(bed: str, channel: str) -> str:
-    """Key expression (and MCAP topic) of a sensor channel."""
-    return f"testbed/{bed}/sensor/{channel}"
-
-
-def parse_sensor_key(key: str) -> tuple[str, str] | None:
-    """(bed, channel) of a sensor key expression, or None for any other key."""
-    m = _SENSOR_RE.match(key)
-    return (m.group(1), m.group(2)) if m else None
-
-
-def log_time_ns(t: float) -> int:
-    """The contract's log_time: the sample time t (s) in integer nanoseconds."""
-    return round(t * 1e9)
+# one JSON Schema per topic kind (contract section 2), registered once per recording
+SCHEMAS: dict[TopicKind, bytes] = {kind: orjson.dumps(json_schema(kind)) for kind in TopicKind}
+SCHEMA_NAMES: dict[TopicKind, str] = {kind: f"ordervib.{kind.value}" for kind in TopicKind}
 
 
 class RecordingWriter:
@@ -107,7 +79,7 @@ class RecordingWriter:
         self._writer = FastMcapWriter(stream, chunk_size=chunk_size, compression=compression,
                                       message_index=message_index, library=LIBRARY,
                                       background=background)
-        self._schemas: dict[bytes, int] = {}
+        self._schemas: dict[TopicKind, int] = {}
         self._channels: dict[str, int] = {}
         self._closed = False
         self.count = 0
@@ -122,12 +94,11 @@ class RecordingWriter:
         """The MCAP channel of a key expression, registering schema and channel once."""
         cid = self._channels.get(key)
         if cid is None:
-            schema = SENSOR_SCHEMA if parse_sensor_key(key) else OBJECT_SCHEMA
-            sid = self._schemas.get(schema)
+            kind = topic_kind(key)
+            sid = self._schemas.get(kind)
             if sid is None:
-                name = "ordervib.Sensor" if schema is SENSOR_SCHEMA else "ordervib.Message"
-                sid = self._writer.register_schema(name, "jsonschema", schema)
-                self._schemas[schema] = sid
+                sid = self._writer.register_schema(SCHEMA_NAMES[kind], "jsonschema", SCHEMAS[kind])
+                self._schemas[kind] = sid
             cid = self._writer.register_channel(key, "json", sid)
             self._channels[key] = cid
         return cid
@@ -140,7 +111,7 @@ class RecordingWriter:
             raise OrdervibError("recording already closed")
         data = payload if isinstance(payload, bytes) else orjson.dumps(payload)
         cid = self._channels.get(key) or self.channel_id(key)
-        self._writer.add(cid, round(t * 1e9), int(publish_time_ns), data)
+        self._writer.add(cid, log_time_ns(t), int(publish_time_ns), data)
         self.count += 1
 
     def write_ns(self, key: str, log_time_ns: int, data: bytes, publish_time_ns: int) -> None:

@@ -17,10 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from node import __version__
+from node.contract import FS
 from node.contract.errors import OrdervibError
+from node.contract.schedule import Schedule
 from node.models.ocmodel import OCModel
 from node.runtime.runcurve import RUN_CURVE
-from node.contract.schedule import Schedule
 from node.training.train import Calibration, OCResult
 
 FORMAT = "ordervib-model"
@@ -99,7 +100,7 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike) -> Path:
     (out / ARRAYS).write_bytes(data)
     manifest = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "created_by": f"ordervib {__version__}",
-        "method": bundle.method, "target": bundle.target, "sample_rate_hz": 40.0,
+        "method": bundle.method, "target": bundle.target, "sample_rate_hz": FS,
         "history_s": bundle.history_s, "schedule": bundle.schedule.to_dict(),
         "training": bundle.training, "checks": bundle.checks, "ocs": [_manifest_oc(r) for r in bundle.ocs],
         "arrays_sha256": hashlib.sha256(data).hexdigest(),

@@ -18,9 +18,8 @@ from enum import StrEnum
 
 import numpy as np
 
+from node.contract import FS
 from node.sysid import WDMD, DelayDMD, LinearDMD, StateSpace
-
-FS = 40.0
 
 
 class Method(StrEnum):

@@ -35,6 +35,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from node.contract import FS, Flag, Phase
+
 FALSE_ALARMS_PER_HOUR = 0.5  # false-alarm budget on normal runs per hour (residual + step rules)
 RESIDUAL_CLEAR_S = 5.0  # a residual alarm clears after this long back under its threshold, s
 THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
@@ -121,7 +123,7 @@ class StepCheck:
     values hold the last one.
     """
 
-    def __init__(self, threshold: float = math.inf, fs: float = 40.0) -> None:
+    def __init__(self, threshold: float = math.inf, fs: float = FS) -> None:
         self.threshold = threshold
         self.n_settle = int(round(STEP_SETTLE_S * fs))
         self.n_short = max(1, int(round(STEP_SHORT_S * fs)))
@@ -225,7 +227,7 @@ class FlatlineCheck:
 
 
 def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALSE_ALARMS_PER_HOUR,
-                     fs: float = 40.0) -> dict:
+                     fs: float = FS) -> dict:
     """The model-free checks' limits from training runs (objects with ``column(name)`` (K,)).
 
     Steps the very ``StepCheck`` and OC detector the node runs over every run: the peak
@@ -242,14 +244,14 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     for run in runs:
         speed, y = run.column(schedule.switch), run.column(target)
         det.reset()
-        phase = det.label(speed)[1]  # codes: 0 off, 1 transition, 2 steady
-        running = phase != 0
+        phase = det.label(speed)[1]  # Phase codes
+        running = phase != Phase.OFF.code
         running_s += float(running.sum()) / fs
         longest = max(longest, longest_repeat(y, running))
         chk, peak = StepCheck(math.inf, fs), None
         full = chk.n_settle + chk.n_short + chk.n_long  # samples before the statistic exists
         n_steady = 0
-        for v, steady in zip(y.tolist(), (phase == 2).tolist()):
+        for v, steady in zip(y.tolist(), (phase == Phase.STEADY.code).tolist()):
             z = chk.step(v, steady)
             if steady:
                 n_steady += 1
@@ -283,7 +285,7 @@ class EpisodeLog:
         self._open: dict[str, dict] = {}
 
     def add(self, key: str, msg: dict) -> None:
-        if msg.get("flag") != "alarm":
+        if msg.get("flag") != Flag.ALARM:
             return
         t = float(msg["t"])
         ep = self._open.get(key)

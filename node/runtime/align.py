@@ -19,8 +19,8 @@ from itertools import compress, repeat
 
 import numpy as np
 
-FS = 40.0
-RUN_GAP = 60.0  # s without data: a new run (contract section 3)
+from node.contract import FS, RUN_GAP
+
 _NAN = float("nan")
 
 

@@ -15,11 +15,11 @@ from operator import itemgetter
 
 import orjson
 
+from node.contract import Flag, monitor_key, oc_key, parse_sensor_key
+from node.models.bundle import Bundle
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import Aligner
-from node.models.bundle import Bundle
 from node.runtime.pipeline import MonitorPipeline
-from node.mcap.recording import parse_sensor_key
 
 
 @dataclass
@@ -198,9 +198,9 @@ class NodeCore:
         for s in samples:
             msg, oc_msg = st.pipeline.step(s)
             if oc_msg is not None:
-                out.append((f"testbed/{bed}/monitor/oc", oc_msg))
-            key = f"testbed/{bed}/monitor/{target}"
-            if msg["flag"] == "alarm":
+                out.append((oc_key(bed), oc_msg))
+            key = monitor_key(bed, target)
+            if msg["flag"] == Flag.ALARM:
                 st.alarms += 1
                 self.stats.alarm_log.add(key, msg)
             out.append((key, msg))

@@ -24,18 +24,12 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from enum import StrEnum
 from typing import NamedTuple
 
 import numpy as np
 
+from node.contract import FS, Phase
 from node.contract.schedule import Schedule
-
-
-class Phase(StrEnum):
-    TRANSITION = "transition"
-    STEADY = "steady"
-    OFF = "off"
 
 
 class OCState(NamedTuple):
@@ -88,7 +82,7 @@ class OCDetector:
         off_fraction: below this fraction of the highest plateau the engine is off.
     """
 
-    def __init__(self, schedule: Schedule, fs: float = 40.0, smooth_s: float = 0.25,
+    def __init__(self, schedule: Schedule, fs: float = FS, smooth_s: float = 0.25,
                  confirm_s: float = 1.0, depart_s: float = 0.25, settle_s: float = 5.0,
                  off_fraction: float = 0.05) -> None:
         self.schedule = schedule
@@ -226,11 +220,10 @@ class OCDetector:
 
         Phase codes: 0 off, 1 transition, 2 steady. Continues from the current state.
         """
-        codes = {Phase.OFF: 0, Phase.TRANSITION: 1, Phase.STEADY: 2}
         oc = np.empty(len(speed), dtype=np.int64)
         ph = np.empty(len(speed), dtype=np.int8)
         for k, v in enumerate(np.asarray(speed, dtype=float)):
             st = self.step(v)
             oc[k] = -1 if st.oc is None else st.oc
-            ph[k] = codes[st.phase]
+            ph[k] = st.phase.code
         return oc, ph

@@ -20,14 +20,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.contract import FS, Flag, Phase, Reason
+from node.models.bundle import Bundle
+from node.models.ocmodel import OCRuntime
 from node.runtime.alarms import RESIDUAL_CLEAR_S, FlatlineCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
-from node.models.bundle import Bundle
-from node.runtime.ocdetect import OCDetector, Phase
-from node.models.ocmodel import OCRuntime
+from node.runtime.ocdetect import OCDetector
 from node.runtime.runcurve import RUN_CURVE, RunCurve
 
-FS = 40.0
 CLEAR_SAMPLES = int(RESIDUAL_CLEAR_S * FS)
 
 
@@ -147,7 +147,7 @@ class MonitorPipeline:
             self._state = (st.oc, st.phase)
         measured = sample.values.get(self.target, float("nan"))
         msg = {"t": sample.t, "oc": None if st.oc is None else names[st.oc], "phase": st.phase.value,
-               "measured": _num(measured), "predicted": None, "residual": None, "flag": "no-model",
+               "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
                "score": None, "band": None, "model": None, "reason": None,
                "run_scale": None}
         a = self._active
@@ -177,14 +177,14 @@ class MonitorPipeline:
                     msg["residual"] = r
                 msg["score"] = self._score
                 if self._raised:
-                    msg["flag"], msg["reason"] = "alarm", "residual"
+                    msg["flag"], msg["reason"] = Flag.ALARM, Reason.RESIDUAL
                 else:
-                    msg["flag"] = "ok"
+                    msg["flag"] = Flag.OK
         if self._jump is not None:
             self._jump.step(measured, st.phase is Phase.STEADY)
             if self._jump.flagged:
-                msg["flag"], msg["reason"] = "alarm", "step"
+                msg["flag"], msg["reason"] = Flag.ALARM, Reason.STEP
         if self._flat is not None and self._flat.step(measured, st.phase is not Phase.OFF):
-            msg["flag"], msg["reason"] = "alarm", "flatline"
+            msg["flag"], msg["reason"] = Flag.ALARM, Reason.FLATLINE
         self._hist.append(tuple(vals.values()))
         return msg, oc_msg

@@ -12,10 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.contract import Phase
 from node.contract.errors import OrdervibError
-from node.runtime.ocdetect import OCDetector
-from node.mcap.recording import Run
 from node.contract.schedule import Schedule
+from node.mcap.recording import Run
+from node.runtime.ocdetect import OCDetector
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ def segment_runs(runs: list[Run], schedule: Schedule, min_samples: int = 40) -> 
             while j < K and oc[j] == oc[k]:
                 j += 1
             if oc[k] >= 0 and j - k >= min_samples:
-                steady = np.flatnonzero(ph[k:j] == 2)
+                steady = np.flatnonzero(ph[k:j] == Phase.STEADY.code)
                 segs.append(Segment(r, int(oc[k]), k, j, k + int(steady[0]) if steady.size else j))
             k = j
     return segs

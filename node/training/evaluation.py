@@ -7,13 +7,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.models.baseline import CharacteristicCurve
-from node.training.dataset import run_arrays, segment_runs
 from node.contract.errors import OrdervibError
-from node.models.ocmodel import Trajectory
-from node.mcap.recording import Run
-from node.runtime.runcurve import RUN_CURVE, add_run_curve
 from node.contract.schedule import Schedule
+from node.mcap.recording import Run
+from node.models.baseline import CharacteristicCurve
+from node.models.ocmodel import Trajectory
+from node.runtime.runcurve import RUN_CURVE, add_run_curve
+from node.training.dataset import run_arrays, segment_runs
 from node.training.train import FS, HISTORY_S, OCResult, ewma_scores, pooled_eps
 
 

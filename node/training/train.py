@@ -16,20 +16,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds
-from node.models.baseline import CharacteristicCurve
-from node.training.dataset import Segment, run_arrays, segment_runs
+from node.contract import FS
 from node.contract.errors import OrdervibError
-from node.training.features import rank_inputs
-from node.models.ocmodel import Method, OCModel, Trajectory, fit_oc_model, memory
-from node.mcap.recording import Run
-from node.runtime.runcurve import add_run_curve
 from node.contract.schedule import Schedule
+from node.mcap.recording import Run
+from node.models.baseline import CharacteristicCurve
+from node.models.ocmodel import Method, OCModel, Trajectory, fit_oc_model, memory
+from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds
+from node.runtime.runcurve import add_run_curve
+from node.training.dataset import Segment, run_arrays, segment_runs
+from node.training.features import rank_inputs
 
 HISTORY_S = 60.0  # seconds of measured past kept before each OC for seeding
 EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
 PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
-FS = 40.0
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
     Method.WDMD: {"levels": [1, 2, 3, 4, 5], "rcond": [1e-8]},

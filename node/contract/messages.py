@@ -1,0 +1,159 @@
+"""The messages of ``INTERFACE.md`` section 2 as typed objects, and their JSON Schemas.
+
+Each message kind is a ``TypedDict`` (a plain dict at run time: no cost on the
+per-sample path), annotated with its fields' meanings; ``json_schema`` derives the
+JSON Schema that recordings carry for that topic kind, so the schema and the
+type cannot drift apart.
+
+>>> Flag.ALARM == "alarm", Phase.STEADY.code
+(True, 2)
+>>> schema = json_schema(TopicKind.OC)
+>>> schema["required"]
+['t', 'oc', 'phase', 'previous']
+"""
+
+from __future__ import annotations
+
+import types
+from enum import StrEnum
+from typing import Annotated, Any, NotRequired, TypedDict, Union, get_args, get_origin, get_type_hints
+
+from node.contract.keys import TopicKind
+
+
+class Flag(StrEnum):
+    """A monitor message's ``flag``."""
+
+    OK = "ok"
+    ALARM = "alarm"
+    NO_MODEL = "no-model"
+
+
+class Reason(StrEnum):
+    """The rule that raised an alarm (a monitor message's ``reason``)."""
+
+    RESIDUAL = "residual"
+    STEP = "step"
+    FLATLINE = "flatline"
+
+
+class Phase(StrEnum):
+    """Where in an OC the engine is; ``code`` numbers the phases in label arrays."""
+
+    OFF = "off"
+    TRANSITION = "transition"
+    STEADY = "steady"
+
+    @property
+    def code(self) -> int:
+        """0 off, 1 transition, 2 steady (phase labels over a whole run, as integers)."""
+        return _PHASE_CODES[self]
+
+    @classmethod
+    def from_code(cls, code: int) -> Phase:
+        return _PHASES[code]
+
+
+_PHASES = (Phase.OFF, Phase.TRANSITION, Phase.STEADY)
+_PHASE_CODES = {p: i for i, p in enumerate(_PHASES)}
+
+
+class SensorSample(TypedDict):
+    """``testbed/<bed>/sensor/<channel>``: one sample of one channel."""
+
+    t: Annotated[float, "acquisition time, s since the Unix epoch"]
+    v: Annotated[float | None, "value; null for a dropout"]
+
+
+class MonitorMessage(TypedDict):
+    """``testbed/<bed>/monitor/<target>``: one aligned sample of the modelled channel."""
+
+    t: Annotated[float, "time of the sample, s (the sensor clock)"]
+    oc: Annotated[str | None, "the operating condition in force, null outside any"]
+    phase: Annotated[Phase, "where in the OC the engine is"]
+    measured: Annotated[float | None, "measured value of the target"]
+    predicted: Annotated[float | None, "the model's prediction of the target"]
+    residual: Annotated[float | None, "measured - predicted"]
+    flag: Annotated[Flag, "ok, alarm, or no-model"]
+    score: NotRequired[Annotated[float | None, "smoothed standardized residual, sigma units"]]
+    band: NotRequired[Annotated[float | None, "the residual rule's alarm half-width around predicted"]]
+    model: NotRequired[Annotated[str | None, "the model in force, method:OC"]]
+    reason: NotRequired[Annotated[Reason | None, "the rule that raised the alarm"]]
+    run_scale: NotRequired[Annotated[float | None, "how unusual this run has been so far (>= 1)"]]
+
+
+class OCMessage(TypedDict):
+    """``testbed/<bed>/monitor/oc``: one message at each OC or phase switch."""
+
+    t: Annotated[float, "time of the switch, s (the sensor clock)"]
+    oc: Annotated[str | None, "the OC now in force, null outside any"]
+    phase: Annotated[Phase, "the phase now"]
+    previous: Annotated[str | None, "the OC in force before"]
+
+
+class HealthMessage(TypedDict):
+    """``testbed/<bed>/monitor/health``: about once a second, that bed's own counters."""
+
+    t: Annotated[float, "the latest sensor time seen from this bed, s"]
+    wall: Annotated[float, "the node's clock, s since the Unix epoch"]
+    received: Annotated[int, "sensor messages received from this bed"]
+    malformed: Annotated[int, "of them, payloads that break the sensor payload rule"]
+    dropped: Annotated[int, "messages lost in the node's queue (node-wide, shared by every bed)"]
+    samples: Annotated[int, "aligned 40 Hz samples"]
+    late: Annotated[int, "messages that arrived after their sample went out"]
+    duplicates: Annotated[int, "messages repeating a channel's sample"]
+    missing: Annotated[dict[str, int], "samples each expected channel was absent from"]
+    alarm_samples: Annotated[int, "monitor samples flagged alarm"]
+    lag_ms_p50: NotRequired[Annotated[float | None, "receive to publish, ms, median of the last ones"]]
+    lag_ms_p99: NotRequired[Annotated[float | None, "receive to publish, ms, 99th percentile"]]
+    staleness: NotRequired[Annotated[float | None, "wall minus the receipt of the bed's last message, s"]]
+
+
+MESSAGE_TYPES: dict[TopicKind, type] = {
+    TopicKind.SENSOR: SensorSample, TopicKind.MONITOR: MonitorMessage,
+    TopicKind.OC: OCMessage, TopicKind.HEALTH: HealthMessage,
+}
+
+
+def _type_schema(tp: Any) -> dict[str, Any]:
+    """The JSON Schema of one annotation (float, int, str, None, enums, unions, dict[str, x])."""
+    origin = get_origin(tp)
+    if origin is Annotated:
+        inner, *meta = get_args(tp)
+        return {**_type_schema(inner), **({"description": str(meta[0])} if meta else {})}
+    if origin in (Union, types.UnionType):
+        parts = [_type_schema(a) for a in get_args(tp)]
+        out: dict[str, Any] = {"type": [p["type"] for p in parts]}
+        enums = [p["enum"] for p in parts if "enum" in p]
+        if enums:  # an enumerated string or null: list the values, null among them
+            out["enum"] = [v for e in enums for v in e] + ([None] if "null" in out["type"] else [])
+        return out
+    if origin is dict:
+        return {"type": "object", "additionalProperties": _type_schema(get_args(tp)[1])}
+    if isinstance(tp, type) and issubclass(tp, StrEnum):
+        return {"type": "string", "enum": [m.value for m in tp]}
+    simple = {float: "number", int: "integer", str: "string", bool: "boolean", type(None): "null"}
+    if tp in simple:
+        return {"type": simple[tp]}
+    raise TypeError(f"no JSON Schema for {tp!r}")
+
+
+def json_schema(kind: TopicKind) -> dict[str, Any]:
+    """The JSON Schema of a topic kind's messages (``"type": "object"``, properties, required).
+
+    Enumerated fields list their values; a null where the schema allows one is listed
+    as such. ``TopicKind.OTHER`` gets a bare object schema.
+    """
+    cls = MESSAGE_TYPES.get(kind)
+    if cls is None:
+        return {"title": "ordervib message", "type": "object"}
+    hints = get_type_hints(cls, include_extras=True)
+    props, required = {}, []
+    for name, tp in hints.items():
+        if get_origin(tp) is NotRequired:
+            tp = get_args(tp)[0]
+        else:
+            required.append(name)
+        props[name] = _type_schema(tp)
+    return {"title": f"ordervib {kind.value} message", "description": (cls.__doc__ or "").strip(),
+            "type": "object", "properties": props, "required": required}
