@@ -92,7 +92,7 @@ def test_pipeline_flags_a_stuck_target_without_a_model():
     from node.runtime.core import NodeCore
 
     sched = Schedule((OperatingCondition("A", 4000.0),))
-    core = NodeCore(Bundle("wdmd", "yB", sched, [], 60.0, checks={"flatline_samples": 80}))
+    core = NodeCore(Bundle("wdmd", "yB", sched, [], checks={"flatline_samples": 80}))
     rng = np.random.default_rng(3)
     out = []
     for k in range(400):
@@ -209,7 +209,7 @@ def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
     calib = Calibration(sigma=0.1, threshold=3.0, ewma_alpha=1.0, persist=40)  # no smoothing: score = z
     sched = Schedule((OperatingCondition("A", 4000.0),))
     res = OCResult("A", model, ["nB"], {}, 8, 0.1, 0.1, calib)
-    core = NodeCore(Bundle("lasso", "yB", sched, [res], 60.0))
+    core = NodeCore(Bundle("lasso", "yB", sched, [res]))
     # 10 s normal, 2 s at +5 sigma, 3 s normal, 1 s at +5 sigma, 10 s normal
     level = [2.0] * 400 + [2.5] * 80 + [2.0] * 120 + [2.5] * 40 + [2.0] * 400
     out = []

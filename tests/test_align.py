@@ -81,7 +81,7 @@ def test_malformed_payloads_are_counted_and_skipped(tmp_path):
     from node.models.bundle import Bundle
     from node.runtime.core import NodeCore
     sched = Schedule((OperatingCondition("A", 4000.0),))
-    core = NodeCore(Bundle("wdmd", "yB", sched, [], 60.0))
+    core = NodeCore(Bundle("wdmd", "yB", sched, []))
     bad = [b"{", b"[1,2]", b'{"t": "x", "v": 1}', b'{"t": 1.0}', b'{"t": NaN, "v": 1}', b"\xff"]
     for p in bad:
         assert core.handle("testbed/b/sensor/nB", p) == []

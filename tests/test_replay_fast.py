@@ -145,7 +145,7 @@ def _one_and_many(bundle: Bundle, msgs: list[tuple[str, bytes]], batch: int
 
 def test_handle_many_equals_handle_one_by_one() -> None:
     sched = Schedule((OperatingCondition("A", 4000.0),))
-    bundle = Bundle("wdmd", "yB", sched, [], 60.0)
+    bundle = Bundle("wdmd", "yB", sched, [])
     msgs: list[tuple[str, bytes]] = []
     for i, (c, t, v) in enumerate(_stream(7, 1500)):
         key = f"testbed/{'b1' if i % 5 else 'b2'}/sensor/{ {'a': 'nB', 'b': 'yB'}.get(c, c)}"
@@ -175,7 +175,7 @@ def test_handle_many_of_clean_single_bed_batches_equals_handle() -> None:
     """The common batch (one bed, every payload well formed) takes the columnar path; a few
     batches with a malformed payload or an integer time take the message by message one."""
     sched = Schedule((OperatingCondition("A", 4000.0),))
-    bundle = Bundle("wdmd", "yB", sched, [], 60.0)
+    bundle = Bundle("wdmd", "yB", sched, [])
     names = {"a": "nB", "b": "yB", "c": "tA", "x": "zz"}  # tA and zz: not needed by the model
     msgs = [(f"testbed/b1/sensor/{names[c]}", orjson.dumps({"t": t, "v": v}))
             for c, t, v in _stream(11, 3000)]

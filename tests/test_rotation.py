@@ -130,7 +130,7 @@ def test_live_node_records_into_rotating_files(tmp_path: Path) -> None:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
-    bundle = Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), [], 60.0)
+    bundle = Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), [])
     rec = RotatingRecorder(tmp_path / "node.mcap", max_mb=0.1, chunk_size=1 << 15)
     node = LiveNode(bundle, rec, listen=[endpoint])
     node.start()

@@ -54,7 +54,7 @@ def test_the_node_computes_the_very_feature_training_saw():
     model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([0.0]), np.array([1.0]),
                     coef=np.array([1.0]), intercept=0.0)
     ocs = [OCResult(n, model, [RUN_CURVE], {}, 8, 0.1, 0.1, Calibration(1.0, 1e9)) for n in ("A", "B")]
-    core = NodeCore(Bundle("lasso", "yB", sched, ocs, 60.0, curve=FLEET))
+    core = NodeCore(Bundle("lasso", "yB", sched, ocs, curve=FLEET))
     t, nb, yb = _profile()
     out = []
     for k in range(t.size):
@@ -86,8 +86,8 @@ def test_a_bundle_taking_run_curve_without_a_fleet_curve_is_refused(tmp_path):
     model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([0.0]), np.array([1.0]),
                     coef=np.array([1.0]), intercept=0.0)
     res = OCResult("A", model, [RUN_CURVE], {}, 8, 0.1, 0.1, Calibration(1.0, 5.0))
-    save_bundle(Bundle("lasso", "yB", sched, [res], 60.0, curve=FLEET), tmp_path / "ok")
+    save_bundle(Bundle("lasso", "yB", sched, [res], curve=FLEET), tmp_path / "ok")
     assert load_bundle(tmp_path / "ok").oc("A").inputs == [RUN_CURVE]
-    save_bundle(Bundle("lasso", "yB", sched, [res], 60.0), tmp_path / "bad")
+    save_bundle(Bundle("lasso", "yB", sched, [res]), tmp_path / "bad")
     with pytest.raises(OrdervibError, match="malformed bundle.*characteristic curve"):
         load_bundle(tmp_path / "bad")

@@ -35,7 +35,7 @@ def test_bundle_reload_gives_bit_identical_predictions(sim, tmp_path):
     for method, grid in (("wdmd", SMALL_GRID), ("lasso", {"alpha": [0.01, 0.1]})):
         results = train(runs, schedule, method=method, grid=grid, workers=1)
         assert any(r.model is not None for r in results)
-        save_bundle(Bundle(method, "yB", schedule, results, 60.0), tmp_path / method)
+        save_bundle(Bundle(method, "yB", schedule, results), tmp_path / method)
         loaded = load_bundle(tmp_path / method)
         assert loaded.schedule == schedule and loaded.method == method
         before = predict_segments(results, runs, schedule, "yB")
@@ -52,13 +52,13 @@ def test_bundle_reload_gives_bit_identical_predictions(sim, tmp_path):
 def test_corrupted_or_mismatched_bundle_is_refused(sim, tmp_path):
     runs, schedule = sim
     results = train(runs, schedule, method="lasso", grid={"alpha": [0.1]}, workers=1)
-    path = save_bundle(Bundle("lasso", "yB", schedule, results, 60.0), tmp_path / "m")
+    path = save_bundle(Bundle("lasso", "yB", schedule, results), tmp_path / "m")
     data = bytearray((path / "arrays.npz").read_bytes())
     data[len(data) // 2] ^= 0xFF
     (path / "arrays.npz").write_bytes(bytes(data))
     with pytest.raises(OrdervibError, match="hash"):
         load_bundle(path)
-    path = save_bundle(Bundle("lasso", "yB", schedule, results, 60.0), tmp_path / "v")
+    path = save_bundle(Bundle("lasso", "yB", schedule, results), tmp_path / "v")
     manifest = json.loads((path / "manifest.json").read_text())
     manifest["format_version"] = 99
     (path / "manifest.json").write_text(json.dumps(manifest))
@@ -70,7 +70,7 @@ def test_corrupted_or_mismatched_bundle_is_refused(sim, tmp_path):
     with pytest.raises(OrdervibError, match="not found"):
         load_bundle(tmp_path / "nothing")
     for bad in ({"step_threshold": "high"}, {"flatline_samples": -3}, {"run_scale_prior_ocs": True}, []):
-        path = save_bundle(Bundle("lasso", "yB", schedule, results, 60.0), tmp_path / "c")
+        path = save_bundle(Bundle("lasso", "yB", schedule, results), tmp_path / "c")
         manifest = json.loads((path / "manifest.json").read_text())
         manifest["checks"] = bad
         (path / "manifest.json").write_text(json.dumps(manifest))

@@ -99,6 +99,7 @@ def print_ranking(results, top: int = 6, file=None) -> None:
 def run(args: argparse.Namespace) -> int:
     from node.contract.schedule import load_schedule
     from node.models.bundle import Bundle, save_bundle, sha256_file
+    from node.models.config import RuntimeConfig
     from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.training.train import DEFAULT_GRIDS, HISTORY_S, Method, fleet_curve, train
 
@@ -144,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     checks = calibrate_checks(runs, schedule, args.target, per_rule)
     checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
-    bundle = Bundle(args.method, args.target, schedule, results, HISTORY_S, training,
+    bundle = Bundle(args.method, args.target, schedule, results, RuntimeConfig(history_s=HISTORY_S), training,
                     curve, checks)
     out = save_bundle(bundle, args.out)
     if inputs is None:

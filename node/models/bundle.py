@@ -20,12 +20,14 @@ from node import __version__
 from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
+from node.models.config import RuntimeConfig
 from node.models.ocmodel import OCModel
 from node.runtime.runcurve import RUN_CURVE
 from node.training.train import Calibration, OCResult
 
 FORMAT = "ordervib-model"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: the run-time settings are stored ("runtime"); 1 is read with the defaults
+READABLE_VERSIONS = (1, 2)
 MANIFEST = "manifest.json"
 ARRAYS = "arrays.npz"
 
@@ -46,10 +48,15 @@ class Bundle:
     target: str
     schedule: Schedule
     ocs: list[OCResult]
-    history_s: float
+    config: RuntimeConfig = field(default_factory=RuntimeConfig)
     training: dict = field(default_factory=dict)
     curve: tuple[np.ndarray, np.ndarray] | None = None  # characteristic curve (speeds, means)
     checks: dict = field(default_factory=dict)  # model-free checks, e.g. {"flatline_samples": 80}
+
+    @property
+    def history_s(self) -> float:
+        """Seconds of measured past kept to seed an OC's model (``config.history_s``)."""
+        return self.config.history_s
 
     def oc(self, name: str) -> OCResult | None:
         for r in self.ocs:
@@ -101,7 +108,7 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike) -> Path:
     manifest = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "created_by": f"ordervib {__version__}",
         "method": bundle.method, "target": bundle.target, "sample_rate_hz": FS,
-        "history_s": bundle.history_s, "schedule": bundle.schedule.to_dict(),
+        "runtime": bundle.config.to_dict(), "schedule": bundle.schedule.to_dict(),
         "training": bundle.training, "checks": bundle.checks, "ocs": [_manifest_oc(r) for r in bundle.ocs],
         "arrays_sha256": hashlib.sha256(data).hexdigest(),
     }
@@ -122,9 +129,10 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
         raise OrdervibError(f"{root / MANIFEST}: not valid JSON ({exc})") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise OrdervibError(f"{root}: not an ordervib model bundle")
-    if manifest.get("format_version") != FORMAT_VERSION:
-        raise OrdervibError(f"{root}: bundle format version {manifest.get('format_version')!r} "
-                            f"is not supported (this ordervib reads version {FORMAT_VERSION})")
+    version = manifest.get("format_version")
+    if version not in READABLE_VERSIONS:
+        raise OrdervibError(f"{root}: bundle format version {version!r} is not supported "
+                            f"(this ordervib reads versions {', '.join(map(str, READABLE_VERSIONS))})")
     try:
         data = (root / ARRAYS).read_bytes()
     except FileNotFoundError:
@@ -157,8 +165,12 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
             curve = (arrays["curve/speed"], arrays["curve/mean"])
         if curve is None and any(RUN_CURVE in r.inputs for r in ocs):
             raise ValueError(f"an OC takes {RUN_CURVE!r} but the bundle has no characteristic curve")
+        if version == 1:  # written before the settings were stored: the values of that code
+            config = RuntimeConfig(history_s=float(manifest["history_s"]))
+        else:
+            config = RuntimeConfig.from_dict(manifest["runtime"])
         return Bundle(manifest["method"], manifest["target"], schedule, ocs,
-                      float(manifest["history_s"]), manifest.get("training", {}), curve,
+                      config, manifest.get("training", {}), curve,
                       _checks(manifest.get("checks", {})))
     except (KeyError, TypeError, ValueError) as exc:
         raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
