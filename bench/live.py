@@ -115,7 +115,7 @@ class Bench:
     def __init__(self, endpoint: str, beds: list[str], channels: list[str], reply_keys: str) -> None:
         import zenoh
 
-        from node.live.node import open_session, zenoh_config
+        from node.live.zenoh import open_session, zenoh_config
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.beds = beds
         self.arrivals: list[tuple[str, bytes, int]] = []
@@ -197,7 +197,7 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
     import zenoh
 
     from node.contract import SENSOR_SUBSCRIPTION
-    from node.live.node import open_session, zenoh_config
+    from node.live.zenoh import open_session, zenoh_config
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
     pubs: dict[str, object] = {}
     counts: dict[tuple[str, int], int] = {}

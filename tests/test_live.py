@@ -49,8 +49,9 @@ def monitor(path: Path) -> list[tuple]:
 
 
 def test_live_node_equals_offline_replay_and_records_every_input(setup):
-    from node.live.node import LiveNode, publish_recording
+    from node.live.node import LiveNode
     from node.models.bundle import load_bundle
+    from replay.publish import publish_recording
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(setup / "node.mcap"), listen=[endpoint])
     node.start()
@@ -86,7 +87,8 @@ def test_sigterm_finishes_the_recording(setup, tmp_path):
 def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
     import orjson
 
-    from node.live.node import open_session, publish_recording, zenoh_config
+    from node.live.zenoh import open_session, zenoh_config
+    from replay.publish import publish_recording
     rec = tmp_path / "k.mcap"
     proc, port = start_node(setup / "m", rec)
     health: dict = {}

@@ -121,8 +121,9 @@ def test_live_node_records_into_rotating_files(tmp_path: Path) -> None:
 
     from node.cli import main
     from node.contract.schedule import OperatingCondition, Schedule
-    from node.live.node import LiveNode, publish_recording
+    from node.live.node import LiveNode
     from node.models.bundle import Bundle
+    from replay.publish import publish_recording
 
     sim = tmp_path / "sim.mcap"
     assert main(["simulate", "--runs", "1", "--seed", "3", "--out", str(sim), "--channels", "nB,yB,tF",

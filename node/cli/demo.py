@@ -35,8 +35,9 @@ def _free_port() -> int:
 def run(args: argparse.Namespace) -> int:
     from node.cli import main as cli
     from node.contract.errors import OrdervibError
-    from node.live.node import LiveNode, publish_recording
+    from node.live.node import LiveNode
     from node.models.bundle import load_bundle
+    from replay.publish import publish_recording
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

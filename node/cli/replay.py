@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.speed < 0:
         raise OrdervibError("--speed must be >= 0")
-    from node.live.node import publish_recording
+    from replay.publish import publish_recording
     publish_recording(args.recording, args.connect, args.speed, args.quiet,
                       config_file=args.zenoh_config)
     return 0

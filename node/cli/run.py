@@ -31,7 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.live.node import DEFAULT_ENDPOINT, config_file_endpoints, run_node
+    from node.live.node import run_node
+    from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints
     from node.models.bundle import load_bundle
     listen = args.listen
     if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):

@@ -9,7 +9,6 @@ per bed once a second.
 
 from __future__ import annotations
 
-import json
 import queue
 import sys
 import threading
@@ -18,56 +17,12 @@ from dataclasses import dataclass
 
 import orjson
 
-from node.contract import SENSOR_SUBSCRIPTION, OrdervibError, health_key, liveliness_key
+from node.contract import SENSOR_SUBSCRIPTION, health_key, liveliness_key
+from node.live.zenoh import open_session, zenoh_config
 from node.mcap.recording import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle
 from node.runtime.core import NodeCore
-
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-CLOSE_GRACE_S = 1.0  # publisher: wait before closing the session, s
-
-
-def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = None,
-                 config_file: str | None = None):
-    """A peer-mode Zenoh config: listen/connect endpoints, no multicast scouting.
-
-    ``config_file`` (JSON5, Zenoh's own format) carries TLS and access control
-    for a real deployment; the endpoint options are applied on top of it.
-    """
-    import zenoh
-    try:
-        conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
-        conf.insert_json5("mode", json.dumps("peer"))
-        conf.insert_json5("scouting/multicast/enabled", "false")
-        if listen:
-            conf.insert_json5("listen/endpoints", json.dumps(listen))
-        if connect:
-            conf.insert_json5("connect/endpoints", json.dumps(connect))
-    except Exception as exc:  # zenoh raises its own ZError for a bad config
-        raise OrdervibError(f"bad Zenoh configuration: {exc}") from None
-    return conf
-
-
-def config_file_endpoints(config_file: str | None) -> bool:
-    """Whether a Zenoh config file sets listen or connect endpoints of its own."""
-    if not config_file:
-        return False
-    import zenoh
-    try:
-        conf, default = zenoh.Config.from_file(config_file), zenoh.Config()
-        return any(conf.get_json(k) != default.get_json(k)
-                   for k in ("listen/endpoints", "connect/endpoints"))
-    except Exception as exc:
-        raise OrdervibError(f"bad Zenoh configuration: {exc}") from None
-
-
-def open_session(conf):
-    import zenoh
-    try:
-        return zenoh.open(conf)
-    except Exception as exc:
-        raise OrdervibError(f"cannot open the Zenoh session: {exc}") from None
 
 
 @dataclass
@@ -186,51 +141,3 @@ def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, l
         print(f"stopped: {node.stats.received} received, {node.stats.published} published, "
               f"{node.stats.overflow} dropped; {record} finished", file=sys.stderr)
     return node.stats
-
-
-def publish_recording(path: str, connect: str | None, speed: float, quiet: bool = False,
-                      wait_s: float = 5.0, config_file: str | None = None) -> int:
-    """Publish a recording's sensor messages in their original timing (``speed`` x; 0: flat out).
-
-    Connects to ``connect``, else to the endpoints of ``config_file``, else to DEFAULT_ENDPOINT.
-    """
-    from node.contract import parse_sensor_key
-    from node.mcap.recording import iter_messages
-    if connect:
-        endpoints = [connect]
-    else:
-        endpoints = None if config_file_endpoints(config_file) else [DEFAULT_ENDPOINT]
-    conf = zenoh_config(None, endpoints, config_file)
-    session = open_session(conf)
-    import zenoh
-    pubs: dict[str, object] = {}
-    sent = 0
-    t_first = None
-    start = time.monotonic()
-    try:
-        for m in iter_messages(path):
-            if parse_sensor_key(m.topic) is None:
-                continue
-            pub = pubs.get(m.topic)
-            if pub is None:
-                pub = session.declare_publisher(m.topic, congestion_control=zenoh.CongestionControl.BLOCK)
-                pubs[m.topic] = pub
-                if len(pubs) == 1:  # wait until a subscriber matches before the first put
-                    deadline = time.monotonic() + wait_s
-                    while not pub.matching_status.matching and time.monotonic() < deadline:
-                        time.sleep(0.02)
-            if speed > 0:
-                t_first = m.log_time if t_first is None else t_first
-                due = start + (m.log_time - t_first) / 1e9 / speed
-                delay = due - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-            pub.put(m.payload)
-            sent += 1
-    finally:
-        time.sleep(CLOSE_GRACE_S)  # let the link drain: close() drops what is still queued
-        session.close()
-    if not quiet:
-        print(f"published {sent} messages from {path} in {time.monotonic() - start:.1f} s",
-              file=sys.stderr)
-    return sent
