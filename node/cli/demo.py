@@ -70,11 +70,11 @@ def run(args: argparse.Namespace) -> int:
             time.sleep(0.1)
     finally:
         node.stop()
-    beds = node.runtime.core.stats.beds
+    beds = node.core.stats.beds
     alarms = sum(b.alarms for b in beds.values())
     print(f"      node: {node.stats.received} received of {sent} sent, {node.stats.published} published, "
           f"{node.stats.overflow} dropped, {alarms} alarm samples", file=sys.stderr)
-    print(fault_summary(node.runtime.core.stats.alarm_log.episodes, rec_test.with_suffix(".truth.json")),
+    print(fault_summary(node.core.stats.alarm_log.episodes, rec_test.with_suffix(".truth.json")),
           file=sys.stderr)
     rrd = out / "node.rrd"
     print(f"[4/4] Rerun file {rrd}", file=sys.stderr, flush=True)
