@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench import beam_model as bm
-from bench.tables import print_table
+from node.cli.table import print_table
 from node.sysid import IODMD, WDMD, DelayDMD, StateSpace, eps_fd, eps_td, mac
 
 OUTPUT_NODES = [1, 7, 12, 18, 24, 30]
@@ -175,7 +175,8 @@ def main_table(clean: Case, noisy: Case, freqs: np.ndarray, peers) -> None:
             lambda est=est: ddmd(estimator=est).fit(noisy.y_train, noisy.u_train), noisy)
     for name, fit in peers(noisy):
         add(name, "0.5 % noise", "-", fit, noisy)
-    print_table("Section 4.4, one input at node 30, six outputs (d = 6)", header, rows)
+    print_table(header, rows, markdown=True,
+                title="Section 4.4, one input at node 30, six outputs (d = 6)")
 
 
 def level_sweep(clean: Case, noisy: Case, freqs: np.ndarray, levels: list[int]) -> None:
@@ -184,8 +185,8 @@ def level_sweep(clean: Case, noisy: Case, freqs: np.ndarray, levels: list[int]) 
         for label, case in (("clean", clean), ("0.5 % noise", noisy)):
             s = score(lambda J=J, case=case: wdmd(J).fit(case.y_train, case.u_train), case, clean, freqs)
             rows.append([str(J), label, *s.cells(), f"{s.fit_s:.2f}"])
-    print_table("WDMD decomposition level J (causal, OE, rcond 1e-10)",
-                ["J", "data", "train", "b165", "test1", "test2", "eps_fd", "fit s"], rows)
+    print_table(["J", "data", "train", "b165", "test1", "test2", "eps_fd", "fit s"], rows, markdown=True,
+                title="WDMD decomposition level J (causal, OE, rcond 1e-10)")
 
 
 def beta_sweep(clean: Case, noisy: Case, freqs: np.ndarray, betas: list[float]) -> None:
@@ -198,10 +199,10 @@ def beta_sweep(clean: Case, noisy: Case, freqs: np.ndarray, betas: list[float]) 
                           case, clean, freqs)
                 row += ["unstable", "unstable"] if not s.stable else [f"{s.train:.1e}", f"{s.b165:.1e}"]
         rows.append(row)
-    print_table(f"beta sweep, plain least squares (Fig. 4.9/4.10): WDMD J={BENCH_LEVELS} vs Delay-DMD "
-                "tau=14, train / b165",
-                ["beta", "WDMD clean tr", "b165", "DDMD clean tr", "b165",
-                 "WDMD noisy tr", "b165", "DDMD noisy tr", "b165"], rows)
+    print_table(["beta", "WDMD clean tr", "b165", "DDMD clean tr", "b165",
+                 "WDMD noisy tr", "b165", "DDMD noisy tr", "b165"], rows, markdown=True,
+                title=f"beta sweep, plain least squares (Fig. 4.9/4.10): WDMD J={BENCH_LEVELS} vs Delay-DMD "
+                "tau=14, train / b165")
 
 
 def output_sweep(spec: bm.BeamSpec, freqs: np.ndarray, counts: list[int]) -> None:
@@ -216,9 +217,9 @@ def output_sweep(spec: bm.BeamSpec, freqs: np.ndarray, counts: list[int]) -> Non
                                                                  X=case.x_train),
                         case, case, freqs, state_seeded=True)
         rows.append([str(d), str(d * (BENCH_LEVELS + 1)), *s.cells(), f"{s.fit_s:.2f}"])
-    print_table(f"Convergence in the number of outputs d (Fig. 4.7), WDMD J={BENCH_LEVELS}, clean; "
-                f"ioDMD b165 {iod.b165:.2e}, fd {iod.fd:.2e}",
-                ["d", "states", "train", "b165", "test1", "test2", "eps_fd", "fit s"], rows)
+    print_table(["d", "states", "train", "b165", "test1", "test2", "eps_fd", "fit s"], rows, markdown=True,
+                title=f"Convergence in the number of outputs d (Fig. 4.7), WDMD J={BENCH_LEVELS}, clean; "
+                f"ioDMD b165 {iod.b165:.2e}, fd {iod.fd:.2e}")
 
 
 def mimo(spec: bm.BeamSpec, freqs: np.ndarray) -> None:
@@ -233,8 +234,8 @@ def mimo(spec: bm.BeamSpec, freqs: np.ndarray) -> None:
     s = score(lambda: IODMD(dt=1 / 5000.0).fit(clean.y_train, clean.u_train, X=clean.x_train),
               clean, clean, freqs, state_seeded=True)
     rows.append(["ioDMD", "clean", *s.cells(), f"{s.fit_s:.2f}"])
-    print_table("Two inputs (nodes 3 and 17), six outputs (section 4.4.3)",
-                ["case", "data", "train", "b165", "test1", "test2", "eps_fd", "fit s"], rows)
+    print_table(["case", "data", "train", "b165", "test1", "test2", "eps_fd", "fit s"], rows, markdown=True,
+                title="Two inputs (nodes 3 and 17), six outputs (section 4.4.3)")
 
 
 def modes(spec: bm.BeamSpec, clean: Case) -> None:
@@ -249,9 +250,9 @@ def modes(spec: bm.BeamSpec, clean: Case) -> None:
         zeta = -np.log(np.abs(lam[j])) / np.abs(np.log(lam[j]))
         rows.append([str(i + 1), f"{ft:.2f}", f"{f_model[j]:.2f}", f"{zeta:.4f}",
                      f"{mac(phi_true[:, [i]], shapes[:, [j]])[0, 0]:.4f}"])
-    print_table(f"Modes of WDMD J={BENCH_LEVELS} (clean) against the FE beam "
-                "(Rayleigh: 1 % at modes 1 and 3)",
-                ["mode", "FE Hz", "WDMD Hz", "WDMD zeta", "MAC"], rows)
+    print_table(["mode", "FE Hz", "WDMD Hz", "WDMD zeta", "MAC"], rows, markdown=True,
+                title=f"Modes of WDMD J={BENCH_LEVELS} (clean) against the FE beam "
+                "(Rayleigh: 1 % at modes 1 and 3)")
 
 
 def make_peers(quick: bool):

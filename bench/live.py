@@ -357,7 +357,7 @@ def ms(x: float) -> str:
 
 
 def report(lat: dict | None, thr: dict | None, nchan: int) -> bool:
-    from bench.tables import print_table
+    from node.cli.table import print_table
     ok = True
     if lat is not None:
         z, n = lat["zenoh"], lat["node"]
@@ -373,8 +373,9 @@ def report(lat: dict | None, thr: dict | None, nchan: int) -> bool:
              f"{lat['slots'] - WARMUP} / {lat['slots']}; echo {lat['zenoh_replies']} / {lat['zenoh_slots']}",
              "PASS" if lat["monitor"] == lat["slots"] else "FAIL"],
         ]
-        print_table("Live latency, 1 test bed: last needed channel published -> monitor message received",
-                    ["figure", "measured", "ceiling / target", "result"], rows)
+        print_table(["figure", "measured", "ceiling / target", "result"], rows, markdown=True,
+                    title="Live latency, 1 test bed: last needed channel published -> monitor message "
+                    "received")
     if thr is not None:
         nb, slots = len(thr["beds"]), thr["slots"]
         target_rate = nb * nchan * FS
@@ -416,8 +417,8 @@ def report(lat: dict | None, thr: dict | None, nchan: int) -> bool:
             ["latency under load p50 / p99", f"{pct(thr['lat'], 50):.1f} / {pct(thr['lat'], 99):.1f} ms", "",
              ""],
         ]
-        print_table(f"Throughput, {nb} test beds at 40 Hz into one node process",
-                    ["figure", "measured", "ceiling / target", "result"], rows)
+        print_table(["figure", "measured", "ceiling / target", "result"], rows, markdown=True,
+                    title=f"Throughput, {nb} test beds at 40 Hz into one node process")
     return ok
 
 

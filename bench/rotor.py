@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench import beam_model as bm
-from bench.tables import print_table
+from node.cli.table import print_table
 from node.order_tracking import shaft_revolutions, vkf_orders
 from node.sysid import WDMD, eps_td
 
@@ -371,15 +371,16 @@ def main(argv: list[str] | None = None) -> int:
             row.append(f"{d[2 * i]:.4f} / {d[2 * i + 1]:.4f}")
             row += [cell(table[pct][(var, oc)]) for var in variants]
         rows.append(row)
-    print_table(f"eps_td of the order-1 amplitudes, train / test (mean of {n_real} noise "
-                "realizations; the dissertation used 50)", header, rows)
+    print_table(header, rows, markdown=True,
+                title=f"eps_td of the order-1 amplitudes, train / test (mean of {n_real} noise "
+                "realizations; the dissertation used 50)")
     spec = beam_spec(run.fs)
     f1 = bm.natural_frequencies(spec)[0]
     z1 = np.exp(-spec.zeta * 2 * np.pi * f1 / run.fs)
-    print_table(f"OC2 model, J={LEVELS}, one realization: poles of A of LS and OE (PEM moves them); "
-                f"the FE beam's mode 1: {f1:.2f} Hz, {spec.zeta:.2%}, |z| = {z1:.4f}",
-                ["noise %", "spectral radius", "largest real pole", "pole nearest mode 1"],
-                pole_rows(run, NOISE_PCT))
+    print_table(["noise %", "spectral radius", "largest real pole", "pole nearest mode 1"],
+                pole_rows(run, NOISE_PCT), markdown=True,
+                title=f"OC2 model, J={LEVELS}, one realization: poles of A of LS and OE (PEM moves them); "
+                f"the FE beam's mode 1: {f1:.2f} Hz, {spec.zeta:.2%}, |z| = {z1:.4f}")
     print(f"\nTotal benchmark time: {time.perf_counter() - t0:.0f} s")
     return 0
 

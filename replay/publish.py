@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 
 from node.contract import parse_sensor_key
 from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints, open_session, zenoh_config
 from node.mcap.recording import iter_messages
+
+log = logging.getLogger(__name__)
 
 CLOSE_GRACE_S = 1.0  # wait before closing the session, s: close() drops what is still queued
 
@@ -18,6 +20,7 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
 
     Connects to ``connect``, else to the endpoints of ``config_file``, else to DEFAULT_ENDPOINT.
     """
+    endpoints: list[str] | None
     if connect:
         endpoints = [connect]
     else:
@@ -25,9 +28,9 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
     conf = zenoh_config(None, endpoints, config_file)
     session = open_session(conf)
     import zenoh
-    pubs: dict[str, object] = {}
+    pubs: dict[str, zenoh.Publisher] = {}
     sent = 0
-    t_first = None
+    t_first: int | None = None
     start = time.monotonic()
     try:
         for m in iter_messages(path):
@@ -53,6 +56,5 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
         time.sleep(CLOSE_GRACE_S)  # let the link drain: close() drops what is still queued
         session.close()
     if not quiet:
-        print(f"published {sent} messages from {path} in {time.monotonic() - start:.1f} s",
-              file=sys.stderr)
+        log.info("published %d messages from %s in %.1f s", sent, path, time.monotonic() - start)
     return sent

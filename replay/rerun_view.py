@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import colorsys
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from node.contract import RUN_GAP, Flag
+from replay.view_data import Health, OcSwitches, ViewData
 
 GAP_SHOWN = 10.0  # s: what a gap between runs shrinks to on engine_time
 ALARM_RED = (230, 40, 40)
@@ -43,83 +43,6 @@ COLORS = {
     "residual": (60, 160, 90),
     "score": (140, 80, 200),
 }
-
-
-# ----------------------------------------------------------------------------- data
-
-
-@dataclass
-class Series:
-    """One scalar channel. t: (K,) s since the epoch, sorted; v: (K,) NaN for a dropout."""
-
-    t: np.ndarray
-    v: np.ndarray
-
-
-@dataclass
-class MonitorColumns:
-    """Monitor messages of one target, time-major, shape (K,) each.
-
-    t in s since the epoch; measured, predicted, residual, band in the target's
-    unit and score dimensionless, NaN for null; flag, oc, phase as str arrays
-    (oc "" for null).
-    """
-
-    t: np.ndarray
-    measured: np.ndarray
-    predicted: np.ndarray
-    residual: np.ndarray
-    score: np.ndarray
-    band: np.ndarray
-    flag: np.ndarray
-    oc: np.ndarray
-    phase: np.ndarray
-    reason: np.ndarray | None = None  # why a sample is flagged ("residual", "step", ...), "" if not
-
-    def flag_labels(self) -> np.ndarray:
-        """Flag with its reason, e.g. "alarm (step)": (K,) str."""
-        if self.reason is None:
-            return self.flag
-        r = self.reason.astype(object)
-        return np.where(r != "", self.flag.astype(object) + " (" + r + ")", self.flag.astype(object)
-                        ).astype(str)
-
-
-@dataclass
-class OcSwitches:
-    """OC switches: t (S,) s since the epoch, oc (S,) str ("" outside any OC), phase (S,) str."""
-
-    t: np.ndarray
-    oc: np.ndarray
-    phase: np.ndarray
-
-
-@dataclass
-class Health:
-    """Health messages: t (H,) s; lag_p50, lag_p99 (H,) ms; late, dropped, malformed, missing (H,) counts."""
-
-    t: np.ndarray
-    lag_p50: np.ndarray
-    lag_p99: np.ndarray
-    late: np.ndarray
-    dropped: np.ndarray
-    malformed: np.ndarray
-    missing: np.ndarray
-
-
-@dataclass
-class ViewData:
-    """Everything one view shows, for one test bed and one target channel."""
-
-    bed: str
-    switch: str  # speed channel, e.g. "nB"
-    target: str  # modelled channel, e.g. "yB"
-    speed: Series
-    measured: Series | None  # the target's sensor stream, when recorded
-    monitor: MonitorColumns | None = None
-    switches: OcSwitches | None = None
-    health: Health | None = None
-    target_unit: str = "mm/s"
 
 
 # ----------------------------------------------------------------------------- time

@@ -198,6 +198,7 @@ def simulate_run(
         bow = b0 * np.exp(1j * rng.uniform(0, 2 * np.pi)) * heal
         stiffness = None
         if fault == "imbalance" and shaft.out == "yB":
+            assert fault_rng is not None
             extra = (IMBALANCE_FAULT * fault_size * abs(base[0])
                      * np.exp(1j * fault_rng.uniform(0, 2 * np.pi)))
             unbalance[after, 0] += extra

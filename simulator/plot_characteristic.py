@@ -10,6 +10,7 @@ Needs matplotlib (installed with the ``peers`` extra, via pydmd).
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
 
@@ -18,6 +19,8 @@ import numpy as np
 from node.contract import SENSOR_CHANNELS
 from node.mcap.recording import read_runs
 from simulator.gaspath import NB_TOP
+
+log = logging.getLogger(__name__)
 
 RESONANCE_BANDS = ((0.80, 0.85), (0.94, 0.965))  # dissertation, sections 3.3 and 5.2
 
@@ -58,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        print("plot_characteristic: matplotlib is not installed", file=sys.stderr)
+        log.error("plot_characteristic: matplotlib is not installed")
         return 2
 
     runs = _runs(args)

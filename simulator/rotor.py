@@ -48,7 +48,7 @@ class Shaft:
     residual: float  # mass-line residual (higher modes, casing), mm/s per (rad/s)^2 * |U| scale
 
 
-def rad_s(rpm: np.ndarray | float) -> np.ndarray | float:
+def rad_s(rpm: np.ndarray | float) -> np.ndarray:
     """Shaft speed in rad/s from rpm."""
     return np.asarray(rpm) * (2.0 * np.pi / 60.0)
 
@@ -81,7 +81,7 @@ def amplitude(
     stiffness: optional per-mode stiffness factor (K,) (faults).
     """
     w = rad_s(np.clip(speed_rpm, 0.0, None))
-    total = np.zeros(len(w), dtype=complex)
+    total: np.ndarray = np.zeros(len(w), dtype=complex)
     for i, mode in enumerate(shaft.modes):
         k = 1.0 if stiffness is None or i not in stiffness else stiffness[i]
         q_ss = steady_modal(mode, w, mode_frequency(mode, metal, k), unbalance, bow)

@@ -1,7 +1,9 @@
 """The ``ordervib`` console command: a thin dispatcher over ``node.cli``.
 
 Every expected failure (bad file, bad option, bad data) ends with one line on
-stderr and a non-zero exit status; tracebacks are reserved for bugs.
+stderr and a non-zero exit status; tracebacks are reserved for bugs. Status goes
+through ``logging`` to stderr (``--log-level``, see ``node.cli.logs``); a command's
+result is printed on stdout.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from node import __version__
+from node.cli.logs import LEVELS, command_logging
 from node.contract.errors import OrdervibError
 
 # Sub-command modules, in the order they appear in ``ordervib --help``.
@@ -36,6 +40,9 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="ordervib", description="Tracked-order vibration monitoring node.")
+    parser.add_argument("--version", action="version", version=f"ordervib {__version__}")
+    parser.add_argument("--log-level", choices=tuple(LEVELS), default=None,
+                        help="status shown on stderr (default info; a command's --quiet means warning)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for mod_name in COMMAND_MODULES:
         try:
@@ -57,7 +64,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        with command_logging(args.log_level, getattr(args, "quiet", False)):
+            return int(args._run(args) or 0)
     except OrdervibError as exc:
         print(f"ordervib {args.command}: {exc}", file=sys.stderr)
         return 2

@@ -8,14 +8,16 @@ Zenoh, stops the node, and writes the node's MCAP and a Rerun file.
 from __future__ import annotations
 
 import argparse
+import logging
 import socket
-import sys
 import time
 from pathlib import Path
 
 NAME = "demo"
 HELP = "full demo: train, live node over Zenoh on loopback, publish a fault run, MCAP and .rrd out"
 ROOT = Path(__file__).resolve().parents[2]
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -49,21 +51,19 @@ def run(args: argparse.Namespace) -> int:
     model = out / "model"
     t0 = time.perf_counter()
     if args.retrain or not (model / "manifest.json").exists():
-        print(f"[1/4] training {args.method} on {rec_train.name} ...", file=sys.stderr, flush=True)
+        log.info("[1/4] training %s on %s ...", args.method, rec_train.name)
         if cli(["train", str(rec_train), "--schedule", str(schedule), "--out", str(model),
                 "--method", args.method]) != 0:
             return 2
     else:
-        print(f"[1/4] reusing the model in {model} (--retrain to train again)", file=sys.stderr)
+        log.info("[1/4] reusing the model in %s (--retrain to train again)", model)
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     node_rec = out / "node.mcap"
-    print(f"[2/4] live node listening on {endpoint}, recording to {node_rec}", file=sys.stderr,
-          flush=True)
+    log.info("[2/4] live node listening on %s, recording to %s", endpoint, node_rec)
     node = LiveNode(load_bundle(model), str(node_rec), listen=[endpoint])
     node.start()
     try:
-        print(f"[3/4] publishing {rec_test.name} (a run with an imbalance fault) through Zenoh ...",
-              file=sys.stderr, flush=True)
+        log.info("[3/4] publishing %s (a run with an imbalance fault) through Zenoh ...", rec_test.name)
         sent = publish_recording(str(rec_test), endpoint, args.speed, quiet=True)
         deadline = time.monotonic() + 60
         while node.stats.received < sent and time.monotonic() < deadline:
@@ -72,12 +72,11 @@ def run(args: argparse.Namespace) -> int:
         node.stop()
     beds = node.core.stats.beds
     alarms = sum(b.alarms for b in beds.values())
-    print(f"      node: {node.stats.received} received of {sent} sent, {node.stats.published} published, "
-          f"{node.stats.overflow} dropped, {alarms} alarm samples", file=sys.stderr)
-    print(fault_summary(node.core.stats.alarm_log.episodes, rec_test.with_suffix(".truth.json")),
-          file=sys.stderr)
+    log.info("      node: %d received of %d sent, %d published, %d dropped, %d alarm samples",
+             node.stats.received, sent, node.stats.published, node.stats.overflow, alarms)
+    log.info("%s", fault_summary(node.core.stats.alarm_log.episodes, rec_test.with_suffix(".truth.json")))
     rrd = out / "node.rrd"
-    print(f"[4/4] Rerun file {rrd}", file=sys.stderr, flush=True)
+    log.info("[4/4] Rerun file %s", rrd)
     if cli(["view", str(node_rec), "--save", str(rrd), "--schedule", str(schedule)]) != 0:
         return 2
     print(f"done in {time.perf_counter() - t0:.0f} s")

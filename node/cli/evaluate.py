@@ -3,13 +3,23 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from node.cli.table import print_table
 from node.contract import FS
+
+if TYPE_CHECKING:
+    from node.mcap.recording import Run
+    from node.models.bundle import Bundle
+    from node.training.dataset import RunArrays
+    from node.training.evaluation import SegmentPrediction
+
+log = logging.getLogger(__name__)
 
 NAME = "evaluate"
 HELP = "evaluate a trained model on held-out recordings (table, false alarms, PNG)"
@@ -39,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
         curve.centres_, curve.means_ = bundle.curve
     sw = bundle.schedule.switch
     arrays = [run_arrays(r, bundle.target, [sw]) for r in runs]
-    rows = [["OC", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td"]]
+    header = ["OC", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td"]
+    rows = []
     hold, base = [], []
     for e in evals:
         res = bundle.oc(e.name)
@@ -54,11 +65,7 @@ def run(args: argparse.Namespace) -> int:
         if np.isfinite(e.eps):
             hold.append(e.eps)
             base.append(b)
-    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
-    for i, r in enumerate(rows):
-        print("  ".join(c.ljust(w) for c, w in zip(r, widths)))
-        if i == 0:
-            print("  ".join("-" * w for w in widths))
+    print_table(header, rows)
     if hold:
         print(f"mean held-out eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
               f"(characteristic-curve baseline {np.nanmean(base):.3f})")
@@ -69,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _speed(arrays, runs, p) -> np.ndarray:
+def _speed(arrays: list[RunArrays], runs: list[Run], p: SegmentPrediction) -> np.ndarray:
+    """The switch speed (rpm) over the segment of prediction p: (K,)."""
     r = runs[p.run]
     k0 = int(np.searchsorted(r.t, p.t[0]))
     return arrays[p.run].U[k0:k0 + p.t.size, 0]
@@ -79,7 +87,8 @@ def node_alarms(model: str, recordings: list[str]) -> str:
     """The node's own alarms over the recordings (``ordervib replay``'s code): one line."""
     from node.cli.replay import replay_offline
 
-    episodes, samples = [], 0
+    episodes: list[dict] = []
+    samples = 0
     for rec in recordings:
         s = replay_offline(rec, model, None, quiet=True)
         episodes += s["alarm_episodes"]
@@ -96,13 +105,14 @@ def _f(x: float) -> str:
     return f"{x:.3f}" if np.isfinite(x) else "-"
 
 
-def _plot(bundle, preds, png: Path) -> bool:
+def _plot(bundle: Bundle, preds: list[SegmentPrediction], png: Path) -> bool:
+    """Predicted against measured per OC, written to png; False without matplotlib."""
     try:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        print("(matplotlib not installed: no plot)", file=sys.stderr)
+        log.warning("matplotlib not installed: no plot")
         return False
     names = bundle.schedule.names
     present = sorted({p.oc for p in preds})

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
+from typing import Any
 
 from node.contract import FS
 from node.contract.errors import OrdervibError
+
+log = logging.getLogger(__name__)
 
 NAME = "replay"
 HELP = "run the node offline over a recording (--model), or publish it to Zenoh (--publish)"
@@ -31,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def replay_offline(recording: str, model: str, out: str | None, quiet: bool = False,
-                   workers: int | None = None) -> dict:
+                   workers: int | None = None) -> dict[str, Any]:
     """Feed every sensor message, in file order, through the node's logic; returns a summary.
 
     workers: 1 runs the logic in a worker process, 0 in this one; None picks (see replay.offline).
@@ -47,16 +50,15 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
                         for b, s in r.beds.items()}}
     if not quiet:
         span = sum(s["samples"] for s in r.beds.values()) / FS
-        print(f"replayed {r.inputs} input messages ({span:.0f} s of data) in {r.seconds:.1f} s "
-              f"({span / max(r.seconds, 1e-9):.0f}x real time); published {r.published} "
-              f"monitor messages; {r.malformed} malformed skipped", file=sys.stderr)
+        log.info("replayed %d input messages (%.0f s of data) in %.1f s (%.0fx real time); published %d "
+                 "monitor messages; %d malformed skipped", r.inputs, span, r.seconds,
+                 span / max(r.seconds, 1e-9), r.published, r.malformed)
         for b, s in r.beds.items():
             n_ep = sum(1 for e in r.alarm_episodes if e["key"].split("/")[1] == b)
-            print(f"  {b}: {s['samples']} samples, {s['alarm_samples']} alarm samples "
-                  f"in {n_ep} episode(s), "
-                  f"missing {s['missing']}", file=sys.stderr)
+            log.info("  %s: %s samples, %s alarm samples in %d episode(s), missing %s",
+                     b, s["samples"], s["alarm_samples"], n_ep, s["missing"])
         if out:
-            print(f"wrote {out}", file=sys.stderr)
+            log.info("wrote %s", out)
     return summary
 
 

@@ -3,11 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from node.contract import FS
+
+if TYPE_CHECKING:
+    from node.contract.schedule import Schedule
+    from node.mcap.recording import Run
+
+log = logging.getLogger(__name__)
 
 NAME = "schedule"
 HELP = "schedule tools: 'infer' proposes a schedule from the speed plateaus found in recordings"
@@ -57,20 +64,20 @@ def ids_in_run(plats: list[float], levels: list[list[float]], tol: float) -> lis
     return out
 
 
-def infer(runs, switch: str, tol: float, min_len: int):
+def infer(runs: list[Run], switch: str, tol: float, min_len: int) -> Schedule:
+    """The schedule of the plateaus seen in at least half the runs, in test order."""
     from node.contract.errors import OrdervibError
     from node.contract.schedule import OperatingCondition, Schedule
     levels: list[list[float]] = []  # per distinct plateau: speeds seen
-    positions: dict[int, list[float]] = {}
     sequences: list[list[int]] = []
     top = max(float(np.nanmax(r.column(switch))) for r in runs if switch in r.channels)
     for r in runs:
         if switch not in r.channels:
             raise OrdervibError(f"a run has no {switch!r} channel")
-        seen = set()
+        seen: set[int] = set()
         plats = find_plateaus(r.column(switch), tol, min_len)
         plats = [p for p in plats if p > 0.3 * top]  # idle and starting are not OCs
-        for pos, sp in enumerate(plats):
+        for sp in plats:
             match = next((i for i, lv in enumerate(levels)
                           if abs(np.mean(lv) - sp) <= tol * sp and i not in seen), None)
             if match is None:
@@ -79,7 +86,6 @@ def infer(runs, switch: str, tol: float, min_len: int):
             else:
                 levels[match].append(sp)
             seen.add(match)
-            positions.setdefault(match, []).append(pos)
         sequences.append(list(dict.fromkeys(ids_in_run(plats, levels, tol))))
     if not levels:
         raise OrdervibError("no speed plateau found in the recordings")
@@ -94,8 +100,8 @@ def infer(runs, switch: str, tol: float, min_len: int):
         i = max(missing, key=lambda j: len(levels[j]))
         missing.remove(i)
         before = [seq[:seq.index(i)] for seq in sequences if i in seq]
-        preds = [next((j for j in reversed(b) if j in order), None) for b in before]
-        preds = [j for j in preds if j is not None]
+        latest = [next((j for j in reversed(b) if j in order), None) for b in before]
+        preds = [j for j in latest if j is not None]
         at = max(order.index(j) for j in preds) + 1 if preds else 0
         order.insert(at, i)
     ocs = tuple(OperatingCondition(f"OC{k + 1}", round(float(np.mean(levels[i])), 1))
@@ -106,12 +112,12 @@ def infer(runs, switch: str, tol: float, min_len: int):
 def run(args: argparse.Namespace) -> int:
     from node.cli.train import load_runs
     runs = load_runs(args.recordings, quiet=True)
-    schedule = infer(runs, args.switch, args.tolerance, int(args.min_plateau * 40))
+    schedule = infer(runs, args.switch, args.tolerance, int(args.min_plateau * FS))
     text = "# proposed by ordervib schedule infer: check names and order\n" + schedule.to_toml()
     if args.out:
         with open(args.out, "w") as f:
             f.write(text)
-        print(f"schedule with {len(schedule.ocs)} OCs written to {args.out}", file=sys.stderr)
+        log.info("schedule with %d OCs written to %s", len(schedule.ocs), args.out)
     else:
         print(text)
     return 0

@@ -10,14 +10,17 @@ runs the OCs of a contract schedule file instead of the built-in 12;
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import os
 import re
-import sys
 import time
 
+from node.cli.logs import Progress
 from node.cli.paths import check_output_file
 from node.contract.errors import OrdervibError
+
+log = logging.getLogger(__name__)
 
 NAME = "simulate"
 HELP = "write pass-off runs of the built-in three-shaft turbofan simulator to an MCAP recording"
@@ -134,25 +137,6 @@ def _check(args: argparse.Namespace) -> None:
     check_output_file(args.out, "--out", ".mcap")
 
 
-class _Progress:
-    """A percentage bar on stderr, redrawn only when the percentage changes."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled and sys.stderr is not None
-        self.last = -1
-
-    def __call__(self, fraction: float) -> None:
-        pct = int(100 * min(max(fraction, 0.0), 1.0))
-        if not self.enabled or pct == self.last:
-            return
-        self.last = pct
-        bar = "#" * (pct // 4)
-        sys.stderr.write(f"\rsimulate: [{bar:<25}] {pct:3d}%")
-        if pct == 100:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
-
-
 def run(args: argparse.Namespace) -> int:
     _check(args)
     channels = _channels(args.channels)
@@ -174,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         noise_scale=args.noise_scale,
     )
     part = args.out + ".part"
-    progress = _Progress(not args.quiet)
+    progress = Progress(NAME, log)
     try:
         count = write_recording(
             campaign, part, args.bed, args.seed, args.skip, progress, channels=channels
@@ -183,14 +167,12 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if os.path.exists(part):
             os.remove(part)
-    schedule, truth = write_sidecars(
+    schedule_path, truth_path = write_sidecars(
         campaign, args.out, args.bed, args.seed, args.skip, channels
     )
-    if not args.quiet:
-        print(
-            f"simulate: {args.runs - args.skip} runs, {count} messages -> {args.out} "
-            f"(+ {os.path.basename(schedule)}, {os.path.basename(truth)}) "
-            f"in {time.perf_counter() - start:.1f} s",
-            file=sys.stderr,
-        )
+    log.info(
+        "simulate: %d runs, %d messages -> %s (+ %s, %s) in %.1f s",
+        args.runs - args.skip, count, args.out, os.path.basename(schedule_path),
+        os.path.basename(truth_path), time.perf_counter() - start,
+    )
     return 0

@@ -3,13 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import math
-import sys
 import time
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
+from node.cli.table import print_table
 from node.contract.errors import OrdervibError
+
+if TYPE_CHECKING:
+    from node.mcap.recording import Run
+    from node.training.train import OCResult
+
+log = logging.getLogger(__name__)
 
 NAME = "train"
 HELP = "train the per-OC switching model from pass-off recordings"
@@ -44,27 +52,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def load_runs(paths: list[str], quiet: bool = False) -> list:
-    """Runs of every recording, in order; one line per file on stderr."""
+def load_runs(paths: list[str], quiet: bool = False) -> list[Run]:
+    """Runs of every recording, in order; one status line per file unless quiet."""
     from node.mcap.recording import ReadStats, read_runs
-    runs = []
+    runs: list[Run] = []
     for path in paths:
         stats = ReadStats()
         found = read_runs(path, stats=stats)
         if not quiet:
             extra = f", {stats.malformed} malformed payloads skipped" if stats.malformed else ""
             extra += ", unfinished file" if stats.truncated else ""
-            print(f"read {path}: {len(found)} run(s){extra}", file=sys.stderr)
+            log.info("read %s: %d run(s)%s", path, len(found), extra)
         runs += found
     if not runs:
         raise OrdervibError("the recordings hold no pass-off run")
     return runs
 
 
-def print_table(results, file=None) -> None:
-    file = file or sys.stdout
-    rows = [["OC", "inputs", "states", "hyper-parameters", "train eps_td", "CV eps_td", "sigma",
-             "alarm at", "note"]]
+def print_results(results: list[OCResult], file: TextIO | None = None) -> None:
+    """Per-OC table of the trained models, then the mean cross-validated eps_td."""
+    header = ["OC", "inputs", "states", "hyper-parameters", "train eps_td", "CV eps_td", "sigma",
+              "alarm at", "note"]
+    rows = []
     for r in results:
         if r.model is None:
             rows.append([r.name, "-", "-", "-", "-", "-", "-", "-", r.note or "no model"])
@@ -74,19 +83,14 @@ def print_table(results, file=None) -> None:
         rows.append([r.name, ",".join(r.inputs), states, hp, f"{r.train_eps:.3f}", f"{r.cv_eps:.3f}",
                      f"{r.calibration.sigma:.3g}" if r.calibration else "-",
                      f"{r.calibration.threshold:.2f} sigma" if r.calibration else "-", r.note])
+    print_table(header, rows, file=file)
     cv = [r.cv_eps for r in results if r.model is not None and np.isfinite(r.cv_eps)]
-    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    for i, row in enumerate(rows):
-        print("  ".join(c.ljust(w) for c, w in zip(row, widths)).rstrip(), file=file)
-        if i == 0:
-            print("  ".join("-" * w for w in widths), file=file)
     if cv:
         print(f"mean cross-validated eps_td over {len(cv)} OCs: {np.mean(cv):.3f}", file=file)
 
 
-def print_ranking(results, top: int = 6, file=None) -> None:
+def print_ranking(results: list[OCResult], top: int = 6, file: TextIO | None = None) -> None:
     """MS-DPCCA ranking per OC: mean |rho_DPCCA| of each candidate with the target."""
-    file = file or sys.stdout
     print("MS-DPCCA ranking of the inputs per OC (mean |rho_DPCCA| with the target over scales):",
           file=file)
     for r in results:
@@ -127,14 +131,12 @@ def run(args: argparse.Namespace) -> int:
                                     f"got {args.rcond_grid!r}") from None
             if not all(0 < x < 1 for x in grid["rcond"]):
                 raise OrdervibError("--rcond-grid values must lie in (0, 1)")
-    if not args.quiet:
-        print(f"training {args.method} for {args.target} on {len(runs)} run(s), {len(schedule.ocs)} OCs, "
-              f"leave-one-run-out CV over {_count(grid)} candidates per OC", file=sys.stderr)
+    log.info("training %s for %s on %d run(s), %d OCs, leave-one-run-out CV over %d candidates per OC",
+             args.method, args.target, len(runs), len(schedule.ocs), _count(grid))
 
-    def progress(r, done, total):
-        if not args.quiet:
-            cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
-            print(f"  [{done}/{total}] {r.name}: {cv} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    def progress(r: OCResult, done: int, total: int) -> None:
+        cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
+        log.info("  [%d/%d] %s: %s (%.0f s)", done, total, r.name, cv, time.perf_counter() - t0)
 
     curve = fleet_curve(runs, schedule.switch, args.target)
     results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
@@ -150,12 +152,12 @@ def run(args: argparse.Namespace) -> int:
     out = save_bundle(bundle, args.out)
     if inputs is None:
         print_ranking(results)
-    print_table(results)
+    print_results(results)
     print(f"model written to {out} ({time.perf_counter() - t0:.1f} s)")
     return 0
 
 
-def _count(grid: dict) -> int:
+def _count(grid: dict[str, list[object]]) -> int:
     n = 1
     for v in grid.values():
         n *= len(v)
