@@ -172,3 +172,15 @@ def test_no_display_suggests_save(node_rec: Path, monkeypatch, capsys) -> None:
     assert main(["view", str(node_rec)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--save" in err[0]
+
+
+def test_sensor_series_follow_the_payload_rule() -> None:
+    from node.contract import decode_samples
+    from replay.view_data import series_of
+
+    payloads = [b'{"t": 3.0, "v": 1.5}', b'{"t": 1.0, "v": null}', b'{"t": 2.0, "v": "x"}',
+                b'{"t": true, "v": 1}', b'{"t": -1.0, "v": 1}', b'not json', b'{"t": 2, "v": 7}']
+    s = series_of(payloads)
+    t, _, ok = decode_samples(payloads)
+    assert s.t.tolist() == sorted(t[ok].tolist()) == [1.0, 2.0, 3.0]
+    assert np.isnan(s.v[0]) and s.v[1:].tolist() == [7.0, 1.5]
