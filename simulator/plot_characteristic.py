@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from node.contract import SENSOR_CHANNELS
-from node.mcap.recording import read_runs
+from node.mcap import read_runs
 from simulator.gaspath import NB_TOP
 
 RESONANCE_BANDS = ((0.80, 0.85), (0.94, 0.965))  # dissertation, sections 3.3 and 5.2

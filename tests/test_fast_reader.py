@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from node.mcap.recording import ReadStats, iter_messages, iter_messages_fast
+from node.mcap import ReadStats, iter_messages, iter_messages_fast
 
 REC = Path(__file__).resolve().parents[1] / "recordings" / "engine1_fault.mcap"
 

@@ -46,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def load_runs(paths: list[str], quiet: bool = False) -> list:
     """Runs of every recording, in order; one line per file on stderr."""
-    from node.mcap.recording import ReadStats, read_runs
+    from node.mcap import ReadStats, read_runs
     runs = []
     for path in paths:
         stats = ReadStats()

@@ -1,6 +1,6 @@
 """``ordervib view``: a recording in Rerun (viewer, or a saved ``.rrd``).
 
-Reads the recording once (``node.mcap.recording.read_payloads``: a linear scan that
+Reads the recording once (``node.mcap.read_payloads``: a linear scan that
 also works on unfinished files), decodes only the topics the view needs (the
 switch speed, the target's sensor stream, ``monitor/<target>``, ``monitor/oc``,
 ``monitor/health`` of one bed) into time-major arrays, and hands them to
@@ -35,7 +35,7 @@ from node.contract import (
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
-    from node.mcap.recording import ReadStats
+    from node.mcap import ReadStats
     from replay.rerun_view import Health, MonitorColumns, OcSwitches, Series, ViewData
 
 NAME = "view"
@@ -244,7 +244,7 @@ def _schedule_for(args: argparse.Namespace) -> Schedule | None:
 
 def load_view_data(args: argparse.Namespace) -> tuple[ViewData, str, ReadStats]:
     """Read the recording once and build the arrays of the view; (data, oc source, stats)."""
-    from node.mcap.recording import ReadStats, read_payloads
+    from node.mcap import ReadStats, read_payloads
     from replay.rerun_view import ViewData
 
     stats = ReadStats()
