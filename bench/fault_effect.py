@@ -18,7 +18,7 @@ import numpy as np
 
 from node.contract import FS
 from node.contract.schedule import Schedule
-from node.mcap.recording import Run
+from node.mcap import Run
 from node.models.bundle import Bundle
 from node.runtime.ocdetect import OCDetector
 

@@ -50,7 +50,7 @@ from node.cli import main as cli
 from node.cli.replay import replay_offline
 from node.contract import FS
 from node.contract.errors import OrdervibError
-from node.mcap.recording import Run, read_runs
+from node.mcap import Run, read_runs
 from node.models.bundle import Bundle, load_bundle
 from simulator.schedule import BUILT_IN_SCHEDULE, SimSchedule, load_sim_schedule
 

@@ -62,7 +62,7 @@ class Stream:
 def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
     """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
     from node.contract import parse_sensor_key
-    from node.mcap.recording import iter_messages_fast
+    from node.mcap import iter_messages_fast
     n = int(round(seconds * FS))
     run0 = last_t = cut = t0 = None
     slots: dict[int, list[tuple[str, bytes]]] = {}

@@ -1,4 +1,4 @@
-"""Read speed: ``node.mcap.recording.read_runs`` against the plain mcap + json loop.
+"""Read speed: ``node.mcap.read_runs`` against the plain mcap + json loop.
 
     .venv/bin/python bench/read_speed.py [REC.mcap]
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from node.mcap.recording import ReadStats, read_runs
+from node.mcap import ReadStats, read_runs
 
 DEFAULT = Path(__file__).resolve().parent.parent / "recordings" / "engine1_runs.mcap"
 
@@ -43,13 +43,13 @@ def main(argv: list[str]) -> int:
         print(f"read_speed: no recording {path} (make one with: ordervib simulate)", file=sys.stderr)
         return 2
     rates = {}
-    for name, fn in (("plain make_reader + json.loads", plain), ("node.mcap.recording.read_runs", fast)):
+    for name, fn in (("plain make_reader + json.loads", plain), ("node.mcap.read_runs", fast)):
         start = time.perf_counter()
         n = fn(path)
         dt = time.perf_counter() - start
         rates[name] = n / dt
         print(f"{name:34s} {n:9d} messages in {dt:6.2f} s = {n / dt:10.0f} msg/s")
-    ratio = rates["node.mcap.recording.read_runs"] / rates["plain make_reader + json.loads"]
+    ratio = rates["node.mcap.read_runs"] / rates["plain make_reader + json.loads"]
     print(f"{'speed-up':34s} {ratio:.1f}x")
     return 0
 

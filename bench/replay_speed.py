@@ -38,7 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from node.cli import main as cli
     from node.cli.replay import replay_offline
-    from node.mcap.recording import iter_messages_fast
+    from node.mcap import iter_messages_fast
     from replay.offline import default_workers
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-replay-"))

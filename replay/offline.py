@@ -33,7 +33,7 @@ import numpy as np
 import orjson
 
 from node.contract import OrdervibError, is_monitor_key
-from node.mcap.recording import ReadStats, RecordingWriter, iter_messages_fast
+from node.mcap import ReadStats, RecordingWriter, iter_messages_fast
 from node.models.bundle import Bundle
 from node.runtime.core import NodeCore
 

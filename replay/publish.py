@@ -7,7 +7,7 @@ import time
 
 from node.contract import parse_sensor_key
 from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints, open_session, zenoh_config
-from node.mcap.recording import iter_messages
+from node.mcap import iter_messages
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """The arrays a view of a recording shows, read from the recording (no Rerun here).
 
-``load_view_data`` reads the recording once (``node.mcap.recording.read_payloads``: a
+``load_view_data`` reads the recording once (``node.mcap.read_payloads``: a
 linear scan that also works on unfinished files) and decodes only the topics the view
 needs -- the switch speed, the target's sensor stream, ``monitor/<target>``,
 ``monitor/oc`` and ``monitor/health`` of one bed -- into time-major arrays, each sorted
@@ -34,7 +34,7 @@ from node.contract import (
     topic_kind,
 )
 from node.contract.schedule import Schedule
-from node.mcap.recording import ReadStats, read_payloads
+from node.mcap import ReadStats, read_payloads
 from node.runtime.ocdetect import OCDetector
 
 # ----------------------------------------------------------------------------- data

@@ -1,6 +1,6 @@
 """Writing a simulated campaign: MCAP recording, schedule TOML, ground-truth JSON.
 
-The MCAP layout is ``node.mcap.recording``'s; this module only adds what a test bed
+The MCAP layout is ``node.mcap``'s; this module only adds what a test bed
 adds: acquisition jitter on t (< 2 ms, 0.1 ms resolution), a receive latency
 (publish_time) and the arrival order (messages written in publish-time order).
 """
@@ -15,7 +15,7 @@ import numpy as np
 import orjson
 
 from node.contract import FS, sensor_key
-from node.mcap.recording import RecordingWriter
+from node.mcap import RecordingWriter
 from simulator.campaign import Campaign, SimRun
 
 JITTER_SIGMA = 0.4e-3  # acquisition jitter, s

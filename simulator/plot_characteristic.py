@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from node.contract import SENSOR_CHANNELS
-from node.mcap.recording import read_runs
+from node.mcap import read_runs
 from simulator.gaspath import NB_TOP
 
 log = logging.getLogger(__name__)

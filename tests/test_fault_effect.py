@@ -7,7 +7,7 @@ import pytest
 
 from bench.fault_effect import SMOOTH_S, fault_effect
 from node.contract import SENSOR_CHANNELS
-from node.mcap.recording import Run
+from node.mcap import Run
 from simulator.campaign import DRIFT_RATE, simulate_campaign
 
 

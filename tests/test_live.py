@@ -13,7 +13,7 @@ import pytest
 from conftest import small_campaign
 
 from node.cli import main
-from node.mcap.recording import iter_messages
+from node.mcap import iter_messages
 
 pytest.importorskip("zenoh")
 

@@ -15,7 +15,7 @@ from mcap.reader import NonSeekingReader, make_reader
 
 from node.cli import main
 from node.contract import log_time_ns
-from node.mcap.recording import ReadStats, RecordingWriter, iter_messages, iter_messages_fast
+from node.mcap import ReadStats, RecordingWriter, iter_messages, iter_messages_fast
 
 T0 = 1767600000.0
 KEYS = ["testbed/b/sensor/nB", "testbed/b/sensor/yB", "testbed/b/monitor/yB", "testbed/c/sensor/nB"]

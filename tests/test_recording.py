@@ -1,4 +1,4 @@
-"""node.mcap.recording: writer layout, streaming reader on unfinished files, read_runs, errors."""
+"""node.mcap: writer layout, streaming reader on unfinished files, read_runs, errors."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from node.cli import main
 from node.contract import log_time_ns, parse_sensor_key, sensor_key
 from node.contract.errors import OrdervibError
-from node.mcap.recording import ReadStats, RecordingWriter, iter_messages, read_payloads, read_runs
+from node.mcap import ReadStats, RecordingWriter, iter_messages, read_payloads, read_runs
 
 T0 = 1767600000.0
 

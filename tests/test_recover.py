@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 
 from node.cli import main
 from node.contract import log_time_ns, sensor_key
-from node.mcap.recording import RecordingWriter
+from node.mcap import RecordingWriter
 
 T0 = 1767600000.0
 N_FLUSHED = 600  # samples per topic written before the last flush

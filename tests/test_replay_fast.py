@@ -198,7 +198,7 @@ def model(tmp_path_factory) -> Path:
 
 def test_worker_process_gives_the_same_bytes(model: Path) -> None:
     from node.cli.replay import replay_offline
-    from node.mcap.recording import iter_messages
+    from node.mcap import iter_messages
     a, b = model / "w0.mcap", model / "w1.mcap"
     s0 = replay_offline(str(model / "test.mcap"), str(model / "m"), str(a), quiet=True, workers=0)
     s1 = replay_offline(str(model / "test.mcap"), str(model / "m"), str(b), quiet=True, workers=1)

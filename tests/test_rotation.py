@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 
 from node.contract import log_time_ns
 from node.contract.errors import OrdervibError
-from node.mcap.recording import ReadStats, iter_messages
+from node.mcap import ReadStats, iter_messages
 from node.mcap.rotation import RotatingRecorder, rotated_path
 
 T0 = 1767600000.0

@@ -9,7 +9,7 @@ import orjson
 import pytest
 
 from node.contract.schedule import OperatingCondition, Schedule
-from node.mcap.recording import Run
+from node.mcap import Run
 from node.models.bundle import Bundle
 from node.models.ocmodel import Method, OCModel
 from node.runtime.core import NodeCore

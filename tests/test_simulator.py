@@ -14,7 +14,7 @@ from mcap.reader import NonSeekingReader, make_reader
 
 from node.cli import main
 from node.contract import SENSOR_CHANNELS
-from node.mcap.recording import read_runs
+from node.mcap import read_runs
 from simulator.campaign import simulate_campaign
 
 KEY = re.compile(r"^testbed/([^/]+)/sensor/([^/]+)$")
@@ -446,7 +446,7 @@ def test_bench_faults_compares_twinson_common_samples() -> None:
     (read_runs trims off samples against each file's top speed); the twins are compared on the
     samples both hold, and runs that are not twins are left for fault_effect to refuse."""
     from bench.fault_effect import on_common_samples
-    from node.mcap.recording import Run
+    from node.mcap import Run
 
     t = 1000.0 + 0.025 * np.arange(400)
     data = np.arange(800.0).reshape(400, 2)

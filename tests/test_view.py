@@ -12,7 +12,7 @@ import pytest
 
 from node.cli import main
 from node.contract import log_time_ns, sensor_key
-from node.mcap.recording import RecordingWriter
+from node.mcap import RecordingWriter
 from replay.rerun_view import GAP_SHOWN, Clock
 
 ROOT = Path(__file__).resolve().parents[1]

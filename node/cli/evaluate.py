@@ -14,7 +14,7 @@ from node.cli.table import print_table
 from node.contract import FS
 
 if TYPE_CHECKING:
-    from node.mcap.recording import Run
+    from node.mcap import Run
     from node.models.bundle import Bundle
     from node.training.dataset import RunArrays
     from node.training.evaluation import SegmentPrediction

@@ -1,38 +1,30 @@
 """``ordervib recover``: rescue the messages of an unfinished (crashed) MCAP recording.
 
 A node killed before ``finish()`` leaves a file without summary or footer:
-``mcap.reader.make_reader`` refuses it. This command scans it linearly in file
-order (``NonSeekingReader``), keeps every complete message and writes them into
+``mcap.reader.make_reader`` refuses it. This command walks it in file order
+(``node.mcap.copy_messages``), keeps every complete message and writes them into
 a new, finished MCAP with the same topics, schemas, encodings, channel metadata,
-``log_time``, ``publish_time`` and sequence numbers, in the layout conventions
-of ``node.mcap.recording`` (zstd chunks of 1 MiB, chunk and message indexes).
-A finished input is simply copied message by message.
+``log_time``, ``publish_time`` and sequence numbers, in the layout of
+``node.mcap.McapWriter`` (zstd chunks of 1 MiB, chunk and message indexes).
+A finished input is simply copied message by message. Chunks that do not
+decompress or fail their CRC are skipped (and counted in the summary line).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import struct
 import sys
 import time
 from dataclasses import dataclass, field
 from typing import IO
 
-from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader
-from mcap.records import Channel, Schema
-from mcap.records import Message as McapMessage
-from mcap.writer import CompressionType, IndexType, Writer
-
 from node.cli.paths import check_output_file
 from node.contract.errors import OrdervibError
-from node.mcap.recording import LIBRARY, MAGIC, _open_checked
+from node.mcap import McapWriter, Message, ReadStats, copy_messages, open_recording
 
 NAME = "recover"
 HELP = "rescue the complete messages of an unfinished MCAP recording into a finished one"
-
-CHUNK_SIZE = 1 << 20  # bytes, as node.mcap.recording.RecordingWriter
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,7 +39,8 @@ class RecoverReport:
 
     messages: messages written; topics: messages per topic; first_ns/last_ns:
     smallest and largest log_time (ns, None if no message); unfinished: the input
-    had no footer (or ended mid-record); bytes_in: input size (bytes).
+    had no footer (or ended mid-record); bytes_in: input size (bytes); skipped:
+    unreadable chunks and messages without a channel left out.
     """
 
     messages: int = 0
@@ -56,6 +49,14 @@ class RecoverReport:
     last_ns: int | None = None
     unfinished: bool = False
     bytes_in: int = 0
+    skipped: int = 0
+
+    def add(self, m: Message) -> None:
+        """Count one message copied."""
+        self.messages += 1
+        self.topics[m.topic] = self.topics.get(m.topic, 0) + 1
+        self.first_ns = m.log_time if self.first_ns is None else min(self.first_ns, m.log_time)
+        self.last_ns = m.log_time if self.last_ns is None else max(self.last_ns, m.log_time)
 
     @property
     def span_s(self) -> float:
@@ -65,84 +66,21 @@ class RecoverReport:
         return (self.last_ns - self.first_ns) / 1e9
 
 
-def _has_footer(f: IO[bytes]) -> bool:
-    """True when the stream ends with the MCAP magic (a finished file)."""
-    f.seek(0, os.SEEK_END)
-    size = f.tell()
-    if size < 2 * len(MAGIC):
-        return False
-    f.seek(size - len(MAGIC))
-    ok = f.read(len(MAGIC)) == MAGIC
-    f.seek(0)
-    return ok
-
-
-class _Copier:
-    """Registers schemas and channels on first use, then copies messages."""
-
-    def __init__(self, writer: Writer, report: RecoverReport) -> None:
-        self.writer = writer
-        self.report = report
-        self.schemas: dict[int, int] = {}  # input schema id -> output schema id
-        self.channels: dict[int, int] = {}  # input channel id -> output channel id
-
-    def _schema_id(self, schema: Schema | None) -> int:
-        if schema is None:  # schema id 0: no schema
-            return 0
-        sid = self.schemas.get(schema.id)
-        if sid is None:
-            sid = self.writer.register_schema(schema.name, schema.encoding, schema.data)
-            self.schemas[schema.id] = sid
-        return sid
-
-    def add(self, schema: Schema | None, channel: Channel, msg: McapMessage) -> None:
-        """Write one message, registering its channel (and schema) the first time."""
-        cid = self.channels.get(channel.id)
-        if cid is None:
-            cid = self.writer.register_channel(
-                channel.topic,
-                channel.message_encoding,
-                self._schema_id(schema),
-                dict(channel.metadata or {}),
-            )
-            self.channels[channel.id] = cid
-        self.writer.add_message(cid, msg.log_time, msg.data, msg.publish_time, msg.sequence)
-        r = self.report
-        r.messages += 1
-        r.topics[channel.topic] = r.topics.get(channel.topic, 0) + 1
-        r.first_ns = msg.log_time if r.first_ns is None else min(r.first_ns, msg.log_time)
-        r.last_ns = msg.log_time if r.last_ns is None else max(r.last_ns, msg.log_time)
-
-
 def recover_file(src: str | os.PathLike, dst: IO[bytes]) -> RecoverReport:
     """Copy every complete message of recording src (in file order) into a finished MCAP on dst.
 
     Raises OrdervibError when src is missing or not an MCAP file. dst is not closed.
     """
     report = RecoverReport()
-    f = _open_checked(src)  # one-line errors for a missing or non-MCAP file
-    writer = Writer(
-        dst,
-        chunk_size=CHUNK_SIZE,
-        compression=CompressionType.ZSTD,
-        index_types=IndexType.CHUNK | IndexType.MESSAGE,
-    )
-    writer.start(profile="", library=LIBRARY)
-    copier = _Copier(writer, report)
-    with f:
-        report.bytes_in = os.fstat(f.fileno()).st_size
-        report.unfinished = not _has_footer(f)
-        it = NonSeekingReader(f, validate_crcs=True).iter_messages(log_time_order=False)
-        while True:
-            try:
-                schema, channel, msg = next(it)
-            except StopIteration:
-                break
-            except (McapError, struct.error, EOFError, ValueError, OSError):
-                report.unfinished = True  # ended mid-record, or a corrupt tail
-                break
-            copier.add(schema, channel, msg)
-    writer.finish()
+    stats = ReadStats()
+    with open_recording(src) as rec:  # one-line errors for a missing or non-MCAP file
+        report.bytes_in = rec.size
+        writer = McapWriter(dst)
+        for m in copy_messages(rec, writer, stats):
+            report.add(m)
+        writer.finish()
+        report.unfinished = stats.truncated or not rec.finished
+    report.skipped = stats.malformed
     return report
 
 
@@ -160,6 +98,8 @@ def _summary(r: RecoverReport, src: str, out: str, seconds: float) -> str:
     if r.first_ns is not None and r.last_ns is not None:
         t0 = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(r.first_ns / 1e9))
         span = f", span {r.span_s:.3f} s from {t0} UTC"
+    if r.skipped:
+        span += f", {r.skipped} unreadable records skipped"
     return (
         f"recover: {state} input {src} ({r.bytes_in} bytes): {r.messages} messages on "
         f"{len(r.topics)} topics{span} -> {out} in {seconds:.2f} s"

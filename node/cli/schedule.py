@@ -12,7 +12,7 @@ from node.contract import FS
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
-    from node.mcap.recording import Run
+    from node.mcap import Run
 
 log = logging.getLogger(__name__)
 

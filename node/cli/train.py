@@ -14,7 +14,7 @@ from node.cli.table import print_table
 from node.contract.errors import OrdervibError
 
 if TYPE_CHECKING:
-    from node.mcap.recording import Run
+    from node.mcap import Run
     from node.training.train import OCResult
 
 log = logging.getLogger(__name__)
@@ -54,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def load_runs(paths: list[str], quiet: bool = False) -> list[Run]:
     """Runs of every recording, in order; one status line per file unless quiet."""
-    from node.mcap.recording import ReadStats, read_runs
+    from node.mcap import ReadStats, read_runs
     runs: list[Run] = []
     for path in paths:
         stats = ReadStats()

@@ -19,7 +19,7 @@ import orjson
 
 from node.contract import SENSOR_SUBSCRIPTION, health_key, liveliness_key
 from node.live.zenoh import open_session, zenoh_config
-from node.mcap.recording import RecordingWriter
+from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle
 from node.runtime.core import NodeCore

@@ -1,0 +1,30 @@
+"""Recordings: the contract's MCAP layout (INTERFACE.md sections 1 and 3), written and read here.
+
+- ``format``: opcodes, magic, record layouts, compressions (the only place they are written);
+- ``writer``: ``RecordingWriter`` (one topic per key expression, JSON payloads) over ``McapWriter``;
+- ``reader``: one walk over the records in file order (``open_recording``), and ``iter_messages``,
+  ``iter_messages_fast``, ``read_payloads`` and ``copy_messages`` on it;
+- ``runs``: ``read_runs``, the pass-off runs of a recording as time-major arrays, for training;
+- ``rotation``: ``RotatingRecorder``, a recording split into successive files.
+"""
+
+from node.mcap.format import LIBRARY, MAGIC, Channel, Compression, Opcode, Schema
+from node.mcap.reader import (
+    Message,
+    ReadStats,
+    Recording,
+    copy_messages,
+    iter_messages,
+    iter_messages_fast,
+    open_recording,
+    read_payloads,
+)
+from node.mcap.rotation import RotatingRecorder, rotated_path
+from node.mcap.runs import Run, read_runs
+from node.mcap.writer import McapWriter, RecordingWriter
+
+__all__ = [
+    "LIBRARY", "MAGIC", "Channel", "Compression", "Opcode", "Schema", "Message", "ReadStats", "Recording",
+    "copy_messages", "iter_messages", "iter_messages_fast", "open_recording", "read_payloads",
+    "RotatingRecorder", "rotated_path", "Run", "read_runs", "McapWriter", "RecordingWriter",
+]

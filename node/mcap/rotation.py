@@ -25,7 +25,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from node.contract.errors import OrdervibError
-from node.mcap.recording import RecordingWriter
+from node.mcap.writer import RecordingWriter
 
 
 def rotated_path(path: str | os.PathLike, n: int) -> str:

@@ -114,7 +114,7 @@ def run_curve_column(speed: np.ndarray, y: np.ndarray, oc_codes: np.ndarray,
 
 
 def add_run_curve(run, schedule, target: str, fleet: tuple[np.ndarray, np.ndarray]):
-    """``run`` (a ``node.mcap.recording.Run``) with the ``run_curve`` column appended."""
+    """``run`` (a ``node.mcap.Run``) with the ``run_curve`` column appended."""
     from node.runtime.ocdetect import OCDetector
 
     if RUN_CURVE in run.channels or schedule.switch not in run.channels or target not in run.channels:

@@ -15,7 +15,7 @@ import numpy as np
 from node.contract import Phase
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.mcap.recording import Run
+from node.mcap import Run
 from node.runtime.ocdetect import OCDetector
 
 

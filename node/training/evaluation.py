@@ -9,7 +9,7 @@ import numpy as np
 
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.mcap.recording import Run
+from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.ocmodel import Trajectory
 from node.runtime.runcurve import RUN_CURVE, add_run_curve

@@ -19,7 +19,7 @@ import numpy as np
 from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.mcap.recording import Run
+from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.ocmodel import Method, OCModel, Trajectory, fit_oc_model, memory
 from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds

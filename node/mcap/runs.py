@@ -1,0 +1,182 @@
+"""Pass-off runs of a recording, for training: ``read_runs`` and ``Run``.
+
+``read_runs`` reads every sensor payload (``read_payloads``), decodes them with the
+contract's payload rule (``node.contract.decode_samples``), snaps them to the 40 Hz
+grid and splits them into runs: time-major arrays (samples, channels).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from node.contract import (
+    FS,
+    OFF_FRACTION,
+    RUN_GAP,
+    SENSOR_CHANNELS,
+    SPEED_CHANNELS,
+    decode_samples,
+    parse_sensor_key,
+)
+from node.mcap.reader import ReadStats, Source, read_payloads
+
+MIN_RUN = 10.0  # shorter stretches of "engine on" are not runs (noise), s
+
+
+@dataclass
+class Run:
+    """One pass-off run on the 40 Hz grid.
+
+    t: (K,) seconds since the epoch; data: (K, len(channels)) float64, NaN where
+    a sample is missing or a dropout; shutdown_before: seconds the engine was off
+    before this run (None for the first run in the file).
+    """
+
+    t: np.ndarray
+    data: np.ndarray
+    channels: tuple[str, ...]
+    bed: str
+    shutdown_before: float | None
+
+    def column(self, name: str) -> np.ndarray:
+        """One channel's samples, shape (K,)."""
+        return self.data[:, self.channels.index(name)]
+
+
+def _order_channels(found: Sequence[str], wanted: Sequence[str] | None) -> tuple[str, ...]:
+    if wanted is not None:
+        return tuple(wanted)
+    known = [c for c in SENSOR_CHANNELS if c in found]
+    return tuple(known + sorted(c for c in found if c not in SENSOR_CHANNELS))
+
+
+def _align(
+    t: np.ndarray, col: np.ndarray, v: np.ndarray, n_channels: int
+) -> tuple[float, np.ndarray]:
+    """Snap samples (t sorted) to a 40 Hz grid: returns (t0, data (K, n_channels))."""
+    k = np.rint((t - t[0]) * FS)
+    t0 = t[0] + float(np.median(t - t[0] - k / FS))
+    k = np.rint((t - t0) * FS).astype(np.int64)
+    k -= k.min()
+    data = np.full((int(k.max()) + 1, n_channels), np.nan)
+    data[k, col] = v
+    return t0 + k.min() / FS, data
+
+
+def _ffill(x: np.ndarray) -> np.ndarray:
+    """Fill NaN rows of each column with the last value before them (then the first after)."""
+    out = x.copy()
+    for j in range(x.shape[1]):
+        col = out[:, j]
+        ok = ~np.isnan(col)
+        if not ok.any():
+            continue
+        idx = np.where(ok, np.arange(len(col)), 0)
+        np.maximum.accumulate(idx, out=idx)
+        first = int(np.argmax(ok))
+        idx[:first] = first
+        out[:, j] = col[idx]
+    return out
+
+
+def _split_on(data: np.ndarray, speed_cols: list[int], tops: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) row ranges where the engine is on (some speed >= 5 % of its maximum).
+
+    A dropout of a speed holds its last value, so it cannot fake a shutdown.
+    """
+    if not speed_cols:
+        return [(0, len(data))]
+    speeds = _ffill(data[:, speed_cols])
+    off = np.all((speeds < OFF_FRACTION * tops) | np.isnan(speeds), axis=1)
+    off &= ~np.all(np.isnan(speeds), axis=1)  # no speed at all: not known to be off
+    on = np.concatenate([[False], ~off, [False]])
+    edges = np.flatnonzero(np.diff(on.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def read_runs(
+    path: Source,
+    channels: Sequence[str] | None = None,
+    stats: ReadStats | None = None,
+) -> list[Run]:
+    """The pass-off runs of a recording's sensor streams, in time order.
+
+    channels: the columns wanted (default: every sensor channel found, contract
+    order first). Runs are split at gaps >= 60 s and where every shaft speed is
+    below 5 % of its maximum over the file; those off samples are dropped.
+    shutdown_before = first "on" sample of the run - (last "on" sample of the
+    previous run + 1/40 s). Several beds in one file give separate runs.
+    """
+    stats = stats if stats is not None else ReadStats()
+    by_topic = read_payloads(path, stats)
+    per_bed: dict[str, dict[str, list[bytes]]] = {}
+    for topic, payloads in by_topic.items():
+        parsed = parse_sensor_key(topic)
+        if parsed is None:
+            stats.unknown_topics.add(topic)
+            continue
+        per_bed.setdefault(parsed[0], {}).setdefault(parsed[1], []).extend(payloads)
+    runs: list[Run] = []
+    for bed in sorted(per_bed):
+        runs += _bed_runs(bed, per_bed[bed], channels, stats)
+    runs.sort(key=lambda r: r.t[0])
+    return runs
+
+
+def _bed_runs(
+    bed: str,
+    streams: dict[str, list[bytes]],
+    wanted: Sequence[str] | None,
+    stats: ReadStats,
+) -> list[Run]:
+    names = _order_channels(list(streams), wanted)
+    col_of = {c: j for j, c in enumerate(names)}
+    ts, vs, cs = [], [], []
+    speed_names = [c for c in SPEED_CHANNELS if c in streams]
+    extra = [c for c in speed_names if c not in col_of]
+    for j, c in enumerate(list(names) + extra):  # speeds needed for splitting even if unwanted
+        if c not in streams:
+            continue
+        t, v, ok = decode_samples(streams[c])
+        stats.malformed += int(np.count_nonzero(~ok))
+        t, v = t[ok], v[ok]
+        ts.append(t)
+        vs.append(v)
+        cs.append(np.full(len(t), j, dtype=np.int64))
+    if not ts:
+        return []
+    t, v, col = np.concatenate(ts), np.concatenate(vs), np.concatenate(cs)
+    if not len(t):
+        return []
+    width = len(names) + len(extra)
+    all_names = list(names) + extra
+    speed_cols = [all_names.index(c) for c in speed_names]
+    tops = np.array([np.nanmax(v[col == j]) if np.any(col == j) else np.nan for j in speed_cols])
+    tops = np.where(np.isfinite(tops) & (tops > 0), tops, np.inf)
+
+    order = np.argsort(t, kind="stable")
+    t, v, col = t[order], v[order], col[order]
+    cuts = np.flatnonzero(np.diff(t) >= RUN_GAP) + 1
+    runs: list[Run] = []
+    last_on_end: float | None = None
+    for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [len(t)]]), strict=True):
+        t0, data = _align(t[a:b], col[a:b], v[a:b], width)
+        for r0, r1 in _split_on(data, speed_cols, tops[: len(speed_cols)]):
+            if (r1 - r0) / FS < MIN_RUN:
+                continue
+            start = t0 + r0 / FS
+            shutdown = None if last_on_end is None else start - last_on_end
+            runs.append(
+                Run(
+                    t=start + np.arange(r1 - r0) / FS,
+                    data=np.ascontiguousarray(data[r0:r1, : len(names)]),
+                    channels=names,
+                    bed=bed,
+                    shutdown_before=shutdown,
+                )
+            )
+            last_on_end = t0 + r1 / FS
+    return runs
