@@ -2,7 +2,7 @@
 
     python -m bench rotor [--quick] [--extra-levels 3 5] [--workers 2]
 
-The finite-element cantilever of :mod:`bench.beam_model` (30 nodes) carries an
+The finite-element cantilever of :mod:`harness.beam` (30 nodes) carries an
 imbalanced rotor at node 13. The rotor pushes the beam transversely with
 
     F(t) = m e w(t)^2 sin(theta(t)),  w = 2 pi rpm / 60 (rad/s),  theta = integral of w dt,
@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench import beam_model as bm
+from harness import beam as bm
 from node.cli.table import print_table
 from node.order_tracking import shaft_revolutions, vkf_orders
 from node.sysid import WDMD, eps_td
@@ -327,7 +327,7 @@ def describe(run: Run) -> None:
     spec = beam_spec(run.fs)
     f_nat = bm.natural_frequencies(spec)
     print("# Imbalanced-rotor beam (dissertation section 5.4, Table 5.1)\n")
-    print(f"Beam: FE cantilever of bench.beam_model, {spec.n_elements} elements (nodes 1-30 free), "
+    print(f"Beam: FE cantilever of harness.beam, {spec.n_elements} elements (nodes 1-30 free), "
           f"damping {spec.zeta:.0%}; modes (Hz) " + ", ".join(f"{f:.1f}" for f in f_nat[:3])
           + f" (mode 1 = {60 * f_nat[0]:.0f} rpm); exact ZOH at {run.fs:.0f} Hz.")
     print(f"Rotor: imbalance m e = {MASS_ECC:g} kg m at node {ROTOR_NODE}, "

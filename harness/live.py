@@ -173,7 +173,7 @@ def start_node(model: str, record: str, port: int) -> subprocess.Popen:
 
 def start_peer(mode: str, port: int, stream: Stream | None = None, needed: set[str] | None = None):
     """A bare Zenoh subscriber process: ``echo`` replies once per sample, ``count`` only counts."""
-    cmd = [sys.executable, "-m", "bench.live", "--peer", mode, "--port", str(port)]
+    cmd = [sys.executable, "-m", "harness.live", "--peer", mode, "--port", str(port)]
     if mode == "echo":
         cmd += ["--t0", repr(stream.t0), "--needed", ",".join(sorted(needed))]
     p = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
