@@ -11,8 +11,8 @@ BENCHMARKS = {
     "read-speed": "bench.read_speed",
     "train-speed": "bench.train_speed",
     "replay-speed": "bench.replay_speed",
-    "rotor": "harness.rotor",
-    "live": "harness.live",
+    "rotor": "bench.rotor",
+    "live": "bench.live",
 }
 
 

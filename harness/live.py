@@ -1,38 +1,24 @@
-"""The live node over Zenoh on loopback, each figure beside its ceiling measured in the same run.
+"""The live rig: test beds published over Zenoh on loopback, their replies timed.
 
-    python -m bench live [--seconds 60] [--beds 20] [--ceiling-seconds 15] [--model MODEL] [REC.mcap]
+* :func:`load_stream` -- one test bed's messages of a recording, slot by slot (40 Hz);
+* :class:`Bench` -- this process's Zenoh session: publishes the beds at 40 Hz in real time and
+  stamps every reply on arrival; :func:`latencies` turns the stamps into per-sample latencies;
+* :func:`start_node` / :func:`stop_node` -- ``ordervib run`` as a separate process;
+* :func:`start_peer` / :func:`stop_peer` -- a bare Zenoh process (``python -m harness.live --peer``)
+  that echoes one message per complete sample or only counts: the ceiling a node is set beside.
 
-1. Latency, one test bed: the recording's channels published at 40 Hz in real time
-   (a sample's messages back to back at its due time) into ``ordervib run``;
-   latency = arrival of the monitor message of a sample minus the publish of the
-   last channel of that sample the model needs (publisher and subscriber share
-   this process's clock). Ceiling: the same stream through a bare Zenoh echo
-   process (its callback republishes each message), the round trip of the same
-   message.
-2. Throughput: ``--beds`` test beds (bed01, bed02, ...) each publishing every
-   channel at 40 Hz in real time into one node process. PASS when the node
-   receives every message, its queue never overflows, every sample of every bed
-   is complete (nothing missing from the cadence, nothing late) and has its
-   monitor message. Ceiling: a bare Zenoh subscriber process counting the same
-   stream.
-
-Without ``--model`` a Lasso bundle is trained on the committed sample runs
-first. The stream is the first run of the recording from ``--offset`` seconds
-(30 s: the window covers the first operating conditions, so the models run).
+Publisher and subscriber share this process's monotonic clock.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import os
 import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +30,6 @@ from node.contract import FS, RUN_GAP
 
 ROOT = Path(__file__).resolve().parents[1]
 WARMUP = 40  # slots (1 s) left out of the latency figures
-LATENCY_P99_MS = 20.0
 
 
 @dataclass
@@ -64,7 +49,9 @@ def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> S
     from node.contract import parse_sensor_key
     from node.mcap.recording import iter_messages_fast
     n = int(round(seconds * FS))
-    run0 = last_t = cut = t0 = None
+    last_t: float | None = None
+    t0: float | None = None
+    cut: float | None = None  # set at the run's first message
     slots: dict[int, list[tuple[str, bytes]]] = {}
     for m in iter_messages_fast(path):
         parsed = parse_sensor_key(m.topic)
@@ -74,9 +61,8 @@ def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> S
         if last_t is not None and t - last_t >= RUN_GAP:
             break  # the first run ends
         last_t = t if last_t is None else max(last_t, t)
-        if run0 is None:
-            run0 = t
-            cut = run0 + (round(offset * FS) - 0.5) / FS  # between two slots
+        if cut is None:
+            cut = t + (round(offset * FS) - 0.5) / FS  # between two slots
         if t < cut:
             continue
         if t0 is None:
@@ -103,10 +89,6 @@ def cpu_seconds(pid: int) -> float:
     with open(f"/proc/{pid}/stat") as f:
         fields = f.read().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def pct(a: np.ndarray, q: float) -> float:
-    return float(np.percentile(a, q)) if len(a) else float("nan")
 
 
 class Bench:
@@ -175,9 +157,11 @@ def start_peer(mode: str, port: int, stream: Stream | None = None, needed: set[s
     """A bare Zenoh subscriber process: ``echo`` replies once per sample, ``count`` only counts."""
     cmd = [sys.executable, "-m", "harness.live", "--peer", mode, "--port", str(port)]
     if mode == "echo":
+        if stream is None or needed is None:
+            raise ValueError("an echo peer needs the stream and the needed channels")
         cmd += ["--t0", repr(stream.t0), "--needed", ",".join(sorted(needed))]
     p = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    if p.stdout.readline().strip() != "ready":
+    if p.stdout is None or p.stdout.readline().strip() != "ready":
         raise SystemExit("the Zenoh peer process did not start")
     return p
 
@@ -199,7 +183,7 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
     from node.contract import SENSOR_SUBSCRIPTION
     from node.live.zenoh import open_session, zenoh_config
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
-    pubs: dict[str, object] = {}
+    pubs: dict[str, zenoh.Publisher] = {}
     counts: dict[tuple[str, int], int] = {}
     n = [0]
     block = zenoh.CongestionControl.BLOCK
@@ -233,7 +217,8 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
 def latencies(bench: Bench, stream: Stream, sent: np.ndarray, suffix: str) -> tuple[np.ndarray, dict]:
     """Per sample: arrival of its reply (key ending with ``suffix``) minus its last needed channel's send."""
     bed_index = {b: i for i, b in enumerate(bench.beds)}
-    lat, seen = [], {}
+    lat: list[float] = []
+    seen: dict[str, int] = {}
     for key, payload, arr in list(bench.arrivals):
         if not key.endswith(suffix):
             continue
@@ -266,40 +251,6 @@ def stop_node(node: subprocess.Popen) -> None:
         node.wait()
 
 
-def run_latency(args, stream: Stream, channels: list[str], needed: set[str], target: str,
-                tmp: Path) -> dict:
-    beds = ["lat01"]
-    # ceiling: Zenoh alone, a bare echo process
-    port = free_port()
-    peer = start_peer("echo", port, stream, needed)
-    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "echo/*")
-    try:
-        b.wait_matched()
-        short = Stream(stream.slots[:int(args.ceiling_seconds * FS)], stream.t0, stream.last)
-        r = b.publish(short)
-        wait_for(lambda: len(b.arrivals) >= len(short.slots), 10)
-        zlat, zseen = latencies(b, short, r["sent"], "echo/lat01")
-    finally:
-        b.close()
-        stop_peer(peer)
-    # the node
-    port = free_port()
-    node = start_node(args.model, str(tmp / "latency.mcap"), port)
-    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "testbed/*/monitor/**")
-    try:
-        b.wait_matched()
-        r = b.publish(stream)
-        suffix = f"/monitor/{target}"
-        wait_for(lambda: sum(k.endswith(suffix) for k, _, _ in b.arrivals) >= len(stream.slots), 10)
-        nlat, seen = latencies(b, stream, r["sent"], suffix)
-    finally:
-        b.close()
-        stop_node(node)
-    return {"zenoh": zlat, "node": nlat, "monitor": seen.get("lat01", 0), "slots": len(stream.slots),
-            "behind_s": r["behind_s"], "zenoh_replies": zseen.get("lat01", 0),
-            "zenoh_slots": len(short.slots)}
-
-
 def last_health(bench: Bench) -> dict[str, dict]:
     out = {}
     for key, payload, _ in bench.arrivals:
@@ -307,161 +258,15 @@ def last_health(bench: Bench) -> dict[str, dict]:
             out[key.split("/")[1]] = orjson.loads(payload)
     return out
 
-
-def run_throughput(args, stream: Stream, channels: list[str], target: str, tmp: Path) -> dict:
-    beds = [f"bed{i:02d}" for i in range(1, args.beds + 1)]
-    # ceiling: a bare Zenoh subscriber that only counts
-    port = free_port()
-    peer = start_peer("count", port)
-    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "nothing/**")
-    try:
-        b.wait_matched()
-        short = Stream(stream.slots[:int(args.ceiling_seconds * FS)], stream.t0, stream.last)
-        cpu0 = cpu_seconds(peer.pid)
-        rz = b.publish(short)
-        time.sleep(0.5)
-        zcpu = (cpu_seconds(peer.pid) - cpu0) / rz["wall"]
-    finally:
-        b.close()
-        zrecv = stop_peer(peer)["received"]
-    # the node
-    port = free_port()
-    node = start_node(args.model, str(tmp / "throughput.mcap"), port)
-    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "testbed/*/monitor/**")
-    suffix = f"/monitor/{target}"
-    try:
-        b.wait_matched()
-        cpu0 = cpu_seconds(node.pid)
-        r = b.publish(stream)
-        cpu = (cpu_seconds(node.pid) - cpu0) / r["wall"]
-        expected = len(stream.slots) * len(beds)
-        wait_for(lambda: sum(k.endswith(suffix) for k, _, _ in b.arrivals) >= expected, 30)
-        drained = max((a for k, _, a in b.arrivals if k.endswith(suffix)), default=r["end_ns"])
-        drain_ms = max(0.0, (drained - r["end_ns"]) / 1e6)
-        time.sleep(2.2)  # two health periods after the backlog
-        lat, seen = latencies(b, stream, r["sent"], suffix)
-        health = last_health(b)
-        lag99 = max((orjson.loads(p).get("lag_ms_p99") or 0.0 for k, p, _ in b.arrivals
-                     if k.endswith("/monitor/health")), default=float("nan"))
-    finally:
-        b.close()
-        stop_node(node)
-    return {"beds": beds, "offered": r["count"], "wall": r["wall"], "behind_s": r["behind_s"],
-            "zenoh_received": zrecv, "zenoh_offered": rz["count"], "zenoh_wall": rz["wall"],
-            "zenoh_cpu": zcpu, "cpu": cpu, "health": health, "seen": seen, "lat": lat,
-            "lag99": lag99, "drain_ms": drain_ms, "slots": len(stream.slots)}
-
-
-def ms(x: float) -> str:
-    return f"{x:.2f} ms"
-
-
-def report(lat: dict | None, thr: dict | None, nchan: int) -> bool:
-    from node.cli.table import print_table
-    ok = True
-    if lat is not None:
-        z, n = lat["zenoh"], lat["node"]
-        p99_ok = pct(n, 99) < LATENCY_P99_MS and lat["monitor"] == lat["slots"]
-        ok &= p99_ok
-        rows = [
-            ["latency p50", ms(pct(n, 50)), f"Zenoh alone (echo process) {ms(pct(z, 50))}", ""],
-            ["latency p99", ms(pct(n, 99)), f"< {LATENCY_P99_MS:g} ms; Zenoh echo {ms(pct(z, 99))}",
-             "PASS" if p99_ok else "FAIL"],
-            ["latency max", ms(n.max() if len(n) else float("nan")),
-             f"Zenoh echo {ms(z.max() if len(z) else float('nan'))}", ""],
-            ["samples measured / monitor messages", f"{len(n)} / {lat['monitor']}",
-             f"{lat['slots'] - WARMUP} / {lat['slots']}; echo {lat['zenoh_replies']} / {lat['zenoh_slots']}",
-             "PASS" if lat["monitor"] == lat["slots"] else "FAIL"],
-        ]
-        print_table(["figure", "measured", "ceiling / target", "result"], rows, markdown=True,
-                    title="Live latency, 1 test bed: last needed channel published -> monitor message "
-                    "received")
-    if thr is not None:
-        nb, slots = len(thr["beds"]), thr["slots"]
-        target_rate = nb * nchan * FS
-        health = thr["health"]
-        received = max((h.get("received", 0) for h in health.values()), default=0)
-        dropped = max((h.get("dropped", 0) for h in health.values()), default=-1)
-        missing = sum(sum(h.get("missing", {}).values()) for h in health.values())
-        late = sum(h.get("late", 0) for h in health.values())
-        samples = [health.get(b, {}).get("samples", 0) for b in thr["beds"]]
-        seen = [thr["seen"].get(b, 0) for b in thr["beds"]]
-        kept_up = thr["offered"] / thr["wall"] >= 0.99 * target_rate  # the publisher kept the rate
-        checks = {
-            "offered": kept_up,
-            "received": received == thr["offered"],
-            "dropped": dropped == 0,
-            "missing": missing == 0 and late == 0 and len(health) == nb and min(samples) == slots,
-            "monitor": min(seen) == slots and max(seen) == slots,
-        }
-        ok &= all(checks.values())
-
-        def res(k: str) -> str:
-            return "PASS" if checks[k] else "FAIL"
-        rows = [
-            ["messages/s offered", f"{thr['offered'] / thr['wall']:,.0f} ({thr['offered']:,} in "
-             f"{thr['wall']:.1f} s; publisher at most {thr['behind_s'] * 1e3:.0f} ms late)",
-             f"{target_rate:,.0f} ({nb} beds x {nchan} channels x 40 Hz)", res("offered")],
-            ["messages received by the node", f"{received:,}",
-             f"all offered; bare Zenoh subscriber: {thr['zenoh_received']:,} of {thr['zenoh_offered']:,}",
-             res("received")],
-            ["queue overflow", str(dropped), "0", res("dropped")],
-            ["missing from cadence / late (all beds)", f"{missing} / {late}",
-             f"0 / 0; {nb} beds x {slots} samples", res("missing")],
-            ["monitor messages per bed (min-max)", f"{min(seen)}-{max(seen)}", f"{slots} each",
-             res("monitor")],
-            ["node CPU", f"{thr['cpu'] * 100:.0f} % of a core",
-             f"bare Zenoh subscriber {thr['zenoh_cpu'] * 100:.0f} %", ""],
-            ["worker queue lag p99 (worst health report)", ms(thr["lag99"]), "", ""],
-            ["backlog after the last publish", ms(thr["drain_ms"]), "", ""],
-            ["latency under load p50 / p99", f"{pct(thr['lat'], 50):.1f} / {pct(thr['lat'], 99):.1f} ms", "",
-             ""],
-        ]
-        print_table(["figure", "measured", "ceiling / target", "result"], rows, markdown=True,
-                    title=f"Throughput, {nb} test beds at 40 Hz into one node process")
-    return ok
-
-
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench live")
-    ap.add_argument("recording", nargs="?", default=str(ROOT / "recordings" / "engine1_runs.mcap"))
-    ap.add_argument("--model")
-    ap.add_argument("--seconds", type=float, default=60.0, help="per node measurement (default 60)")
-    ap.add_argument("--ceiling-seconds", type=float, default=15.0, help="per Zenoh-only measurement")
-    ap.add_argument("--beds", type=int, default=20)
-    ap.add_argument("--offset", type=float, default=30.0, help="s into the recording's first run")
-    ap.add_argument("--only", choices=["latency", "throughput"])
-    ap.add_argument("--peer", choices=["echo", "count"], help=argparse.SUPPRESS)
-    ap.add_argument("--port", type=int, help=argparse.SUPPRESS)
-    ap.add_argument("--t0", type=float, help=argparse.SUPPRESS)
-    ap.add_argument("--needed", default="", help=argparse.SUPPRESS)
+    """The peer process of :func:`start_peer`."""
+    ap = argparse.ArgumentParser(prog="python -m harness.live")
+    ap.add_argument("--peer", choices=["echo", "count"], required=True)
+    ap.add_argument("--port", type=int, required=True)
+    ap.add_argument("--t0", type=float)
+    ap.add_argument("--needed", default="")
     args = ap.parse_args(argv)
-    if args.peer:
-        return peer_main(args.peer, args.port, args.t0, set(args.needed.split(",")))
-    from node.cli import main as cli
-    from node.models.bundle import load_bundle
-    from node.runtime.pipeline import MonitorPipeline
-
-    tmp = Path(tempfile.mkdtemp(prefix="ordervib-live-"))
-    if not args.model:
-        args.model = str(tmp / "model")
-        with contextlib.redirect_stdout(io.StringIO()):  # the training report is not the bench's
-            cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
-                 str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
-                 "--method", "lasso", "--quiet"])
-    bundle = load_bundle(args.model)
-    needed = set(MonitorPipeline(bundle).sensor_channels)  # what the test bed publishes
-    stream = load_stream(args.recording, args.seconds, args.offset, needed)
-    channels = sorted({c for s in stream.slots for c, _ in s})
-    print(f"{args.recording}: {len(stream.slots)} samples of {len(channels)} channels per bed "
-          f"({len(needed)} needed by the model), from {args.offset:g} s into the first run; "
-          f"node recordings in {tmp}")
-    lat = thr = None
-    if args.only in (None, "latency"):
-        lat = run_latency(args, stream, channels, needed, bundle.target, tmp)
-    if args.only in (None, "throughput"):
-        thr = run_throughput(args, stream, channels, bundle.target, tmp)
-    return 0 if report(lat, thr, len(channels)) else 1
+    return peer_main(args.peer, args.port, args.t0, set(args.needed.split(",")))
 
 
 if __name__ == "__main__":
