@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench import beam_model as bm
+from harness import beam as bm
 from node.cli.table import print_table
 from node.sysid import IODMD, WDMD, DelayDMD, StateSpace, eps_fd, eps_td, mac
 
@@ -257,7 +257,7 @@ def modes(spec: bm.BeamSpec, clean: Case) -> None:
 
 def make_peers(quick: bool):
     try:
-        from bench import peers as pk
+        from harness import peers as pk
     except ImportError as exc:  # optional extra not installed
         print(f"(peers unavailable: {exc})")
         return lambda case: []
@@ -317,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
     noisy = clean.noisy(NOISE)
     main_table(clean, noisy, freqs, make_peers(args.quick))
     try:
-        from bench import peers as pk
+        from harness import peers as pk
         print("\nPyDMD: " + pk.pydmd_note())
     except (ImportError, AttributeError):
         pass

@@ -14,7 +14,7 @@ episode at or after it is measured; an episode the same run also raises without 
 fault (a false alarm that happens to follow the onset) does not count. Targets (issue 5): every fault flagged
 within 60 s, at most 1 false alarm per hour.
 
-Beside each delay, how large the fault is as the node sees it (``bench.fault_effect``): the
+Beside each delay, how large the fault is as the node sees it (``harness.fault_effect``): the
 largest change it makes to the target within 60 s (fault run minus the first held-out run,
 which is the same run without the fault), and that change over the residual alarm band. A
 fault whose effect stays below the band cannot be flagged by the residual rule in time; the
@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_effect, on_common_samples
+from harness.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_effect, on_common_samples
 from node.cli import main as cli
 from node.cli.replay import replay_offline
 from node.contract import FS

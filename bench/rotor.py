@@ -2,31 +2,15 @@
 
     python -m bench rotor [--quick] [--extra-levels 3 5] [--workers 2]
 
-The finite-element cantilever of :mod:`bench.beam_model` (30 nodes) carries an
-imbalanced rotor at node 13. The rotor pushes the beam transversely with
-
-    F(t) = m e w(t)^2 sin(theta(t)),  w = 2 pi rpm / 60 (rad/s),  theta = integral of w dt,
-
-and the transverse displacements at nodes 28, 29, 30 are measured. One run of
-the RPM profile (Fig. 5.3/5.4) is simulated; it holds two operating conditions,
-OC1 (1150-1560 rpm) and OC2 (1561-3200 rpm, through the first bending mode at
-~2630 rpm), each a training phase followed by three testing phases: (i) a
-steady plateau, (ii) a ramp unlike the training ramps, (iii) a non-stationary
-up-down sweep.
-
-Per OC a WDMD model (J = 4, Haar: 3 x 5 = 15 pseudo-states) is trained on the
-raw displacements, its input being the imbalance force: a linear model of the
-raw response needs the force (the rpm enters through w^2 and the phase
-sin(theta), not linearly). The order-1 amplitude is then tracked (Vold-Kalman
-filter) in the model's free-run response and in the noise-free true response,
-and eps_td (eq. 5.20, over the three outputs) compares the two. Training:
-the training input replayed (from rest for OC1, seeded from the measured
-history before it for OC2). Testing: the three phases simulated one after
-another, each seeded from the measured history before it, tracked as one span.
+The run, its two operating conditions and the model are :mod:`harness.rotor`'s: the
+finite-element cantilever of :mod:`harness.beam` (30 nodes) with an imbalanced rotor at
+node 13, per OC a WDMD model (J = 4, Haar) trained on the raw displacements with the
+imbalance force as input, and eps_td (eq. 5.20, over the three outputs) of the order-1
+amplitudes (Vold-Kalman filter) of the model's free run against the noise-free truth's.
 
 Noise: white, a fraction of each output's std over the OC's training phase,
 added to every measured output (training data and seeding histories); errors
-are always against the noise-free truth. Mean over 5 realizations (the text
+are always against the noise-free truth. Mean over 3 realizations (2 with --quick; the text
 used 50); a realization whose model is unstable is counted, not averaged.
 A second table shows the OC2 model's poles per noise level: least squares on
 noisy MODWT pseudo-states (errors in variables, correlated between k and k+1)
@@ -36,24 +20,29 @@ biases A, and the OE step re-estimates only B and D.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import multiprocessing as mp
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from bench import beam_model as bm
+from harness import beam as bm
+from harness.rotor import (
+    LEVELS,
+    MASS_ECC,
+    OUTPUT_NODES,
+    PROFILE,
+    ROTOR_NODE,
+    VKF_BANDWIDTH_HZ,
+    Run,
+    Truth,
+    add_noise,
+    beam_spec,
+    make_model,
+    oc_errors,
+    simulate_run,
+)
 from node.cli.table import print_table
-from node.order_tracking import shaft_revolutions, vkf_orders
-from node.sysid import WDMD, eps_td
 
-FS = 1000.0                 # Hz, sample rate of the run
-ROTOR_NODE = 13
-OUTPUT_NODES = [28, 29, 30]
-MASS_ECC = 1e-4             # kg m, imbalance m * e (e.g. 20 g at 5 mm)
-LEVELS = 4                  # J, as the text
-VKF_BANDWIDTH_HZ = 2.0      # full -3 dB bandwidth of the order tracker
 NOISE_PCT = [0, 5, 10, 15, 20, 40]
 
 # Table 5.1 of the dissertation: noise % -> (OC1 train, OC1 test, OC2 train, OC2 test)
@@ -65,184 +54,6 @@ DISSERTATION = {
     20: (0.0861, 0.2955, 0.3076, 0.1948),
     40: (0.1703, 0.2926, 0.5702, 0.4203),
 }
-
-# RPM profile: per OC, phases of (rpm knot, seconds to reach it from the previous knot).
-# A knot with the same rpm as the previous one is a plateau. Each phase continues
-# from the last rpm of the phase before.
-PROFILE: dict[str, dict] = {
-    "OC1": {
-        "range": (1150.0, 1560.0),
-        "start": 1200.0,
-        "phases": {
-            "train": [(1200, 1.5), (1500, 3), (1500, 2), (1250, 2.5), (1250, 1.5), (1420, 1.5),
-                      (1420, 1.5)],
-            "test i": [(1420, 3)],
-            "test ii": [(1180, 2.5), (1180, 0.5)],
-            "test iii": [(1450, 1), (1300, 1), (1550, 1.5), (1200, 1.5), (1560, 1.5)],
-        },
-    },
-    "OC2": {
-        "range": (1561.0, 3200.0),
-        "start": 1561.0,
-        "phases": {
-            "train": [(2000, 2.5), (2000, 1.5), (2900, 4), (2900, 2), (2200, 3), (2200, 1.5),
-                      (3150, 3.5), (3150, 1.5), (2500, 2.5)],
-            "test i": [(2500, 3)],
-            "test ii": [(3100, 3.5), (3100, 0.5)],
-            "test iii": [(1800, 2.5), (3000, 2.5), (2200, 2), (2800, 2)],
-        },
-    },
-}
-TEST_PHASES = ["test i", "test ii", "test iii"]
-
-
-# --- the run --------------------------------------------------------------------
-def rpm_segment(start: float, knots: list[tuple[float, float]], fs: float) -> np.ndarray:
-    """Piecewise-linear speed (K,) in rev/min through ``knots`` (rpm, seconds) from ``start``."""
-    parts = []
-    prev = start
-    for rpm, dur in knots:
-        n = int(round(dur * fs))
-        parts.append(prev + (rpm - prev) * (np.arange(1, n + 1) / n))
-        prev = rpm
-    return np.concatenate(parts)
-
-
-@dataclass
-class Run:
-    """The simulated run (time-major) and where each OC's phases lie in it.
-
-    rpm (K,) rev/min, force (K, 1) N, y (K, 3) m noise-free displacements,
-    spans {(oc, phase): (start, stop)} sample indices.
-    """
-
-    fs: float
-    rpm: np.ndarray
-    force: np.ndarray
-    y: np.ndarray
-    spans: dict[tuple[str, str], tuple[int, int]]
-
-
-def rpm_profile(fs: float = FS) -> tuple[np.ndarray, dict[tuple[str, str], tuple[int, int]]]:
-    """The whole speed profile (K,) rev/min and the sample span of every (OC, phase)."""
-    pieces, spans, k = [], {}, 0
-    for oc, cfg in PROFILE.items():
-        prev = cfg["start"]
-        for phase, knots in cfg["phases"].items():
-            seg = rpm_segment(prev, knots, fs)
-            lo, hi = cfg["range"]
-            if seg.min() < lo or seg.max() > hi:
-                raise ValueError(f"{oc} {phase} leaves its range {lo}-{hi} rpm")
-            spans[(oc, phase)] = (k, k + len(seg))
-            pieces.append(seg)
-            k += len(seg)
-            prev = seg[-1]
-    return np.concatenate(pieces), spans
-
-
-def imbalance_force(rpm: np.ndarray, fs: float, mass_ecc: float = MASS_ECC) -> np.ndarray:
-    """F = m e w^2 sin(theta) (K,) in N; theta integrated from rpm (rev/min) as the tracker does."""
-    w = 2 * np.pi * rpm / 60.0
-    theta = 2 * np.pi * shaft_revolutions(rpm, fs)
-    return mass_ecc * w ** 2 * np.sin(theta)
-
-
-def beam_spec(fs: float = FS) -> bm.BeamSpec:
-    """Our FE beam (section 4.4 dimensions) sampled at ``fs``."""
-    return dataclasses.replace(bm.BeamSpec(), fs=fs)
-
-
-def simulate_run(fs: float = FS) -> Run:
-    """Simulate the beam (from rest) over the whole profile."""
-    rpm, spans = rpm_profile(fs)
-    force = imbalance_force(rpm, fs)[:, None]
-    truth = bm.discrete_model(beam_spec(fs), [ROTOR_NODE], OUTPUT_NODES)
-    return Run(fs, rpm, force, truth.simulate(force), spans)
-
-
-def add_noise(run: Run, pct: float, rng: np.random.Generator) -> np.ndarray:
-    """Measured outputs (K, 3): white noise of ``pct`` % of each output's std over the
-    training phase of the OC a sample belongs to."""
-    y = run.y.copy()
-    if pct == 0:
-        return y
-    for oc in PROFILE:
-        lo, hi = run.spans[(oc, "train")]
-        sd = run.y[lo:hi].std(axis=0)
-        start = lo
-        stop = run.spans[(oc, TEST_PHASES[-1])][1]
-        y[start:stop] += pct / 100 * sd * rng.standard_normal((stop - start, y.shape[1]))
-    return y
-
-
-# --- order tracking --------------------------------------------------------------
-def order1_amplitudes(y: np.ndarray, rpm: np.ndarray, fs: float) -> np.ndarray:
-    """Order-1 amplitude (K, p) of every output column of y (K, p) by the VKF."""
-    return np.column_stack([
-        vkf_orders(y[:, i], fs, rpm, [1.0], bandwidth_hz=VKF_BANDWIDTH_HZ).amplitudes[:, 0]
-        for i in range(y.shape[1])])
-
-
-# --- one OC ------------------------------------------------------------------------
-def oc_predictions(run: Run, y_meas: np.ndarray, oc: str, model: WDMD) -> dict[str, np.ndarray]:
-    """Fit ``model`` on the OC's measured training data; free-run responses (K_phase, 3).
-
-    Returns {"train": replay of the training input, "test": the three testing
-    phases simulated in sequence, each seeded from the measured history}.
-    """
-    lo, hi = run.spans[(oc, "train")]
-    model.fit(y_meas[lo:hi], run.force[lo:hi])
-    hist = None if lo == 0 else (y_meas[:lo], run.force[:lo])
-    train = model.simulate(run.force[lo:hi], history=hist)
-    tests = []
-    for phase in TEST_PHASES:
-        a, b = run.spans[(oc, phase)]
-        tests.append(model.simulate(run.force[a:b], history=(y_meas[:a], run.force[:a])))
-    return {"train": train, "test": np.vstack(tests)}
-
-
-def oc_span(run: Run, oc: str, part: str) -> tuple[int, int]:
-    """Sample span of the training phase or of the three testing phases together."""
-    if part == "train":
-        return run.spans[(oc, "train")]
-    return run.spans[(oc, TEST_PHASES[0])][0], run.spans[(oc, TEST_PHASES[-1])][1]
-
-
-@dataclass
-class Truth:
-    """Order-1 amplitudes of the noise-free response per (oc, part)."""
-
-    amps: dict[tuple[str, str], np.ndarray]
-
-    @classmethod
-    def of(cls, run: Run) -> Truth:
-        amps = {}
-        for oc in PROFILE:
-            for part in ("train", "test"):
-                a, b = oc_span(run, oc, part)
-                amps[(oc, part)] = order1_amplitudes(run.y[a:b], run.rpm[a:b], run.fs)
-        return cls(amps)
-
-
-def oc_errors(run: Run, truth: Truth, y_meas: np.ndarray, oc: str,
-              model: WDMD) -> tuple[float, float]:
-    """(train, test) eps_td of the order-1 amplitudes of the model's free run."""
-    pred = oc_predictions(run, y_meas, oc, model)
-    out = []
-    for part in ("train", "test"):
-        a, b = oc_span(run, oc, part)
-        yp = pred[part]
-        if not np.all(np.isfinite(yp)) or np.abs(yp).max() > 1e3 * np.abs(run.y).max():
-            out.append(float("inf"))
-            continue
-        out.append(eps_td(truth.amps[(oc, part)], order1_amplitudes(yp, run.rpm[a:b], run.fs)))
-    return out[0], out[1]
-
-
-def make_model(estimator: str, levels: int = LEVELS, fs: float = FS) -> WDMD:
-    """WDMD as the text (Haar, causal MODWT) with our rcond default and the given estimator."""
-    return WDMD(levels=levels, wavelet="haar", rcond=1e-10, estimator=estimator, dt=1 / fs)
-
 
 # --- the table -----------------------------------------------------------------------
 Variant = tuple[str, int]  # (estimator, J)
@@ -327,7 +138,7 @@ def describe(run: Run) -> None:
     spec = beam_spec(run.fs)
     f_nat = bm.natural_frequencies(spec)
     print("# Imbalanced-rotor beam (dissertation section 5.4, Table 5.1)\n")
-    print(f"Beam: FE cantilever of bench.beam_model, {spec.n_elements} elements (nodes 1-30 free), "
+    print(f"Beam: FE cantilever of harness.beam, {spec.n_elements} elements (nodes 1-30 free), "
           f"damping {spec.zeta:.0%}; modes (Hz) " + ", ".join(f"{f:.1f}" for f in f_nat[:3])
           + f" (mode 1 = {60 * f_nat[0]:.0f} rpm); exact ZOH at {run.fs:.0f} Hz.")
     print(f"Rotor: imbalance m e = {MASS_ECC:g} kg m at node {ROTOR_NODE}, "

@@ -1,11 +1,11 @@
-"""bench.fault_effect: a fault's effect measured against its fault-free twin run."""
+"""harness.fault_effect: a fault's effect measured against its fault-free twin run."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from bench.fault_effect import SMOOTH_S, fault_effect
+from harness.fault_effect import SMOOTH_S, fault_effect
 from node.contract import SENSOR_CHANNELS
 from node.mcap import Run
 from simulator.campaign import DRIFT_RATE, simulate_campaign

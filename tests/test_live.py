@@ -117,7 +117,7 @@ def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
 
 
 def test_three_beds_at_40_hz_every_sample_gets_its_monitor_message(setup, tmp_path):
-    from bench.live import Bench, latencies, load_stream, wait_for
+    from harness.live import Bench, latencies, load_stream, wait_for
     from node.live.node import LiveNode
     from node.models.bundle import load_bundle
     from node.runtime.pipeline import MonitorPipeline

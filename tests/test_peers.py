@@ -1,11 +1,11 @@
-"""Peer wrappers (bench/peers.py) recover a small known system; skipped without the peers extra."""
+"""Peer wrappers (harness/peers.py) recover a small known system; skipped without the peers extra."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from bench.peers import estimate_state, fit_n4sid, fit_pykoop, pydmd_note
+from harness.peers import estimate_state, fit_n4sid, fit_pykoop, pydmd_note
 from node.sysid import StateSpace, eps_td
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench import beam_model as bm
-from bench import rotor as R
+from harness import beam as bm
+from harness import rotor as R
 
 
 @pytest.fixture(scope="module")

@@ -445,7 +445,7 @@ def test_bench_faults_compares_twinson_common_samples() -> None:
     """bench faults: a fault file's run may keep one rundown sample more than the normal file's
     (read_runs trims off samples against each file's top speed); the twins are compared on the
     samples both hold, and runs that are not twins are left for fault_effect to refuse."""
-    from bench.fault_effect import on_common_samples
+    from harness.fault_effect import on_common_samples
     from node.mcap import Run
 
     t = 1000.0 + 0.025 * np.arange(400)

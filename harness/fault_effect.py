@@ -46,7 +46,7 @@ def band_per_sample(run: Run, bundle: Bundle, schedule: Schedule, fs: float = FS
     for i, name in enumerate(names):
         res = bundle.oc(name)
         c = None if res is None else res.calibration
-        bands[i] = np.nan if c is None or res.model is None else c.threshold * c.sigma
+        bands[i] = np.nan if res is None or c is None or res.model is None else c.threshold * c.sigma
     speed = run.column(schedule.switch)
     out = np.full(len(speed), np.nan)
     for k, v in enumerate(speed.tolist()):

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 
@@ -120,7 +121,7 @@ class StateSpacePredictor:
 
     def simulate(self, U2, history=None) -> np.ndarray:
         U2 = as_matrix(U2, "U2", cols=self.model.n_inputs)
-        return self.model.simulate(U2, self.initial_state(history))
+        return cast(np.ndarray, self.model.simulate(U2, self.initial_state(history)))
 
 
 # ---------------------------------------------------------------------------
@@ -212,7 +213,7 @@ class PykoopPredictor:
     on unit windows (checked on a random window), then iterated.
     """
 
-    pipeline: object
+    pipeline: Any  # pykoop.KoopmanPipeline (an optional extra)
     n_outputs: int
     n_inputs: int
     info: dict = field(default_factory=dict)

@@ -1,0 +1,273 @@
+"""The live rig: test beds published over Zenoh on loopback, their replies timed.
+
+* :func:`load_stream` -- one test bed's messages of a recording, slot by slot (40 Hz);
+* :class:`Bench` -- this process's Zenoh session: publishes the beds at 40 Hz in real time and
+  stamps every reply on arrival; :func:`latencies` turns the stamps into per-sample latencies;
+* :func:`start_node` / :func:`stop_node` -- ``ordervib run`` as a separate process;
+* :func:`start_peer` / :func:`stop_peer` -- a bare Zenoh process (``python -m harness.live --peer``)
+  that echoes one message per complete sample or only counts: the ceiling a node is set beside.
+
+Publisher and subscriber share this process's monotonic clock.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import orjson
+
+from node.contract import FS, RUN_GAP
+
+ROOT = Path(__file__).resolve().parents[1]
+WARMUP = 40  # slots (1 s) left out of the latency figures
+
+
+@dataclass
+class Stream:
+    """Slots of one test bed's messages: ``slots[j]`` = [(channel, payload)] in recording order."""
+
+    slots: list[list[tuple[str, bytes]]]
+    t0: float  # t of the first message: the node's grid anchor
+    last: list[int]  # per slot: index of the last message of a channel the model needs
+
+    def slot_of(self, t: float) -> int:
+        return round((t - self.t0) * FS)
+
+
+def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
+    """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
+    from node.contract import parse_sensor_key
+    from node.mcap import iter_messages_fast
+    n = int(round(seconds * FS))
+    last_t: float | None = None
+    t0: float | None = None
+    cut: float | None = None  # set at the run's first message
+    slots: dict[int, list[tuple[str, bytes]]] = {}
+    for m in iter_messages_fast(path):
+        parsed = parse_sensor_key(m.topic)
+        if parsed is None:
+            continue
+        t = float(orjson.loads(m.payload)["t"])
+        if last_t is not None and t - last_t >= RUN_GAP:
+            break  # the first run ends
+        last_t = t if last_t is None else max(last_t, t)
+        if cut is None:
+            cut = t + (round(offset * FS) - 0.5) / FS  # between two slots
+        if t < cut:
+            continue
+        if t0 is None:
+            t0 = t
+        k = round((t - t0) * FS)
+        if k >= n + 1:
+            break
+        slots.setdefault(k, []).append((parsed[1], bytes(m.payload)))
+    got = [slots.get(k, []) for k in range(n)]
+    if t0 is None or not got[-1]:
+        raise SystemExit(f"{path}: its first run holds less than {offset:g} + {seconds:g} s")
+    last = [max((i for i, (c, _) in enumerate(s) if c in needed), default=-1) for s in got]
+    return Stream(got, t0, last)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (Linux /proc)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class Bench:
+    """This process's side: one Zenoh session that publishes the beds and collects replies."""
+
+    def __init__(self, endpoint: str, beds: list[str], channels: list[str], reply_keys: str) -> None:
+        import zenoh
+
+        from node.live.zenoh import open_session, zenoh_config
+        self.session = open_session(zenoh_config(None, [endpoint]))
+        self.beds = beds
+        self.arrivals: list[tuple[str, bytes, int]] = []
+        self.sub = self.session.declare_subscriber(reply_keys, self._on_reply)
+        block = zenoh.CongestionControl.BLOCK
+        self.pubs = {(b, c): self.session.declare_publisher(f"testbed/{b}/sensor/{c}",
+                                                            congestion_control=block)
+                     for b in beds for c in channels}
+
+    def _on_reply(self, sample) -> None:  # Zenoh thread: stamp and keep only
+        self.arrivals.append((str(sample.key_expr), sample.payload.to_bytes(), time.monotonic_ns()))
+
+    def wait_matched(self, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        for p in self.pubs.values():
+            while not p.matching_status.matching:
+                if time.monotonic() > deadline:
+                    raise SystemExit("the Zenoh subscriber under test never matched")
+                time.sleep(0.02)
+        time.sleep(0.5)  # our subscriber's declaration reaches the other side too
+
+    def publish(self, stream: Stream) -> dict:
+        """Every slot for every bed at 40 Hz; returns the send times of each sample's last needed channel."""
+        nb, ns = len(self.beds), len(stream.slots)
+        sent = np.zeros((nb, ns), dtype=np.int64)
+        pubs = [{c: p for (b2, c), p in self.pubs.items() if b2 == b} for b in self.beds]
+        count, behind = 0, 0.0
+        clock = time.monotonic_ns
+        start = time.monotonic() + 0.1
+        for j, slot in enumerate(stream.slots):
+            due = start + j / FS
+            delay = due - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                behind = max(behind, -delay)
+            last = stream.last[j]
+            for bi, bp in enumerate(pubs):
+                for i, (c, payload) in enumerate(slot):
+                    if i == last:
+                        sent[bi, j] = clock()
+                    bp[c].put(payload)
+                count += len(slot)
+        wall = time.monotonic() - start
+        return {"sent": sent, "count": count, "wall": wall, "behind_s": behind, "end_ns": clock()}
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def start_node(model: str, record: str, port: int) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "node.cli", "run", "--model", model, "--record", record,
+                             "--listen", f"tcp/127.0.0.1:{port}", "--quiet"], cwd=ROOT)
+
+
+def start_peer(mode: str, port: int, stream: Stream | None = None, needed: set[str] | None = None):
+    """A bare Zenoh subscriber process: ``echo`` replies once per sample, ``count`` only counts."""
+    cmd = [sys.executable, "-m", "harness.live", "--peer", mode, "--port", str(port)]
+    if mode == "echo":
+        if stream is None or needed is None:
+            raise ValueError("an echo peer needs the stream and the needed channels")
+        cmd += ["--t0", repr(stream.t0), "--needed", ",".join(sorted(needed))]
+    p = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    if p.stdout is None or p.stdout.readline().strip() != "ready":
+        raise SystemExit("the Zenoh peer process did not start")
+    return p
+
+
+def stop_peer(p: subprocess.Popen) -> dict:
+    out, _ = p.communicate("", timeout=30)
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
+    """The bare Zenoh peer: listens, subscribes to every sensor key until stdin closes.
+
+    ``echo``: in the callback, republishes on ``echo/<bed>`` the message that completes
+    a sample's needed channels (the node's message pattern without its work: many in,
+    one out per sample); ``count``: only counts.
+    """
+    import zenoh
+
+    from node.contract import SENSOR_SUBSCRIPTION
+    from node.live.zenoh import open_session, zenoh_config
+    session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
+    pubs: dict[str, zenoh.Publisher] = {}
+    counts: dict[tuple[str, int], int] = {}
+    n = [0]
+    block = zenoh.CongestionControl.BLOCK
+
+    def on_sample(sample) -> None:
+        n[0] += 1
+        payload = sample.payload.to_bytes()
+        if mode != "echo":
+            return
+        _, bed, _, ch = str(sample.key_expr).split("/", 3)
+        if ch not in needed:
+            return
+        k = (bed, round((orjson.loads(payload)["t"] - t0) * FS))
+        c = counts[k] = counts.get(k, 0) + 1
+        if c == len(needed):
+            del counts[k]
+            pub = pubs.get(bed)
+            if pub is None:
+                pub = pubs[bed] = session.declare_publisher(f"echo/{bed}", congestion_control=block)
+            pub.put(payload)
+
+    sub = session.declare_subscriber(SENSOR_SUBSCRIPTION, on_sample)
+    print("ready", flush=True)
+    sys.stdin.read()
+    sub.undeclare()
+    print(json.dumps({"received": n[0]}), flush=True)
+    session.close()
+    return 0
+
+
+def latencies(bench: Bench, stream: Stream, sent: np.ndarray, suffix: str) -> tuple[np.ndarray, dict]:
+    """Per sample: arrival of its reply (key ending with ``suffix``) minus its last needed channel's send."""
+    bed_index = {b: i for i, b in enumerate(bench.beds)}
+    lat: list[float] = []
+    seen: dict[str, int] = {}
+    for key, payload, arr in list(bench.arrivals):
+        if not key.endswith(suffix):
+            continue
+        bed = key.split("/")[1]  # testbed/<bed>/monitor/<target> or echo/<bed>
+        j = stream.slot_of(orjson.loads(payload)["t"])
+        bi = bed_index.get(bed)
+        if bi is None or not 0 <= j < len(stream.slots):
+            continue
+        seen[bed] = seen.get(bed, 0) + 1
+        if j >= WARMUP and sent[bi, j]:
+            lat.append((arr - sent[bi, j]) / 1e6)
+    return np.array(lat), seen
+
+
+def wait_for(cond, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
+def stop_node(node: subprocess.Popen) -> None:
+    node.send_signal(signal.SIGTERM)
+    try:
+        node.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        node.kill()
+        node.wait()
+
+
+def last_health(bench: Bench) -> dict[str, dict]:
+    out = {}
+    for key, payload, _ in bench.arrivals:
+        if key.endswith("/monitor/health"):
+            out[key.split("/")[1]] = orjson.loads(payload)
+    return out
+
+def main(argv: list[str] | None = None) -> int:
+    """The peer process of :func:`start_peer`."""
+    ap = argparse.ArgumentParser(prog="python -m harness.live")
+    ap.add_argument("--peer", choices=["echo", "count"], required=True)
+    ap.add_argument("--port", type=int, required=True)
+    ap.add_argument("--t0", type=float)
+    ap.add_argument("--needed", default="")
+    args = ap.parse_args(argv)
+    return peer_main(args.peer, args.port, args.t0, set(args.needed.split(",")))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
