@@ -1,4 +1,4 @@
-"""Alarm calibration, the stuck-sensor check and alarm episodes (node.runtime.alarms)."""
+"""The alarm rules (node.runtime.alarms), their calibration (node.training.calibrate), alarm episodes."""
 
 from __future__ import annotations
 
@@ -9,10 +9,9 @@ import orjson
 import pytest
 from scipy import stats
 
-from node.runtime.alarms import (
+from node.runtime.alarms import EpisodeLog, FlatlineCheck
+from node.training.calibrate import (
     THRESHOLD_MARGIN,
-    EpisodeLog,
-    FlatlineCheck,
     flatline_limit,
     gumbel_quantile,
     longest_repeat,
@@ -135,7 +134,7 @@ def test_step_check_finds_a_step_in_noise_and_ignores_a_slow_trend():
 
 def test_calibrated_step_threshold_is_above_every_normal_plateau():
     from node.contract.schedule import OperatingCondition, Schedule
-    from node.runtime.alarms import calibrate_checks
+    from node.training.calibrate import calibrate_checks
 
     class R:  # two runs: ramp to a plateau at 4000 rpm, hold, noisy target
         def __init__(self, seed):
@@ -183,7 +182,8 @@ def test_run_scale_grows_only_for_an_unusual_run():
 
 def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
     from node.runtime.alarms import RunScale
-    from node.training.train import Calibration, run_scaled_peaks
+    from node.training.calibrate import run_scaled_peaks
+    from node.training.train import Calibration
 
     a = Calibration(1.0, 0.0, peaks=[2.0, 3.0], segments=[(0, 100, 9.0), (1, 100, 1.0)])
     b = Calibration(1.0, 0.0, peaks=[4.0, 5.0], segments=[(0, 500, 4.0), (1, 500, 1.0)])
@@ -198,8 +198,8 @@ def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
 def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
     from node.contract.schedule import OperatingCondition, Schedule
     from node.models.bundle import Bundle
+    from node.models.config import RuntimeConfig
     from node.models.ocmodel import Method, OCModel
-    from node.runtime.alarms import RESIDUAL_CLEAR_S
     from node.runtime.core import NodeCore
     from node.training.train import Calibration, OCResult
 
@@ -225,5 +225,5 @@ def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
     first = flags.index("alarm")
     assert off + 38 <= first <= off + 40
     assert all(f == "alarm" for f in flags[first: off + 80 + 120 + 40])  # the 3 s dip does not clear it
-    clear = off + 240 + int(RESIDUAL_CLEAR_S * 40)
+    clear = off + 240 + int(RuntimeConfig().residual_clear_s * 40)
     assert flags[clear + 2] == "ok" and flags[clear - 2] == "alarm"

@@ -85,8 +85,8 @@ def test_malformed_payloads_are_counted_and_skipped(tmp_path):
     bad = [b"{", b"[1,2]", b'{"t": "x", "v": 1}', b'{"t": 1.0}', b'{"t": NaN, "v": 1}', b"\xff"]
     for p in bad:
         assert core.handle("testbed/b/sensor/nB", p) == []
-    assert core.stats.malformed == len(bad)
-    assert core.handle("some/other/key", b"{}") == [] and core.stats.foreign == 1
+    assert core.beds["b"].malformed == core.malformed == len(bad) == core.beds["b"].received
+    assert core.handle("some/other/key", b"{}") == [] and core.foreign == 1
     out = []
     for k in range(80):
         for ch in ("nB", "yB"):

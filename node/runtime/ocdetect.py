@@ -30,6 +30,7 @@ import numpy as np
 
 from node.contract import FS, Phase
 from node.contract.schedule import Schedule
+from node.models.config import RuntimeConfig
 
 
 class OCState(NamedTuple):
@@ -74,25 +75,34 @@ class OCDetector:
 
     Args:
         schedule: the pass-off schedule.
+        config: run-time settings (default settings if None); the detector's are
+            ``detector_smooth_s`` (causal moving average of the speed),
+            ``detector_confirm_s`` (time within the band of the expected plateau to call it
+            steady), ``detector_depart_s`` (time beyond half the band around the plateau to
+            call a departure), ``detector_settle_s`` (time of near-constant speed to accept
+            an unexpected plateau) and ``detector_off_fraction`` (below this fraction of the
+            highest plateau the engine is off).
         fs: sample rate, Hz.
-        smooth_s: causal moving-average length applied to the speed, s.
-        confirm_s: time within the band of the expected plateau to call it steady, s.
-        depart_s: time beyond half the band around the plateau to call a departure, s.
-        settle_s: time of near-constant speed to accept an unexpected plateau, s.
-        off_fraction: below this fraction of the highest plateau the engine is off.
+
+    >>> from node.contract.schedule import OperatingCondition, Schedule
+    >>> det = OCDetector(Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0))))
+    >>> speed = np.r_[np.linspace(0.0, 4000.0, 400), np.full(200, 4000.0), np.linspace(4000.0, 6000.0, 200),
+    ...               np.full(200, 6000.0)]
+    >>> oc, phase = det.label(speed)
+    >>> [(o, Phase.from_code(p).value) for o, p in dict.fromkeys(zip(oc.tolist(), phase.tolist()))]
+    [(-1, 'off'), (0, 'steady'), (1, 'transition'), (1, 'steady')]
     """
 
-    def __init__(self, schedule: Schedule, fs: float = FS, smooth_s: float = 0.25,
-                 confirm_s: float = 1.0, depart_s: float = 0.25, settle_s: float = 5.0,
-                 off_fraction: float = 0.05) -> None:
+    def __init__(self, schedule: Schedule, config: RuntimeConfig | None = None, fs: float = FS) -> None:
+        c = config or RuntimeConfig()
         self.schedule = schedule
         self.speeds = np.array([oc.speed for oc in schedule.ocs])
         self.tol = schedule.tolerance
-        self.n_smooth = max(1, round(smooth_s * fs))
-        self.n_confirm = max(1, round(confirm_s * fs))
-        self.n_depart = max(1, round(depart_s * fs))
-        self.n_settle = max(self.n_confirm, round(settle_s * fs))
-        self.off_level = off_fraction * float(self.speeds.max())
+        self.n_smooth = max(1, round(c.detector_smooth_s * fs))
+        self.n_confirm = max(1, round(c.detector_confirm_s * fs))
+        self.n_depart = max(1, round(c.detector_depart_s * fs))
+        self.n_settle = max(self.n_confirm, round(c.detector_settle_s * fs))
+        self.off_level = c.detector_off_fraction * float(self.speeds.max())
         self.reset()
 
     def reset(self) -> None:
