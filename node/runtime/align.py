@@ -134,23 +134,19 @@ class Aligner:
         n, last, t0 = len(t), self._last_t, self._t0
         if (n < SMALL_BATCH or not self._emitted or last is None or t0 is None or float(t.max()) - last >= RUN_GAP
                 or len(self._code) != self._n):
-            done = []
-            for i, (c, ti, vi) in enumerate(zip(channels, t.tolist(), v.tolist())):
-                out = self.push(c, ti, vi)
-                if out:
-                    done.append((i, out))
-            return done
+            one_by_one = (self.push(c, ti, vi) for c, ti, vi in zip(channels, t.tolist(), v.tolist()))
+            return [(i, out) for i, out in enumerate(one_by_one) if out]
         ci = np.fromiter(map(self._code.get, channels, repeat(-1)), dtype=np.int64, count=n)
         if (ci < 0).any():
             self.stats.unknown.update(compress(channels, (ci < 0).tolist()))
         at = np.flatnonzero(ci >= 0)  # the messages of known channels
         if not len(at):
             return []
-        t, v, c = t[at], v[at], ci[at]
+        t, v, code = t[at], v[at], ci[at]
         k = np.rint((t - t0) * self.fs).astype(np.int64)  # round((t - t0) fs)
         newest = np.maximum.accumulate(np.maximum(k, self._newest))  # after each message
-        taken, emit_at = self._plan(k, c, newest)
-        self._fill(k[taken], c[taken], v[taken])
+        taken, emit_at = self._plan(k, code, newest)
+        self._fill(k[taken], code[taken], v[taken])
         self._newest = int(newest[-1])
         self._last_t = max(last, float(t.max()))
         done: list[tuple[int, list[AlignedSample]]] = []
@@ -224,6 +220,7 @@ class Aligner:
         self._next = k + 1
         self._emitted = True
         self.stats.samples += 1
+        assert self._t0 is not None  # a run is under way
         s = AlignedSample(self._t0 + k / self.fs, vals, self._new_run)
         self._new_run = False
         return s

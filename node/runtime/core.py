@@ -87,12 +87,13 @@ class NodeCore:
             raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
         t, v, ok = decode_samples(payloads)
         routes = {key: self._route(key) for key in set(keys)}
+        bed_of_key = {key: route[0] for key, route in routes.items() if route}
         channel_of = {key: route[1] for key, route in routes.items() if route}
-        names = {route[0] for route in routes.values() if route}
+        names = set(bed_of_key.values())
         if len(names) == 1 and len(channel_of) == len(routes):  # the common batch: one bed, sensor keys
             parts = [(names.pop(), np.arange(len(keys)))]
         else:
-            bed_of = [routes[key][0] if routes[key] else None for key in keys]
+            bed_of = list(map(bed_of_key.get, keys))
             order = [name for name in dict.fromkeys(bed_of) if name is not None]  # by first message
             codes = np.array([-1 if name is None else order.index(name) for name in bed_of], dtype=np.int64)
             self.foreign += int((codes < 0).sum())

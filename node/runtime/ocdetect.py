@@ -129,8 +129,10 @@ class OCDetector:
 
     def _target(self, direction: float) -> int | None:
         """The OC a departure from the anchor heads for."""
+        anchor = self._anchor
+        assert anchor is not None
         ahead = [j for j in range(len(self.speeds))
-                 if direction * (self.speeds[j] - self._anchor) > self.tol * self._anchor]
+                 if direction * (self.speeds[j] - anchor) > self.tol * anchor]
         if not ahead:
             return None
         later = [j for j in ahead if j > self._last]
@@ -155,6 +157,7 @@ class OCDetector:
             return self.state
 
         if phase is Phase.STEADY:
+            assert oc is not None and self._anchor is not None  # set on arrival
             nominal = float(self.speeds[oc])
             before = self._hist[-1 - self.n_depart] if len(self._hist) > self.n_depart else s
             if abs(s - nominal) < abs(before - nominal) or abs(s - nominal) <= 0.25 * self.tol * nominal:
@@ -165,11 +168,13 @@ class OCDetector:
             return self.state
 
         if phase is Phase.TRANSITION:
-            band = self.tol * self.speeds[oc]
-            if self._held(self.n_confirm, self.speeds[oc], band):
+            assert oc is not None  # a transition heads for an OC
+            target = float(self.speeds[oc])
+            band = self.tol * target
+            if self._held(self.n_confirm, target, band):
                 self._arrive(oc)
                 return self.state
-            if (s - self.speeds[oc]) * self._direction > band:  # went past the target
+            if (s - target) * self._direction > band:  # went past the target
                 self._anchor = s
                 self._depart(s, self._direction)
                 return self.state
@@ -194,6 +199,7 @@ class OCDetector:
         (approaching it, or within a quarter band), never beyond the plateau's band,
         so a ramp away cannot drag it along.
         """
+        assert self._anchor is not None
         before = self._hist[-1 - self.n_depart] if len(self._hist) > self.n_depart else s
         off = s - self._anchor
         if abs(off) > 0.5 * self.tol * self._anchor and (s - before) * off > 0:
@@ -211,6 +217,7 @@ class OCDetector:
         self._set(OCState(j, Phase.STEADY))
 
     def _depart(self, s: float, direction: float | None = None) -> None:
+        assert self._anchor is not None
         self._direction = math.copysign(1.0, s - self._anchor) if direction is None else direction
         target = self._target(self._direction)
         self._away = 0
