@@ -166,8 +166,8 @@ def test_handle_batch_equals_handle_one_by_one() -> None:
 
 
 def test_handle_batch_of_clean_single_bed_batches_equals_handle() -> None:
-    """The common batch (one bed, every payload well formed) takes the columnar path; a few
-    batches with a malformed payload or an integer time take the message by message one."""
+    """The common batch (one bed, every payload well formed) is aligned at once; a batch with a
+    malformed payload or an integer time is decoded message by message, aligned at once still."""
     sched = Schedule((OperatingCondition("A", 4000.0),))
     bundle = Bundle("wdmd", "yB", sched, [])
     names = {"a": "nB", "b": "yB", "c": "tA", "x": "zz"}  # tA and zz: not needed by the model
@@ -211,6 +211,7 @@ def test_worker_process_gives_the_same_bytes(model: Path) -> None:
         if "/sensor/" in m.topic:
             last_in = m
         else:
+            assert last_in is not None
             assert m.publish_time in (last_in.log_time, m.log_time)
             after_input += m.publish_time == last_in.log_time
     assert after_input > 0.9 * len(mon)

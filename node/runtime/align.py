@@ -132,8 +132,8 @@ class Aligner:
         once with numpy; otherwise, and for a few messages, message by message.
         """
         n, last, t0 = len(t), self._last_t, self._t0
-        if (n < SMALL_BATCH or not self._emitted or last is None or t0 is None or float(t.max()) - last >= RUN_GAP
-                or len(self._code) != self._n):
+        if (n < SMALL_BATCH or not self._emitted or last is None or t0 is None
+                or float(t.max()) - last >= RUN_GAP or len(self._code) != self._n):
             one_by_one = (self.push(c, ti, vi) for c, ti, vi in zip(channels, t.tolist(), v.tolist()))
             return [(i, out) for i, out in enumerate(one_by_one) if out]
         ci = np.fromiter(map(self._code.get, channels, repeat(-1)), dtype=np.int64, count=n)

@@ -54,7 +54,8 @@ class NodeCore:
     >>> core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []))
     >>> core.handle("testbed/b1/sensor/nB", b'{"t": 100.0, "v": 4000.0}')
     []
-    >>> [(key, msg["flag"].value) for key, msg in core.handle("testbed/b1/sensor/yB", b'{"t": 100.0, "v": 2.5}')]
+    >>> out = core.handle("testbed/b1/sensor/yB", b'{"t": 100.0, "v": 2.5}')  # completes a sample
+    >>> [(key, msg["flag"].value) for key, msg in out]
     [('testbed/b1/monitor/yB', 'no-model')]
     >>> core.handle("testbed/b1/sensor/yB", b'{"t": "soon"}'), core.beds["b1"].malformed
     ([], 1)
