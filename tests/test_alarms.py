@@ -227,3 +227,26 @@ def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
     assert all(f == "alarm" for f in flags[first: off + 80 + 120 + 40])  # the 3 s dip does not clear it
     clear = off + 240 + int(RuntimeConfig().residual_clear_s * 40)
     assert flags[clear + 2] == "ok" and flags[clear - 2] == "alarm"
+
+
+def test_calibration_steps_the_residual_rule_of_the_node():
+    """Peak scores and alarm masks come from ``ResidualCheck``: the EWMA of z to the last bit,
+    the mask a run of ``persist`` samples beyond the threshold (no off-delay per segment)."""
+    from scipy.signal import lfilter
+
+    from node.training.calibrate import alarm_mask, peak_score
+    from node.training.train import Calibration, OCResult
+
+    rng = np.random.default_rng(3)
+    r = rng.standard_normal(2000) * 0.7 + np.r_[np.zeros(1000), np.full(1000, 1.5)]
+    sigma, alpha = 0.8, 2.0 / 81.0
+    ewma = lfilter([alpha], [1.0, alpha - 1.0], r / sigma)
+    assert peak_score(r, sigma, alpha) == float(np.max(np.abs(ewma)))
+    res = OCResult("A", None, [], {}, 8, 0.1, 0.1, Calibration(sigma, 1.2, alpha, persist=40))
+    beyond = np.abs(ewma) > 1.2
+    run = np.zeros(r.size, dtype=int)
+    for k in range(r.size):
+        run[k] = run[k - 1] + 1 if beyond[k] and k else int(beyond[k])
+    mask = alarm_mask(r, res)
+    np.testing.assert_array_equal(mask, run >= 40)
+    assert 0 < mask.sum() < r.size
