@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import logging
 
 NAME = "run"
 HELP = "the live node: subscribe to test beds over Zenoh, predict, publish, record to MCAP"
@@ -43,9 +42,5 @@ def run(args: argparse.Namespace) -> int:
     if args.rotate_mb is not None or args.rotate_minutes is not None:
         from node.mcap.rotation import RotatingRecorder
         record = RotatingRecorder(args.record, max_mb=args.rotate_mb, max_minutes=args.rotate_minutes)
-    if not logging.getLogger().handlers:  # until the command line sets logging up for every command
-        logger = logging.getLogger("node.live")
-        logger.addHandler(logging.StreamHandler())
-        logger.setLevel(logging.WARNING if args.quiet else logging.INFO)
     run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration)
     return 0
