@@ -1,7 +1,7 @@
 """Offline replay: the node's logic over a recording, as fast as two cores allow.
 
 The recording is read in file order (``iter_messages_fast``) in batches of
-messages. Each batch goes to ``NodeCore.handle_many`` (decode, align, predict),
+messages. Each batch goes to ``NodeCore.handle_batch`` (decode, align, predict), as in the live node,
 which reports the messages that completed monitor messages; the batch's inputs
 are then written to the output recording with each monitor message right
 after the input that completed it, exactly where a live node records it.
@@ -50,7 +50,8 @@ class ReplayReport:
 
     inputs: int = 0
     published: int = 0
-    malformed: int = 0
+    malformed: int = 0  # every bed's
+    foreign: int = 0  # messages on keys that are no sensor keys
     seconds: float = 0.0
     truncated: bool = False
     alarm_episodes: list[dict] = field(default_factory=list)
@@ -71,16 +72,18 @@ class _Logic:
         return [(key, round(msg["t"] * 1e9), orjson.dumps(msg)) for key, msg in outs]
 
     def batch(self, keys, payloads) -> list[tuple[int, list[Encoded]]]:
-        return [(i, self._outputs(outs)) for i, outs in self.core.handle_many(keys, payloads)]
+        return [(i, self._outputs(outs)) for i, outs in self.core.handle_batch(keys, payloads).done]
 
     def finish(self) -> tuple[list[Encoded], dict]:
         final = self._outputs(self.core.finish())
-        c = self.core.stats
-        report = {"published": c.published, "malformed": c.malformed,
+        c = self.core
+        report = {"published": c.published, "malformed": c.malformed, "foreign": c.foreign,
                   "alarm_episodes": c.alarm_log.episodes,
-                  "beds": {b: {"samples": s.aligner.stats.samples, "alarm_samples": s.alarms,
-                               "late": s.aligner.stats.late, "missing": dict(s.aligner.stats.missing)}
-                           for b, s in c.beds.items()}}
+                  "beds": {name: {"received": b.received, "malformed": b.malformed,
+                                  "samples": b.aligner.stats.samples, "alarm_samples": b.alarm_samples,
+                                  "late": b.aligner.stats.late, "duplicates": b.aligner.stats.duplicates,
+                                  "missing": dict(b.aligner.stats.missing)}
+                           for name, b in c.beds.items()}}
         return final, report
 
 

@@ -1,4 +1,4 @@
-"""Alarm calibration, the stuck-sensor check and alarm episodes (node.runtime.alarms)."""
+"""The alarm rules (node.runtime.alarms), their calibration (node.training.calibrate), alarm episodes."""
 
 from __future__ import annotations
 
@@ -9,10 +9,9 @@ import orjson
 import pytest
 from scipy import stats
 
-from node.runtime.alarms import (
+from node.runtime.alarms import EpisodeLog, FlatlineCheck
+from node.training.calibrate import (
     THRESHOLD_MARGIN,
-    EpisodeLog,
-    FlatlineCheck,
     flatline_limit,
     gumbel_quantile,
     longest_repeat,
@@ -135,7 +134,7 @@ def test_step_check_finds_a_step_in_noise_and_ignores_a_slow_trend():
 
 def test_calibrated_step_threshold_is_above_every_normal_plateau():
     from node.contract.schedule import OperatingCondition, Schedule
-    from node.runtime.alarms import calibrate_checks
+    from node.training.calibrate import calibrate_checks
 
     class R:  # two runs: ramp to a plateau at 4000 rpm, hold, noisy target
         def __init__(self, seed):
@@ -183,7 +182,8 @@ def test_run_scale_grows_only_for_an_unusual_run():
 
 def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
     from node.runtime.alarms import RunScale
-    from node.training.train import Calibration, run_scaled_peaks
+    from node.training.calibrate import run_scaled_peaks
+    from node.training.train import Calibration
 
     a = Calibration(1.0, 0.0, peaks=[2.0, 3.0], segments=[(0, 100, 9.0), (1, 100, 1.0)])
     b = Calibration(1.0, 0.0, peaks=[4.0, 5.0], segments=[(0, 500, 4.0), (1, 500, 1.0)])
@@ -198,8 +198,8 @@ def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
 def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
     from node.contract.schedule import OperatingCondition, Schedule
     from node.models.bundle import Bundle
+    from node.models.config import RuntimeConfig
     from node.models.ocmodel import Method, OCModel
-    from node.runtime.alarms import RESIDUAL_CLEAR_S
     from node.runtime.core import NodeCore
     from node.training.train import Calibration, OCResult
 
@@ -225,5 +225,28 @@ def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
     first = flags.index("alarm")
     assert off + 38 <= first <= off + 40
     assert all(f == "alarm" for f in flags[first: off + 80 + 120 + 40])  # the 3 s dip does not clear it
-    clear = off + 240 + int(RESIDUAL_CLEAR_S * 40)
+    clear = off + 240 + int(RuntimeConfig().residual_clear_s * 40)
     assert flags[clear + 2] == "ok" and flags[clear - 2] == "alarm"
+
+
+def test_calibration_steps_the_residual_rule_of_the_node():
+    """Peak scores and alarm masks come from ``ResidualCheck``: the EWMA of z to the last bit,
+    the mask a run of ``persist`` samples beyond the threshold (no off-delay per segment)."""
+    from scipy.signal import lfilter
+
+    from node.training.calibrate import alarm_mask, peak_score
+    from node.training.train import Calibration, OCResult
+
+    rng = np.random.default_rng(3)
+    r = rng.standard_normal(2000) * 0.7 + np.r_[np.zeros(1000), np.full(1000, 1.5)]
+    sigma, alpha = 0.8, 2.0 / 81.0
+    ewma = lfilter([alpha], [1.0, alpha - 1.0], r / sigma)
+    assert peak_score(r, sigma, alpha) == float(np.max(np.abs(ewma)))
+    res = OCResult("A", None, [], {}, 8, 0.1, 0.1, Calibration(sigma, 1.2, alpha, persist=40))
+    beyond = np.abs(ewma) > 1.2
+    run = np.zeros(r.size, dtype=int)
+    for k in range(r.size):
+        run[k] = run[k - 1] + 1 if beyond[k] and k else int(beyond[k])
+    mask = alarm_mask(r, res)
+    np.testing.assert_array_equal(mask, run >= 40)
+    assert 0 < mask.sum() < r.size

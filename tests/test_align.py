@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import orjson
+import pytest
 
 from node.runtime.align import Aligner
 
@@ -85,8 +86,8 @@ def test_malformed_payloads_are_counted_and_skipped(tmp_path):
     bad = [b"{", b"[1,2]", b'{"t": "x", "v": 1}', b'{"t": 1.0}', b'{"t": NaN, "v": 1}', b"\xff"]
     for p in bad:
         assert core.handle("testbed/b/sensor/nB", p) == []
-    assert core.stats.malformed == len(bad)
-    assert core.handle("some/other/key", b"{}") == [] and core.stats.foreign == 1
+    assert core.beds["b"].malformed == core.malformed == len(bad) == core.beds["b"].received
+    assert core.handle("some/other/key", b"{}") == [] and core.foreign == 1
     out = []
     for k in range(80):
         for ch in ("nB", "yB"):
@@ -107,3 +108,32 @@ def test_a_sample_is_emitted_by_the_message_that_completes_it():
         assert len(out) == 1 and out[0].values == {"nB": 3.0, "yB": 1.0, "tF": 2.0}
         assert math.isclose(out[0].t, 1000.001 + k / 40)  # the grid starts at the first message
     assert a.flush() == []
+
+
+def test_health_is_per_bed_and_pure():
+    from node.contract import json_schema
+    from node.contract.keys import TopicKind
+    from node.contract.schedule import OperatingCondition, Schedule
+    from node.models.bundle import Bundle
+    from node.runtime.core import NodeCore
+    jsonschema = pytest.importorskip("jsonschema")
+    core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []))
+    keys, payloads = [], []
+    for k in range(40):
+        for bed in ("b1", "b2"):
+            for ch in ("nB", "yB"):
+                if bed == "b2" and ch == "yB" and k % 2:
+                    continue  # b2 loses half its yB
+                keys.append(f"testbed/{bed}/sensor/{ch}")
+                payloads.append(orjson.dumps({"t": 10.0 + k / 40 + (bed == "b2"), "v": 1.0}))
+    keys += ["testbed/b1/sensor/nB", "other/key"]
+    payloads += [b"{", b"{}"]
+    batch = core.handle_batch(keys, payloads)
+    assert np.isnan(batch.t[-2]) and batch.t[0] == 10.0 and len(batch.t) == len(keys)
+    assert core.foreign == 1 and list(core.beds) == ["b1", "b2"]
+    h1, h2 = core.health("b1", 1e9, dropped=3), core.health("b2", 1e9, dropped=3)
+    assert (h1["received"], h1["malformed"], h2["received"], h2["malformed"]) == (81, 1, 60, 0)
+    assert h1["t"] == 10.0 + 39 / 40 and h2["t"] == 11.0 + 39 / 40 and h1["wall"] == 1e9
+    assert h1["dropped"] == h2["dropped"] == 3 and h2["samples"] > h2["missing"].get("yB", 0) > 0
+    assert core.health("b1", 1e9, dropped=3) == h1  # no clock, no side effect
+    jsonschema.validate(h1, json_schema(TopicKind.HEALTH))

@@ -26,7 +26,7 @@ def profile(points: list[tuple[float, float]], noise: float = 0.0, seed: int = 0
 
 
 def events(speed: np.ndarray, schedule: Schedule = SCHED) -> list[str]:
-    oc, ph = OCDetector(schedule, FS).label(speed)
+    oc, ph = OCDetector(schedule, fs=FS).label(speed)
     change = np.flatnonzero((np.diff(oc) != 0) | (np.diff(ph) != 0)) + 1
     out = []
     for k in change:
@@ -46,7 +46,7 @@ def test_schedule_sequence_with_speed_noise():
 
 def test_switch_times_follow_the_speed():
     speed = profile(NORMAL)
-    oc, ph = OCDetector(SCHED, FS).label(speed)
+    oc, ph = OCDetector(SCHED, fs=FS).label(speed)
     k_leave_a = int((10 + 15 + 10 + 20) * FS)  # B's ramp begins here
     first_bt = np.flatnonzero((oc == 1) & (ph == 1))[0]
     assert 0 < first_bt - k_leave_a <= 2 * FS  # within 2 s of the speed leaving A
@@ -76,7 +76,7 @@ def test_aborted_run_then_resumed():
     speed = profile([(10, 2500), (10, 2500), (10, 4000), (20, 4000), (10, 6000), (20, 6000),
                      (10, 2500), (20, 2500), (10, 5000), (20, 5000)])
     assert events(speed) == ["AT", "AS", "BT", "BS", "CT", "off", "CT", "CS"]
-    oc, ph = OCDetector(SCHED, FS).label(speed)
+    oc, ph = OCDetector(SCHED, fs=FS).label(speed)
     wrong = np.flatnonzero((oc == 2) & (ph == 1) & (np.arange(speed.size) < 90 * FS))
     assert wrong.size < 6 * FS  # the mistaken C transition lasts only while passing C
 
@@ -100,9 +100,9 @@ def test_dropouts_hold_the_state_and_shutdown_resets():
 
 def test_step_equals_label():
     speed = profile(NORMAL, noise=8.0)
-    det = OCDetector(SCHED, FS)
+    det = OCDetector(SCHED, fs=FS)
     stepped = [det.step(v) for v in speed]
-    oc, ph = OCDetector(SCHED, FS).label(speed)
+    oc, ph = OCDetector(SCHED, fs=FS).label(speed)
     codes = {Phase.OFF: 0, Phase.TRANSITION: 1, Phase.STEADY: 2}
     assert [(-1 if s.oc is None else s.oc) for s in stepped] == oc.tolist()
     assert [codes[s.phase] for s in stepped] == ph.tolist()

@@ -36,6 +36,7 @@ def _file(path: str) -> list[tuple[str, int, int, bytes]]:
         msgs = [(c.topic, m.log_time, m.publish_time, m.data)
                 for _, c, m in reader.iter_messages(log_time_order=False)]
         summary = reader.get_summary()
+    assert summary is not None and summary.statistics is not None
     assert summary.statistics.message_count == len(msgs) > 0
     topics = {c.topic for c in summary.channels.values()}
     assert topics == {m[0] for m in msgs}  # channels registered again in every file
@@ -112,7 +113,9 @@ def test_bad_limits_and_closed_recorder(tmp_path: Path) -> None:
     with pytest.raises(OrdervibError):
         rec.write("testbed/b/sensor/nB", T0, {"t": T0, "v": 1.0}, 0)
     with open(rec.paths[0], "rb") as f:  # no message: one empty, valid file
-        assert make_reader(f).get_summary().statistics.message_count == 0
+        summary = make_reader(f).get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert summary.statistics.message_count == 0
 
 
 def test_live_node_records_into_rotating_files(tmp_path: Path) -> None:

@@ -65,7 +65,7 @@ def test_the_node_computes_the_very_feature_training_saw():
     mon = [m for key, m in out if key.endswith("/yB")]
     assert len(mon) == t.size
     # the derived input is never awaited from the test bed: no sample waits for it
-    align = core.stats.beds["b"].aligner.stats
+    align = core.beds["b"].aligner.stats
     assert sum(align.missing.values()) == 0  # nulls arrive; run_curve is not "missing"
     run = Run(1000.0 + t, np.column_stack([nb, yb]), ("nB", "yB"), "b", None)
     offline = add_run_curve(run, sched, "yB", FLEET).column(RUN_CURVE)

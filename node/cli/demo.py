@@ -70,11 +70,10 @@ def run(args: argparse.Namespace) -> int:
             time.sleep(0.1)
     finally:
         node.stop()
-    beds = node.core.stats.beds
-    alarms = sum(b.alarms for b in beds.values())
+    alarms = sum(b.alarm_samples for b in node.core.beds.values())
     log.info("      node: %d received of %d sent, %d published, %d dropped, %d alarm samples",
              node.stats.received, sent, node.stats.published, node.stats.overflow, alarms)
-    log.info("%s", fault_summary(node.core.stats.alarm_log.episodes, rec_test.with_suffix(".truth.json")))
+    log.info("%s", fault_summary(node.core.alarm_log.episodes, rec_test.with_suffix(".truth.json")))
     rrd = out / "node.rrd"
     log.info("[4/4] Rerun file %s", rrd)
     if cli(["view", str(node_rec), "--save", str(rrd), "--schedule", str(schedule)]) != 0:

@@ -42,5 +42,5 @@ def run(args: argparse.Namespace) -> int:
     if args.rotate_mb is not None or args.rotate_minutes is not None:
         from node.mcap.rotation import RotatingRecorder
         record = RotatingRecorder(args.record, max_mb=args.rotate_mb, max_minutes=args.rotate_minutes)
-    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, args.quiet)
+    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration)
     return 0

@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     from node.contract.schedule import load_schedule
     from node.models.bundle import Bundle, save_bundle, sha256_file
     from node.models.config import RuntimeConfig
-    from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
+    from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.training.train import DEFAULT_GRIDS, HISTORY_S, Method, fleet_curve, train
 
     if args.n_inputs < 1:

@@ -1,19 +1,22 @@
 """The live edges: Zenoh in and out, MCAP recording. The logic is ``NodeCore``'s.
 
 The subscriber callback only stamps and enqueues (bounded queue, overflow
-counted); one worker thread records every input, runs the node logic,
-publishes and records every output, flushes the recording once a second (a
-killed node loses at most the last second) and publishes a health message
-per bed once a second.
+counted); one worker thread drains the queue in batches (everything waiting, up
+to ``BATCH_MAX``), runs the node logic once per batch (``NodeCore.handle_batch``,
+as offline replay does), records every input, publishes and records every
+output, flushes the recording once a second (a killed node loses at most the
+last second) and publishes a health message per bed once a second.
 """
 
 from __future__ import annotations
 
+import logging
 import queue
-import sys
 import threading
 import time
 from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
 
 import orjson
 
@@ -24,6 +27,11 @@ from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle
 from node.runtime.core import NodeCore
 
+log = logging.getLogger(__name__)
+
+BATCH_MAX = 4096  # messages handled at once at most
+LAG_KEPT = 4000  # latencies the health message's percentiles are taken over
+
 
 @dataclass
 class LiveStats:
@@ -33,7 +41,11 @@ class LiveStats:
 
 
 class LiveNode:
-    """Subscribes to every test bed's sensors, predicts, publishes, records."""
+    """Subscribes to every test bed's sensors, predicts, publishes, records.
+
+    A context manager: ``with LiveNode(...) as node:`` starts it and stops it (draining
+    the queue, finishing the recording) on the way out.
+    """
 
     def __init__(self, bundle: Bundle, record: str | RecordingWriter | RotatingRecorder,
                  listen: list[str] | None = None,
@@ -43,13 +55,21 @@ class LiveNode:
         # a path, or a recorder with RecordingWriter's write/flush/close (e.g. RotatingRecorder)
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
         self.conf = zenoh_config(listen, connect, config_file)
-        self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self.queue: queue.Queue[tuple[str, bytes, int]] = queue.Queue(maxsize=queue_size)
         self.stats = LiveStats()
         self._stop = threading.Event()
-        self._publishers: dict[str, object] = {}
+        self._publishers: dict[str, Any] = {}
         self._lag: list[float] = []
 
-    def _on_sample(self, sample) -> None:  # Zenoh thread: stamp and enqueue only
+    def __enter__(self) -> LiveNode:
+        self.start()
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+    def _on_sample(self, sample: Any) -> None:  # Zenoh thread: stamp and enqueue only
         try:
             self.queue.put_nowait((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
         except queue.Full:
@@ -58,42 +78,58 @@ class LiveNode:
     def start(self) -> None:
         import zenoh
         self.session = open_session(self.conf)
-        self._zenoh = zenoh
+        self._json = zenoh.Encoding.APPLICATION_JSON
+        self._block = zenoh.CongestionControl.BLOCK
         self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
         self.sub = self.session.declare_subscriber(SENSOR_SUBSCRIPTION, self._on_sample)
         self.thread = threading.Thread(target=self._work, name="ordervib-node", daemon=True)
         self.thread.start()
 
-    def _publish(self, key: str, msg: dict) -> None:
+    def _publish(self, key: str, msg: dict | Any) -> None:
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self.session.declare_publisher(key, congestion_control=self._zenoh.CongestionControl.BLOCK)
+            pub = self.session.declare_publisher(key, encoding=self._json, congestion_control=self._block)
             self._publishers[key] = pub
         data = orjson.dumps(msg)
         pub.put(data)
         self.writer.write(key, msg["t"], data, time.time_ns())
         self.stats.published += 1
 
-    def _handle(self, key: str, payload: bytes, recv_ns: int) -> None:
-        self.stats.received += 1
+    def _drain(self) -> list[tuple[str, bytes, int]]:
+        """The messages waiting (at most ``BATCH_MAX``); waits a little for the first."""
         try:
-            t = orjson.loads(payload)["t"]
-            t = float(t)
-        except (orjson.JSONDecodeError, TypeError, KeyError, ValueError):
-            t = recv_ns / 1e9  # malformed: recorded at its receive time, skipped by the logic
-        self.writer.write(key, t, payload, recv_ns)
-        for k, msg in self.core.handle(key, payload):
-            self._publish(k, msg)
-            self._lag.append((time.time_ns() - recv_ns) / 1e6)
+            batch = [self.queue.get(timeout=0.05)]
+        except queue.Empty:
+            return []
+        try:
+            while len(batch) < BATCH_MAX:
+                batch.append(self.queue.get_nowait())
+        except queue.Empty:
+            pass
+        return batch
+
+    def _handle(self, batch: list[tuple[str, bytes, int]]) -> None:
+        """One batch: each input recorded, then the outputs it completed published and recorded."""
+        keys, payloads, recv = zip(*batch, strict=True)
+        self.stats.received += len(batch)
+        result = self.core.handle_batch(keys, payloads)
+        t = result.t.tolist()
+        write = self.writer.write
+        start = 0
+        for i, outs in [*result.done, (len(batch) - 1, [])]:
+            for j in range(start, i + 1):  # malformed: recorded at its receive time
+                write(keys[j], t[j] if t[j] == t[j] else recv[j] / 1e9, payloads[j], recv[j])
+            start = i + 1
+            for key, msg in outs:
+                self._publish(key, msg)
+                self._lag.append((time.time_ns() - recv[i]) / 1e6)
 
     def _work(self) -> None:
         next_tick = time.monotonic() + 1.0
         while not (self._stop.is_set() and self.queue.empty()):
-            try:
-                item = self.queue.get(timeout=0.05)
-                self._handle(*item)
-            except queue.Empty:
-                pass
+            batch = self._drain()
+            if batch:
+                self._handle(batch)
             if time.monotonic() >= next_tick:
                 next_tick += 1.0
                 self._tick()
@@ -101,14 +137,15 @@ class LiveNode:
             self._publish(k, msg)
 
     def _tick(self) -> None:
-        now = time.time()
-        lag = sorted(self._lag[-4000:])
-        extra = {"received": self.stats.received, "dropped": self.stats.overflow,
-                 "lag_ms_p50": lag[len(lag) // 2] if lag else None,
-                 "lag_ms_p99": lag[int(0.99 * (len(lag) - 1))] if lag else None}
-        self._lag = self._lag[-4000:]
-        for bed in list(self.core.stats.beds):
-            self._publish(health_key(bed), self.core.health(bed, now, extra))
+        """Once a second: each bed's health message, and the recording flushed."""
+        wall = time.time()
+        lag = sorted(self._lag[-LAG_KEPT:])
+        self._lag = self._lag[-LAG_KEPT:]
+        p50 = lag[len(lag) // 2] if lag else None
+        p99 = lag[int(0.99 * (len(lag) - 1))] if lag else None
+        for bed, state in list(self.core.beds.items()):
+            if state.latest_t is not None:  # a bed of malformed messages only has no sensor time
+                self._publish(health_key(bed), self.core.health(bed, wall, self.stats.overflow, (p50, p99)))
         self.writer.flush()
 
     def stop(self) -> None:
@@ -116,28 +153,24 @@ class LiveNode:
         self._stop.set()
         try:
             self.sub.undeclare()
-        except Exception:
+        except Exception:  # noqa: BLE001 - the session may be gone already
             pass
         self.thread.join()
         self.writer.close()
         self.session.close()
 
 
-def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, listen, connect,
-             config_file, duration: float | None, quiet: bool = False) -> LiveStats:
+def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, listen: list[str] | None,
+             connect: list[str] | None, config_file: str | None, duration: float | None) -> LiveStats:
+    """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged."""
     import signal
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    node = LiveNode(bundle, record, listen, connect, config_file)
-    node.start()
-    if not quiet:
+    with LiveNode(bundle, record, listen, connect, config_file) as node:
         where = listen or connect or f"the endpoints of {config_file}"
-        print(f"ordervib node on {where}; recording to {record}; Ctrl-C stops",
-              file=sys.stderr, flush=True)
-    stop.wait(duration)
-    node.stop()
-    if not quiet:
-        print(f"stopped: {node.stats.received} received, {node.stats.published} published, "
-              f"{node.stats.overflow} dropped; {record} finished", file=sys.stderr)
+        log.info("ordervib node on %s; recording to %s; Ctrl-C stops", where, record)
+        stop.wait(duration)
+    log.info("stopped: %d received, %d published, %d dropped; %s finished",
+             node.stats.received, node.stats.published, node.stats.overflow, record)
     return node.stats

@@ -1,60 +1,31 @@
-"""The alarm rules, their calibration, and alarm episodes; free of I/O.
+"""The alarm rules of a monitor stream, and alarm episodes; free of I/O.
 
-Three rules flag a sample (the monitor message's ``reason``):
+Three rules flag a sample (the monitor message's ``reason``); their limits come from
+training (``node.training.calibrate``), their timings from the bundle's ``RuntimeConfig``:
 
-* residual: the smoothed standardized residual (EWMA of (measured - predicted) / sigma)
-  stays beyond its OC's threshold for ``persist`` samples. Thresholds come from an
-  alarm budget: the cross-validated segments' peak scores of *every* OC are pooled
-  (they are in sigma units already), a Gumbel law is fitted to them, and the level a
-  normal segment exceeds with chance ``budget / segments_per_hour`` is the threshold,
-  never below ``THRESHOLD_MARGIN`` x the OC's own largest CV peak. Pooling a hundred
-  peaks gives a far steadier tail than each OC's eight or so. That chance is further
-  divided by ``CV_UNDERCOVERAGE``: normal runs in conditions the training runs never met
-  exceed CV-calibrated levels several times more often than the CV runs themselves do.
-  The residual's sigma is scaled per run by ``RunScale`` (how far this run's earlier
-  OCs strayed from their models), in calibration and in the node alike; an alarm
-  clears after ``RESIDUAL_CLEAR_S`` back under the threshold.
-* step: during a steady plateau (after ``STEP_SETTLE_S``), the mean of the measured
-  target over the last ``STEP_SHORT_S`` departs from its mean over the ``STEP_LONG_S`` before by more than
-  a threshold in units of the local noise (a clipped EWMA of the first differences).
-  Model-free: an abrupt change of an order amplitude while the operating point holds
-  (added imbalance, a loose part) shows at once, however poorly the OC's model does.
-  The threshold comes from the training runs' steady plateaus: their peak statistics
-  pooled, a Gumbel law and the same alarm budget.
-* flatline: the measured target repeats the very same value for ``flatline`` samples
-  while the engine runs: a stuck sensor or a frozen acquisition. The limit is learnt
-  from the training runs (``FLATLINE_FACTOR`` x the longest repeat seen, at least
-  ``FLATLINE_MIN_S``), so coarse quantisation on another test bed raises it.
+* residual (``ResidualCheck``): the smoothed standardized residual (EWMA of
+  (measured - predicted) / sigma) stays beyond its OC's threshold for ``persist``
+  samples; the alarm clears after ``residual_clear_s`` back under it. The residual's
+  sigma is scaled per run by ``RunScale`` (how far this run's earlier OCs strayed
+  from their models), in calibration and in the node alike.
+* step (``StepCheck``): during a steady plateau (after ``step_settle_s``), the mean of
+  the measured target over the last ``step_short_s`` departs from its mean over the
+  ``step_long_s`` before by more than a threshold in units of the local noise (a clipped
+  EWMA of the first differences). Model-free: an abrupt change of an order amplitude
+  while the operating point holds (added imbalance, a loose part) shows at once,
+  however poorly the OC's model does.
+* flatline (``FlatlineCheck``): the measured target repeats the very same value for
+  ``limit`` samples while the engine runs: a stuck sensor or a frozen acquisition.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
 
-import numpy as np
+from node.contract import FS, Flag
+from node.models.config import RuntimeConfig
 
-from node.contract import FS, Flag, Phase
-
-FALSE_ALARMS_PER_HOUR = 0.5  # false-alarm budget on normal runs per hour (residual + step rules)
-RESIDUAL_CLEAR_S = 5.0  # a residual alarm clears after this long back under its threshold, s
-THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
-# Leave-one-run-out CV over a handful of runs under-states how often a *new* run's residual
-# peaks beyond a level: its held-out run is always close to the other training runs, while
-# a new run may bring an ambient, a thermal state or an imbalance phase none of them had.
-# Measured on development engines 11-13 (bench/faults.py, 8 training + 10 normal held-out
-# runs each, issue 5): 5 residual episodes in 5.2 h where a 0.25 per hour budget expects
-# 1.3, i.e. about 4 times as many. The residual rule's per-segment chance is divided by it.
-CV_UNDERCOVERAGE = 4.0
-STEP_SETTLE_S = 3.0  # the first seconds of a plateau are left out: the amplitude still settles
-STEP_SHORT_S = 1.0  # recent window, s
-STEP_LONG_S = 4.0  # reference window just before it, s
-STEP_NOISE_S = 10.0  # EWMA span of the noise estimate, s
-STEP_PERSIST_S = 0.25  # the step statistic must stay beyond the threshold this long, s
-FLATLINE_MIN_S = 2.0  # a flat line shorter than this never alarms, s
-FLATLINE_FACTOR = 4.0  # limit = factor x the longest repeat in the training runs
-EULER_GAMMA = 0.5772156649
 RUN_SCALE_PRIOR_OCS = 3.0  # a run counts as typical with the weight of this many OCs
 
 
@@ -64,9 +35,15 @@ class RunScale:
     The same engine vibrates differently from run to run (thermal state, re-seated
     imbalance), and an OC model's error carries that run's mark into every OC.
     After each OC segment, its mean squared standardized residual m_j is added;
-    factor = max(1, sqrt((n0 + sum m_j) / (n0 + J))), n0 = ``RUN_SCALE_PRIOR_OCS``:
+    factor = max(1, sqrt((n0 + sum m_j) / (n0 + J))), n0 = ``prior``:
     1 for a typical run, never below 1 (never more sensitive than the calibration).
     Training calibrates with the very same rule over each held-out CV run.
+
+    >>> s = RunScale(prior=3.0)
+    >>> s.add(0.5); s.factor  # a typical OC: no change
+    1.0
+    >>> s.add(12.0); round(s.factor, 3)  # sqrt((3 + 12.5) / 5)
+    1.761
     """
 
     def __init__(self, prior: float = RUN_SCALE_PRIOR_OCS) -> None:
@@ -80,36 +57,77 @@ class RunScale:
         self.factor = 1.0
 
     def add(self, mean_sq: float) -> None:
-        """One finished OC segment's mean squared standardized residual."""
+        """One finished OC segment's mean squared standardized residual (NaN, inf: ignored)."""
         if mean_sq == mean_sq and mean_sq != math.inf:
             self.total += mean_sq
             self.count += 1
             self.factor = max(1.0, math.sqrt((self.prior + self.total) / (self.prior + self.count)))
 
 
-def gumbel_quantile(peaks: Sequence[float], p: float) -> float:
-    """Level a Gumbel law fitted to ``peaks`` (method of moments) exceeds with chance ``p``."""
-    x = np.asarray(peaks, dtype=float)
-    beta = float(np.std(x)) * math.sqrt(6.0) / math.pi
-    mu = float(np.mean(x)) - EULER_GAMMA * beta
-    return mu - beta * math.log(-math.log(1.0 - p))
+class ResidualCheck:
+    """The residual rule over one OC segment (stateful, O(1) memory).
 
+    ``step(residual) -> (score, raised)``: score e_k = (1 - alpha) e_(k-1) + alpha z_k / run_scale,
+    z = residual / sigma (from e = 0); raised once |e| has stayed beyond ``threshold`` for
+    ``persist`` samples (on-delay), lowered once it has stayed under for ``clear``
+    samples (off-delay against chatter). A NaN residual (no measurement or no
+    prediction) changes nothing. ``mean_sq``: mean z^2 of the segment so far, for ``RunScale``.
 
-def pooled_thresholds(peaks: dict[str, list[float]], segments_per_hour: float,
-                      budget: float = FALSE_ALARMS_PER_HOUR,
-                      undercoverage: float = CV_UNDERCOVERAGE) -> dict[str, float]:
-    """Per-OC thresholds (sigma units) from every OC's CV peak scores and the alarm budget.
+    Args:
+        sigma: the OC's residual sd (target unit).
+        threshold: on |score| (sigma units).
+        alpha: EWMA weight of the newest sample.
+        persist: samples beyond the threshold that raise the alarm.
+        clear: samples under it that lower the alarm (0: at once).
+        run_scale: the run's ``RunScale.factor`` when the segment began.
 
-    peaks: OC name -> peak |smoothed score| of each held-out CV segment.
-    segments_per_hour: OC segments a normal hour of running holds (from the training runs).
-    undercoverage: how many times more often new runs exceed a CV-calibrated level.
+    >>> chk = ResidualCheck(sigma=2.0, threshold=1.0, alpha=0.5, persist=2, clear=3)
+    >>> [chk.step(r) for r in (4.0, 4.0, 4.0)]  # z = 2: scores 1, 1.5, 1.75
+    [(1.0, False), (1.5, False), (1.75, True)]
+    >>> [chk.step(r)[1] for r in (0.0, float("nan"), 0.0, 0.0, 0.0)]  # 3 samples under: cleared
+    [True, True, True, False, False]
+    >>> chk.mean_sq == (3 * 2.0 ** 2 + 4 * 0.0) / 7  # the seven residuals measured
+    True
     """
-    every = [v for vals in peaks.values() for v in vals if math.isfinite(v)]
-    if not every:
-        return {}
-    p = min(0.5, budget / max(segments_per_hour, 1e-9) / max(undercoverage, 1.0))
-    common = gumbel_quantile(every, p) if len(every) > 1 else every[0]
-    return {name: max(common, THRESHOLD_MARGIN * max(vals)) for name, vals in peaks.items() if vals}
+
+    def __init__(self, sigma: float, threshold: float, alpha: float, persist: int, clear: int,
+                 run_scale: float = 1.0) -> None:
+        self.sigma = sigma
+        self.threshold = threshold
+        self.alpha = alpha
+        self.persist = persist
+        self.clear = clear
+        self.run_scale = run_scale
+        self.band = threshold * sigma * run_scale  # the alarm's half-width around the prediction
+        self.reset()
+
+    def reset(self) -> None:
+        self.score = 0.0
+        self.raised = False
+        self._beyond = self._below = 0
+        self._zsum, self.count = 0.0, 0
+
+    @property
+    def mean_sq(self) -> float:
+        """Mean squared standardized residual of the samples stepped so far (NaN before any)."""
+        return self._zsum / self.count if self.count else math.nan
+
+    def step(self, residual: float) -> tuple[float, bool]:
+        if residual != residual:
+            return self.score, self.raised
+        z = residual / self.sigma
+        self._zsum += z * z
+        self.count += 1
+        self.score = (1.0 - self.alpha) * self.score + self.alpha * z / self.run_scale
+        if abs(self.score) > self.threshold:
+            self._beyond, self._below = self._beyond + 1, 0
+        else:
+            self._beyond, self._below = 0, self._below + 1
+        if self._beyond >= self.persist:
+            self.raised = True
+        elif self._below >= self.clear:
+            self.raised = False
+        return self.score, self.raised
 
 
 class StepCheck:
@@ -118,18 +136,30 @@ class StepCheck:
     ``step(value, steady) -> z``: |mean(last short) - mean(long before)| / noise sd, 0
     until both windows lie inside the current plateau, after its settling time;
     ``flagged`` is True once z has stayed beyond ``threshold`` for ``persist`` samples,
-    and stays True to the end of the
-    plateau (the operating point has not changed, so the new level is not normal). NaN
-    values hold the last one.
+    and stays True to the end of the plateau (the operating point has not changed, so
+    the new level is not normal). NaN values hold the last one. Windows and timings:
+    ``config.step_*``.
+
+    >>> chk = StepCheck(threshold=8.0)
+    >>> (chk.n_settle, chk.n_short, chk.n_long, chk.persist)  # samples, at 40 Hz
+    (120, 40, 160, 10)
+    >>> y = [5.0 + 0.1 * (-1) ** k + (3.0 if k >= 600 else 0.0) for k in range(700)]
+    >>> flags = [(chk.step(v, True), chk.flagged)[1] for v in y]
+    >>> flags.index(True) - 600, flags[-1]  # samples after the step; held
+    (24, True)
+    >>> chk.step(5.0, False), chk.flagged  # the plateau ends: a new one starts afresh
+    (0.0, False)
     """
 
-    def __init__(self, threshold: float = math.inf, fs: float = FS) -> None:
+    def __init__(self, threshold: float = math.inf, config: RuntimeConfig | None = None,
+                 fs: float = FS) -> None:
+        c = config or RuntimeConfig()
         self.threshold = threshold
-        self.n_settle = int(round(STEP_SETTLE_S * fs))
-        self.n_short = max(1, int(round(STEP_SHORT_S * fs)))
-        self.n_long = max(1, int(round(STEP_LONG_S * fs)))
-        self.alpha = 2.0 / (STEP_NOISE_S * fs + 1.0)
-        self.persist = max(1, int(round(STEP_PERSIST_S * fs)))
+        self.n_settle = int(round(c.step_settle_s * fs))
+        self.n_short = max(1, int(round(c.step_short_s * fs)))
+        self.n_long = max(1, int(round(c.step_long_s * fs)))
+        self.alpha = 2.0 / (c.step_noise_s * fs + 1.0)
+        self.persist = max(1, int(round(c.step_persist_s * fs)))
         self.reset()
 
     def reset(self) -> None:
@@ -180,33 +210,16 @@ class StepCheck:
         return z
 
 
-def longest_repeat(y: np.ndarray, running: np.ndarray) -> int:
-    """Longest run of identical consecutive finite values of ``y`` (K,) while ``running`` (K,).
-
-    NaN (dropouts) neither extend nor break a run; samples not running break it.
-    Counts repeats, so a value seen n times in a row gives n - 1.
-    """
-    best = cur = 0
-    last = math.nan
-    for v, on in zip(y.tolist(), running.tolist()):
-        if not on:
-            cur, last = 0, math.nan
-            continue
-        if v != v:
-            continue
-        cur = cur + 1 if v == last else 0
-        last = v
-        best = max(best, cur)
-    return best
-
-
-def flatline_limit(longest: int, fs: float) -> int:
-    """Repeats that make a flat line (samples), from the longest repeat seen in training."""
-    return max(int(round(FLATLINE_MIN_S * fs)), int(math.ceil(FLATLINE_FACTOR * max(longest, 1))))
-
-
 class FlatlineCheck:
-    """Stateful stuck-sensor check: ``step(value, running) -> True`` while the line is flat."""
+    """Stateful stuck-sensor check: ``step(value, running) -> True`` while the line is flat.
+
+    Flat: the same value repeated ``limit`` times in a row while the engine runs; NaN
+    (dropouts) neither extend nor break the line, stopping the engine does.
+
+    >>> chk = FlatlineCheck(limit=3)
+    >>> [chk.step(v, True) for v in (1.0, 2.0, 2.0, float("nan"), 2.0, 2.0, 3.0)]
+    [False, False, False, False, False, True, False]
+    """
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
@@ -226,60 +239,20 @@ class FlatlineCheck:
         return self._count >= self.limit
 
 
-def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALSE_ALARMS_PER_HOUR,
-                     fs: float = FS) -> dict:
-    """The model-free checks' limits from training runs (objects with ``column(name)`` (K,)).
-
-    Steps the very ``StepCheck`` and OC detector the node runs over every run: the peak
-    step statistic of each steady plateau, pooled, gives the step threshold for the
-    alarm budget (per hour of running); the longest repeat gives the flatline limit.
-    ``run_scale_prior_ocs`` tells the node the residual thresholds were calibrated with
-    ``RunScale`` (bundles without it are run without).
-    """
-    from node.runtime.ocdetect import OCDetector
-
-    det = OCDetector(schedule, fs)
-    peaks: list[float] = []
-    longest, running_s = 0, 0.0
-    for run in runs:
-        speed, y = run.column(schedule.switch), run.column(target)
-        det.reset()
-        phase = det.label(speed)[1]  # Phase codes
-        running = phase != Phase.OFF.code
-        running_s += float(running.sum()) / fs
-        longest = max(longest, longest_repeat(y, running))
-        chk, peak = StepCheck(math.inf, fs), None
-        full = chk.n_settle + chk.n_short + chk.n_long  # samples before the statistic exists
-        n_steady = 0
-        for v, steady in zip(y.tolist(), (phase == Phase.STEADY.code).tolist()):
-            z = chk.step(v, steady)
-            if steady:
-                n_steady += 1
-                peak = z if peak is None else max(peak, z)
-            elif peak is not None:
-                if n_steady >= full:  # a plateau too short for the check says nothing
-                    peaks.append(peak)
-                peak, n_steady = None, 0
-        if peak is not None and n_steady >= full:
-            peaks.append(peak)
-    checks: dict = {"flatline_samples": flatline_limit(longest, fs), "longest_repeat_in_training": longest,
-                    "run_scale_prior_ocs": RUN_SCALE_PRIOR_OCS}
-    if len(peaks) >= 2 and running_s > 0:
-        p = min(0.5, budget / (len(peaks) / (running_s / 3600.0)))
-        checks["step_threshold"] = max(gumbel_quantile(peaks, p), THRESHOLD_MARGIN * max(peaks))
-        checks["step_peaks_in_training"] = {"n": len(peaks), "max": max(peaks),
-                                            "median": float(np.median(peaks))}
-    return checks
-
-
 class EpisodeLog:
     """Alarm episodes of a monitor stream: alarm samples of one rule less than ``gap_s`` apart.
 
     ``episodes``: list of dicts {"key", "start", "end", "reason"} (times in s, the first
     alarm sample's reason).
+
+    >>> log = EpisodeLog(gap_s=1.0)
+    >>> for t in (10.0, 10.5, 12.0):
+    ...     log.add("k", {"t": t, "flag": "alarm", "reason": "step"})
+    >>> [(e["start"], e["end"]) for e in log.episodes]
+    [(10.0, 10.5), (12.0, 12.0)]
     """
 
-    def __init__(self, gap_s: float = 1.0) -> None:
+    def __init__(self, gap_s: float = RuntimeConfig.episode_gap_s) -> None:
         self.gap_s = gap_s
         self.episodes: list[dict] = []
         self._open: dict[str, dict] = {}

@@ -13,15 +13,17 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import compress, repeat
 
 import numpy as np
 
 from node.contract import FS, RUN_GAP
+from node.models.config import RuntimeConfig
 
 _NAN = float("nan")
+SMALL_BATCH = 16  # fewer messages than this go to push one by one: numpy would cost more
 
 
 @dataclass
@@ -45,13 +47,32 @@ class AlignStats:
 class Aligner:
     """Slots samples of ``channels`` on a 40 Hz grid anchored at the first sample of a run.
 
+    ``push`` is the rule, one message at a time; ``push_columns`` gives the very same
+    results for a batch of messages, computed at once where it can.
+
     Args:
         channels: the channels a sample is complete with.
         fs: sample rate, Hz.
-        max_wait: seconds of newer data after which an incomplete slot is emitted anyway.
+        max_wait: seconds of newer data after which an incomplete slot is emitted anyway
+            (``RuntimeConfig.align_wait_s``).
+
+    >>> a = Aligner(["nB", "yB"])
+    >>> a.push("nB", 100.0, 4000.0), a.push("nB", 100.025, 4001.0)
+    ([], [])
+    >>> a.push("yB", 100.0, 2.5)  # completes the first slot
+    [AlignedSample(t=100.0, values={'nB': 4000.0, 'yB': 2.5}, new_run=True)]
+    >>> a.push("yB", 100.026, None)  # null: NaN; this slot's time is that of the grid
+    [AlignedSample(t=100.025, values={'nB': 4001.0, 'yB': nan}, new_run=False)]
+    >>> a.push("nB", 100.125, 4002.0)  # slot 5: slot 2 (empty) still waits...
+    []
+    >>> a.push("nB", 100.15, 4003.0)[0].values  # ...until data 0.1 s (4 slots) newer came
+    {'nB': nan, 'yB': nan}
+    >>> a.stats.missing
+    Counter({'nB': 1, 'yB': 1})
     """
 
-    def __init__(self, channels: list[str], fs: float = FS, max_wait: float = 0.1) -> None:
+    def __init__(self, channels: list[str], fs: float = FS,
+                 max_wait: float = RuntimeConfig.align_wait_s) -> None:
         self.channels = list(channels)
         self._known = frozenset(self.channels)
         self._n = len(self.channels)
@@ -68,123 +89,64 @@ class Aligner:
         self._emitted = False
 
     def push(self, channel: str, t: float, v: float | None) -> list[AlignedSample]:
-        """Add one message; returns the samples that became complete (in time order)."""
+        """Add one message of ``channel`` (time t, s; value v, None or NaN: null); returns the
+        samples it completes, in time order."""
         if channel not in self._known:
             self.stats.unknown[channel] += 1
             return []
         out: list[AlignedSample] = []
-        last = self._last_t
-        if last is not None and t - last >= RUN_GAP:
+        if self._last_t is not None and t - self._last_t >= RUN_GAP:  # a new run, on a new grid
             out += self.flush()
             self._t0 = None
             self._new_run, self._emitted = True, False
         if self._t0 is None:
             self._t0, self._next, self._newest = t, 0, 0
-        if last is None or t > last:
-            self._last_t = t
+        self._last_t = t if self._last_t is None else max(self._last_t, t)
         k = round((t - self._t0) * self.fs)
-        nxt = self._next
-        if k < nxt:
+        if k < self._next:
             if self._emitted:  # its slot is gone
                 self.stats.late += 1
                 return out
-            self._next = nxt = k  # nothing emitted yet: the run starts earlier than its first message
-        slot = self._open.get(k)
-        if slot is None:
-            slot = self._open[k] = {}
-        elif channel in slot:
+            self._next = k  # nothing emitted yet: the run starts earlier than its first message
+        slot = self._open.setdefault(k, {})
+        if channel in slot:
             self.stats.duplicates += 1
             return out
         slot[channel] = _NAN if v is None else float(v)
-        if k > self._newest:
-            self._newest = k
-        # Between calls the head slot is neither complete nor expired, so only this
-        # message can have made it so: test that first, then emit in order.
-        if (k == nxt and len(slot) == self._n) or self._newest - nxt >= self.wait_slots:
-            while True:
-                head = self._open.get(self._next)
-                complete = head is not None and len(head) == self._n
-                expired = self._newest - self._next >= self.wait_slots
-                if not (complete or expired):
-                    break
-                out.append(self._emit(self._next))
-        return out
+        self._newest = max(self._newest, k)
+        while True:  # emit in order every slot complete (every channel in) or expired
+            head = self._open.get(self._next)
+            complete = head is not None and len(head) == self._n
+            expired = self._newest - self._next >= self.wait_slots
+            if not (complete or expired):
+                return out
+            out.append(self._emit(self._next))
 
-    def push_many(self, items: Iterable[tuple[int, str, float, float | None]]
-                  ) -> list[tuple[int, list[AlignedSample]]]:
-        """``push`` of each (tag, channel, t, v) in turn, with the very same effects, faster.
-
-        Returns ``(tag, samples)`` for each message that completed samples.
-        """
-        known, n, wait, fs = self._known, self._n, self.wait_slots, self.fs
-        opened, stats = self._open, self.stats
-        get = opened.get
-        done: list[tuple[int, list[AlignedSample]]] = []
-        t0, nxt, newest, last = self._t0, self._next, self._newest, self._last_t
-        for tag, channel, t, v in items:
-            if channel not in known:
-                stats.unknown[channel] += 1
-                continue
-            if t0 is not None and last is not None and t - last < RUN_GAP:
-                k = round((t - t0) * fs)
-                if k >= nxt:  # the common case, inline; anything else goes through push()
-                    if t > last:
-                        last = t
-                    slot = get(k)
-                    if slot is None:
-                        slot = opened[k] = {}
-                    elif channel in slot:
-                        stats.duplicates += 1
-                        continue
-                    slot[channel] = _NAN if v is None else float(v)
-                    if k > newest:
-                        newest = k
-                    if (k == nxt and len(slot) == n) or newest - nxt >= wait:
-                        self._newest, self._last_t = newest, last
-                        out = []
-                        while True:
-                            head = get(self._next)
-                            complete = head is not None and len(head) == n
-                            if not (complete or newest - self._next >= wait):
-                                break
-                            out.append(self._emit(self._next))
-                        nxt = self._next
-                        done.append((tag, out))
-                    continue
-            self._t0, self._next, self._newest, self._last_t = t0, nxt, newest, last
-            out = self.push(channel, t, v)
-            t0, nxt, newest, last = self._t0, self._next, self._newest, self._last_t
-            if out:
-                done.append((tag, out))
-        self._t0, self._next, self._newest, self._last_t = t0, nxt, newest, last
-        return done
-
-    def push_columns(self, channels: Sequence[str], ts: Sequence[float], vs: Sequence[float | None]
+    def push_columns(self, channels: Sequence[str], t: np.ndarray, v: np.ndarray
                      ) -> list[tuple[int, list[AlignedSample]]]:
-        """``push_many`` of ``(i, channels[i], ts[i], vs[i])`` for every i, with the very same effects.
+        """``push(channels[i], t[i], v[i])`` for every i in turn, with the very same effects.
 
-        ts: finite floats; vs: floats or None. Inside a run that has emitted already, where no
-        message of the batch can start a new run (the common case), the batch is aligned at once
-        with numpy; otherwise message by message.
+        t: (n,) finite times, s; v: (n,) values (NaN: null). Returns ``(i, samples)`` for each
+        message i that completed samples. Inside a run that has emitted already, where no
+        message of the batch can start a new run (the common case), the batch is aligned at
+        once with numpy; otherwise, and for a few messages, message by message.
         """
-        n, last = len(ts), self._last_t
-        t = np.fromiter(ts, dtype=np.float64, count=n)
-        if (not self._emitted or last is None or not n or t.max() - last >= RUN_GAP
-                or len(self._code) != self._n):
-            return self.push_many(zip(range(n), channels, ts, vs))
+        n, last, t0 = len(t), self._last_t, self._t0
+        if (n < SMALL_BATCH or not self._emitted or last is None or t0 is None
+                or float(t.max()) - last >= RUN_GAP or len(self._code) != self._n):
+            one_by_one = (self.push(c, ti, vi) for c, ti, vi in zip(channels, t.tolist(), v.tolist()))
+            return [(i, out) for i, out in enumerate(one_by_one) if out]
         ci = np.fromiter(map(self._code.get, channels, repeat(-1)), dtype=np.int64, count=n)
         if (ci < 0).any():
             self.stats.unknown.update(compress(channels, (ci < 0).tolist()))
         at = np.flatnonzero(ci >= 0)  # the messages of known channels
         if not len(at):
             return []
-        t = t[at]
-        v = np.fromiter(vs, dtype=np.float64, count=n)[at]  # None: NaN
-        c = ci[at]
-        k = np.rint((t - self._t0) * self.fs).astype(np.int64)  # round((t - t0) fs)
+        t, v, code = t[at], v[at], ci[at]
+        k = np.rint((t - t0) * self.fs).astype(np.int64)  # round((t - t0) fs)
         newest = np.maximum.accumulate(np.maximum(k, self._newest))  # after each message
-        taken, emit_at = self._plan(k, c, newest)
-        self._fill(k[taken], c[taken], v[taken])
+        taken, emit_at = self._plan(k, code, newest)
+        self._fill(k[taken], code[taken], v[taken])
         self._newest = int(newest[-1])
         self._last_t = max(last, float(t.max()))
         done: list[tuple[int, list[AlignedSample]]] = []
@@ -258,6 +220,7 @@ class Aligner:
         self._next = k + 1
         self._emitted = True
         self.stats.samples += 1
+        assert self._t0 is not None  # a run is under way
         s = AlignedSample(self._t0 + k / self.fs, vals, self._new_run)
         self._new_run = False
         return s

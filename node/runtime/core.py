@@ -1,132 +1,148 @@
 """Messages in, messages out: the node's logic over every test bed, without I/O.
 
-``NodeCore.handle(key, payload)`` takes one sensor message as it arrived (key
-expression and raw JSON bytes) and returns the monitor messages it completes.
-Bad payloads are counted and skipped; unknown keys and channels are ignored.
-The live node and ``ordervib replay`` both drive this class.
+``NodeCore.handle_batch(keys, payloads)`` takes sensor messages as they arrived (key
+expressions and raw JSON bytes), decodes them by the contract's payload rule
+(``node.contract.decode_samples``), aligns each bed's (``Aligner.push_columns``) and
+runs each bed's ``MonitorPipeline``; it returns each message's decoded time and the
+monitor messages each message completed. ``handle`` is a batch of one. Malformed
+payloads are counted (per bed) and skipped; keys that are no sensor keys are counted
+(node-wide) and ignored, so are channels no model needs. The live node and offline
+replay both drive this class, through ``handle_batch``.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from operator import itemgetter
+from dataclasses import dataclass
+from typing import NamedTuple
 
-import orjson
+import numpy as np
 
-from node.contract import Flag, monitor_key, oc_key, parse_sensor_key
+from node.contract import Flag, HealthMessage, decode_samples, monitor_key, oc_key, parse_sensor_key
 from node.models.bundle import Bundle
 from node.runtime.alarms import EpisodeLog
-from node.runtime.align import Aligner
+from node.runtime.align import AlignedSample, Aligner
 from node.runtime.pipeline import MonitorPipeline
-
-
-@dataclass
-class BedState:
-    aligner: Aligner
-    pipeline: MonitorPipeline
-    alarms: int = 0
-
-
-@dataclass
-class CoreStats:
-    messages: int = 0
-    malformed: int = 0
-    foreign: int = 0  # keys that are not sensor keys
-    published: int = 0
-    beds: dict[str, BedState] = field(default_factory=dict)
-    alarm_log: EpisodeLog = field(default_factory=EpisodeLog)  # alarm episodes, every bed
-
 
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
 
 
-def _check(t: object, v: object) -> tuple[float, float | None] | None:
-    """(t, v) as floats when t is a finite number and v a number or null; else None."""
-    try:
-        ok = isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t)
-        ok = ok and (v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)))
-        return (float(t), None if v is None else float(v)) if ok else None
-    except OverflowError:  # an integer too large for a float
-        return None
+class Batch(NamedTuple):
+    """What ``NodeCore.handle_batch`` did with a batch of n messages."""
+
+    t: np.ndarray  # (n,) each payload's sensor time, s; NaN where malformed
+    done: list[tuple[int, list[Output]]]  # (i, outputs) of each message i that completed outputs
 
 
-_T, _V = itemgetter("t"), itemgetter("v")
-_FLOAT_OR_NULL = frozenset((float, type(None)))
+@dataclass
+class Bed:
+    """One test bed: its aligner and pipeline, and its counters (``aligner.stats`` holds
+    samples, late, duplicates and missing per channel)."""
 
-
-def decode_clean(payloads: Sequence[bytes]) -> tuple[list[float], list[float | None]] | None:
-    """The t and v columns of a batch of sensor payloads, decoded without a per-message loop,
-    when every one holds a finite float t and a float or null v; None when any does not (the
-    rule of ``decode_sample`` then decides message by message)."""
-    try:
-        ds = list(map(orjson.loads, payloads))
-        ts, vs = list(map(_T, ds)), list(map(_V, ds))
-    except (orjson.JSONDecodeError, TypeError, KeyError):
-        return None
-    if set(map(type, ts)) == {float} and _FLOAT_OR_NULL.issuperset(map(type, vs)) and math.isfinite(sum(ts)):
-        return ts, vs
-    return None
-
-
-def decode_sample(payload: bytes) -> tuple[float, float | None] | None:
-    """(t, v) of a sensor payload ``{"t": number, "v": number or null}``; None when malformed."""
-    try:
-        d = orjson.loads(payload)
-        return _check(d["t"], d["v"])
-    except (orjson.JSONDecodeError, TypeError, KeyError):
-        return None
+    aligner: Aligner
+    pipeline: MonitorPipeline
+    received: int = 0  # messages on its sensor keys
+    malformed: int = 0  # of them, payloads that break the payload rule
+    alarm_samples: int = 0
+    latest_t: float | None = None  # the newest sensor time of its well-formed messages, s
 
 
 class NodeCore:
+    """The logic of the node over every bed, created on the bed's first message.
+
+    >>> from node.contract.schedule import OperatingCondition, Schedule
+    >>> core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []))
+    >>> core.handle("testbed/b1/sensor/nB", b'{"t": 100.0, "v": 4000.0}')
+    []
+    >>> out = core.handle("testbed/b1/sensor/yB", b'{"t": 100.0, "v": 2.5}')  # completes a sample
+    >>> [(key, msg["flag"].value) for key, msg in out]
+    [('testbed/b1/monitor/yB', 'no-model')]
+    >>> core.handle("testbed/b1/sensor/yB", b'{"t": "soon"}'), core.beds["b1"].malformed
+    ([], 1)
+    >>> h = core.health("b1", wall=1700000000.0)
+    >>> h["t"], h["received"], h["samples"], h["missing"]
+    (100.0, 3, 1, {})
+    """
+
     def __init__(self, bundle: Bundle) -> None:
         self.bundle = bundle
-        self.stats = CoreStats()
+        self.beds: dict[str, Bed] = {}
+        self.foreign = 0  # messages on keys that are no sensor keys (node-wide)
+        self.published = 0  # outputs returned
+        self.alarm_log = EpisodeLog(bundle.config.episode_gap_s)  # alarm episodes, every bed
         self._routes: dict[str, tuple[str, str] | tuple[()]] = {}  # key -> (bed, channel), () if foreign
 
-    def _bed(self, bed: str) -> BedState:
-        st = self.stats.beds.get(bed)
-        if st is None:
-            pipe = MonitorPipeline(self.bundle)
-            st = BedState(Aligner(pipe.sensor_channels), pipe)
-            self.stats.beds[bed] = st
-        return st
+    @property
+    def malformed(self) -> int:
+        """Malformed payloads, every bed."""
+        return sum(b.malformed for b in self.beds.values())
 
     def handle(self, key: str, payload: bytes) -> list[Output]:
-        """One incoming message; returns the monitor messages it completes (in order)."""
-        self.stats.messages += 1
-        parsed = parse_sensor_key(key)
-        if parsed is None:
-            self.stats.foreign += 1
-            return []
-        bed, channel = parsed
-        sample = decode_sample(payload)
-        if sample is None:
-            self.stats.malformed += 1
-            return []
-        st = self._bed(bed)
-        return self._run(bed, st, st.aligner.push(channel, sample[0], sample[1]))
+        """One incoming message; returns the outputs it completes (in order)."""
+        done = self.handle_batch([key], [payload]).done
+        return done[0][1] if done else []
 
-    def handle_many(self, keys: Sequence[str], payloads: Sequence[bytes]) -> list[tuple[int, list[Output]]]:
-        """``handle`` over a batch of messages, with the very same effects, faster.
-
-        Returns ``(i, outputs)`` for each message i that completed monitor messages.
-        """
-        beds = self.stats.beds
-        clean = self._clean_batch(keys, payloads)
-        if clean is not None:
-            bed, columns = clean
-            done = [(i, bed, samples) for i, samples in beds[bed].aligner.push_columns(*columns)]
+    def handle_batch(self, keys: Sequence[str], payloads: Sequence[bytes]) -> Batch:
+        """Messages in the order they arrived, with the very effects of one at a time."""
+        if len(keys) != len(payloads):
+            raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
+        t, v, ok = decode_samples(payloads)
+        routes = {key: self._route(key) for key in set(keys)}
+        bed_of_key = {key: route[0] for key, route in routes.items() if route}
+        channel_of = {key: route[1] for key, route in routes.items() if route}
+        names = set(bed_of_key.values())
+        if len(names) == 1 and len(channel_of) == len(routes):  # the common batch: one bed, sensor keys
+            parts = [(names.pop(), np.arange(len(keys)))]
         else:
-            per_bed = self._sort_batch(keys, payloads)
-            # each bed's aligner is independent; the pipelines then run in message order
-            done = [(i, bed, samples) for bed, items in per_bed.items()
-                    for i, samples in beds[bed].aligner.push_many(items)]
-            if len(per_bed) > 1:
-                done.sort(key=lambda x: x[0])
-        self.stats.messages += len(keys)
-        return [(i, self._run(bed, beds[bed], samples)) for i, bed, samples in done]
+            bed_of = list(map(bed_of_key.get, keys))
+            order = [name for name in dict.fromkeys(bed_of) if name is not None]  # by first message
+            codes = np.array([-1 if name is None else order.index(name) for name in bed_of], dtype=np.int64)
+            self.foreign += int((codes < 0).sum())
+            parts = [(name, np.flatnonzero(codes == j)) for j, name in enumerate(order)]
+        done: list[tuple[int, str, list[AlignedSample]]] = []
+        for name, idx in parts:
+            bed = self._bed(name)
+            good = idx[ok[idx]]
+            bed.received += len(idx)
+            bed.malformed += len(idx) - len(good)
+            if not len(good):
+                continue
+            newest = float(t[good].max())
+            bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
+            if len(good) == len(keys):
+                channels = list(map(channel_of.__getitem__, keys))
+            else:
+                channels = [channel_of[keys[i]] for i in good.tolist()]
+            done += [(int(good[j]), name, samples)
+                     for j, samples in bed.aligner.push_columns(channels, t[good], v[good])]
+        if len(parts) > 1:
+            done.sort(key=lambda x: x[0])  # each bed's aligner is independent; outputs in message order
+        return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done])
+
+    def finish(self) -> list[Output]:
+        """End of stream: emit every sample still waiting for late channels."""
+        out: list[Output] = []
+        for name, bed in self.beds.items():
+            out += self._run(name, bed.aligner.flush())
+        return out
+
+    def health(self, bed: str, wall: float, dropped: int = 0,
+               lag_ms: tuple[float | None, float | None] | None = None) -> HealthMessage:
+        """The health message of ``bed``: its latest sensor time and its own counters.
+
+        wall: the node's clock, s; dropped: messages lost in the node's queue (node-wide);
+        lag_ms: receive-to-publish latency (median, 99th percentile), ms, if measured.
+        """
+        b = self.beds[bed]
+        a = b.aligner.stats
+        msg: HealthMessage = {
+            "t": b.latest_t if b.latest_t is not None else float("nan"), "wall": wall,
+            "received": b.received, "malformed": b.malformed, "dropped": dropped, "samples": a.samples,
+            "late": a.late, "duplicates": a.duplicates, "missing": dict(a.missing),
+            "alarm_samples": b.alarm_samples}
+        if lag_ms is not None:
+            msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
+        return msg
 
     def _route(self, key: str) -> tuple[str, str] | tuple[()]:
         """(bed, channel) of a sensor key, () for any other key (cached)."""
@@ -135,88 +151,25 @@ class NodeCore:
             route = self._routes[key] = parse_sensor_key(key) or ()
         return route
 
-    def _clean_batch(self, keys: Sequence[str], payloads: Sequence[bytes]
-                     ) -> tuple[str, tuple[list[str], list[float], list[float | None]]] | None:
-        """The common batch, without a per-message loop: ``(bed, (channels, ts, vs))`` when every
-        key is a sensor key of one bed and every payload is well formed; else None."""
-        if len(keys) != len(payloads):
-            return None
-        routes = {key: self._route(key) for key in set(keys)}
-        beds = {route[0] if route else None for route in routes.values()}
-        if len(beds) != 1 or None in beds:
-            return None
-        columns = decode_clean(payloads)
-        if columns is None:
-            return None
-        bed = beds.pop()
-        if bed not in self.stats.beds:
-            self._bed(bed)
-        channel_of = {key: route[1] for key, route in routes.items()}
-        return bed, (list(map(channel_of.__getitem__, keys)), *columns)
+    def _bed(self, name: str) -> Bed:
+        bed = self.beds.get(name)
+        if bed is None:
+            pipe = MonitorPipeline(self.bundle)
+            aligner = Aligner(pipe.sensor_channels, max_wait=self.bundle.config.align_wait_s)
+            bed = self.beds[name] = Bed(aligner, pipe)
+        return bed
 
-    def _sort_batch(self, keys: Sequence[str], payloads: Sequence[bytes]) -> dict[str, list]:
-        """``{bed: [(i, channel, t, v)] of its valid messages}``, one message at a time; counts
-        foreign keys and malformed payloads."""
-        beds = self.stats.beds
-        routes = self._routes
-        loads, decode_error = orjson.loads, orjson.JSONDecodeError
-        per_bed: dict[str, list] = {}
-        foreign = malformed = 0
-        for i, (key, payload) in enumerate(zip(keys, payloads, strict=True)):
-            route = routes.get(key)
-            if route is None:
-                route = self._route(key)
-            if not route:
-                foreign += 1
-                continue
-            try:
-                d = loads(payload)
-                t = d["t"]
-                v = d["v"]
-            except (decode_error, TypeError, KeyError):
-                malformed += 1
-                continue
-            if not (type(t) is float and t - t == 0.0 and (v is None or type(v) is float)):
-                sample = _check(t, v)  # the general rule, for ints and anything odd
-                if sample is None:
-                    malformed += 1
-                    continue
-                t, v = sample
-            items = per_bed.get(route[0])
-            if items is None:
-                if route[0] not in beds:
-                    self._bed(route[0])  # bed states are made in order of first valid message
-                items = per_bed[route[0]] = []
-            items.append((i, route[1], t, v))
-        self.stats.foreign += foreign
-        self.stats.malformed += malformed
-        return per_bed
-
-    def _run(self, bed: str, st: BedState, samples) -> list[Output]:
+    def _run(self, name: str, samples: list[AlignedSample]) -> list[Output]:
+        bed = self.beds[name]
         out: list[Output] = []
-        target = self.bundle.target
+        key = monitor_key(name, self.bundle.target)
         for s in samples:
-            msg, oc_msg = st.pipeline.step(s)
+            msg, oc_msg = bed.pipeline.step(s)
             if oc_msg is not None:
-                out.append((oc_key(bed), oc_msg))
-            key = monitor_key(bed, target)
+                out.append((oc_key(name), oc_msg))
             if msg["flag"] == Flag.ALARM:
-                st.alarms += 1
-                self.stats.alarm_log.add(key, msg)
+                bed.alarm_samples += 1
+                self.alarm_log.add(key, msg)
             out.append((key, msg))
-        self.stats.published += len(out)
+        self.published += len(out)
         return out
-
-    def finish(self) -> list[Output]:
-        """End of stream: emit every sample still waiting for late channels."""
-        out: list[Output] = []
-        for bed, st in self.stats.beds.items():
-            out += self._run(bed, st, st.aligner.flush())
-        return out
-
-    def health(self, bed: str, t: float, extra: dict | None = None) -> dict:
-        st = self.stats.beds[bed]
-        a = st.aligner.stats
-        return {"t": t, "samples": a.samples, "late": a.late, "duplicates": a.duplicates,
-                "missing": dict(a.missing), "malformed": self.stats.malformed,
-                "alarm_samples": st.alarms, **(extra or {})}

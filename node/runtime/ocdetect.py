@@ -30,6 +30,7 @@ import numpy as np
 
 from node.contract import FS, Phase
 from node.contract.schedule import Schedule
+from node.models.config import RuntimeConfig
 
 
 class OCState(NamedTuple):
@@ -74,25 +75,34 @@ class OCDetector:
 
     Args:
         schedule: the pass-off schedule.
+        config: run-time settings (default settings if None); the detector's are
+            ``detector_smooth_s`` (causal moving average of the speed),
+            ``detector_confirm_s`` (time within the band of the expected plateau to call it
+            steady), ``detector_depart_s`` (time beyond half the band around the plateau to
+            call a departure), ``detector_settle_s`` (time of near-constant speed to accept
+            an unexpected plateau) and ``detector_off_fraction`` (below this fraction of the
+            highest plateau the engine is off).
         fs: sample rate, Hz.
-        smooth_s: causal moving-average length applied to the speed, s.
-        confirm_s: time within the band of the expected plateau to call it steady, s.
-        depart_s: time beyond half the band around the plateau to call a departure, s.
-        settle_s: time of near-constant speed to accept an unexpected plateau, s.
-        off_fraction: below this fraction of the highest plateau the engine is off.
+
+    >>> from node.contract.schedule import OperatingCondition, Schedule
+    >>> det = OCDetector(Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0))))
+    >>> speed = np.r_[np.linspace(0.0, 4000.0, 400), np.full(200, 4000.0), np.linspace(4000.0, 6000.0, 200),
+    ...               np.full(200, 6000.0)]
+    >>> oc, phase = det.label(speed)
+    >>> [(o, Phase.from_code(p).value) for o, p in dict.fromkeys(zip(oc.tolist(), phase.tolist()))]
+    [(-1, 'off'), (0, 'steady'), (1, 'transition'), (1, 'steady')]
     """
 
-    def __init__(self, schedule: Schedule, fs: float = FS, smooth_s: float = 0.25,
-                 confirm_s: float = 1.0, depart_s: float = 0.25, settle_s: float = 5.0,
-                 off_fraction: float = 0.05) -> None:
+    def __init__(self, schedule: Schedule, config: RuntimeConfig | None = None, fs: float = FS) -> None:
+        c = config or RuntimeConfig()
         self.schedule = schedule
         self.speeds = np.array([oc.speed for oc in schedule.ocs])
         self.tol = schedule.tolerance
-        self.n_smooth = max(1, round(smooth_s * fs))
-        self.n_confirm = max(1, round(confirm_s * fs))
-        self.n_depart = max(1, round(depart_s * fs))
-        self.n_settle = max(self.n_confirm, round(settle_s * fs))
-        self.off_level = off_fraction * float(self.speeds.max())
+        self.n_smooth = max(1, round(c.detector_smooth_s * fs))
+        self.n_confirm = max(1, round(c.detector_confirm_s * fs))
+        self.n_depart = max(1, round(c.detector_depart_s * fs))
+        self.n_settle = max(self.n_confirm, round(c.detector_settle_s * fs))
+        self.off_level = c.detector_off_fraction * float(self.speeds.max())
         self.reset()
 
     def reset(self) -> None:
@@ -119,8 +129,10 @@ class OCDetector:
 
     def _target(self, direction: float) -> int | None:
         """The OC a departure from the anchor heads for."""
+        anchor = self._anchor
+        assert anchor is not None
         ahead = [j for j in range(len(self.speeds))
-                 if direction * (self.speeds[j] - self._anchor) > self.tol * self._anchor]
+                 if direction * (self.speeds[j] - anchor) > self.tol * anchor]
         if not ahead:
             return None
         later = [j for j in ahead if j > self._last]
@@ -145,6 +157,7 @@ class OCDetector:
             return self.state
 
         if phase is Phase.STEADY:
+            assert oc is not None and self._anchor is not None  # set on arrival
             nominal = float(self.speeds[oc])
             before = self._hist[-1 - self.n_depart] if len(self._hist) > self.n_depart else s
             if abs(s - nominal) < abs(before - nominal) or abs(s - nominal) <= 0.25 * self.tol * nominal:
@@ -155,11 +168,13 @@ class OCDetector:
             return self.state
 
         if phase is Phase.TRANSITION:
-            band = self.tol * self.speeds[oc]
-            if self._held(self.n_confirm, self.speeds[oc], band):
+            assert oc is not None  # a transition heads for an OC
+            target = float(self.speeds[oc])
+            band = self.tol * target
+            if self._held(self.n_confirm, target, band):
                 self._arrive(oc)
                 return self.state
-            if (s - self.speeds[oc]) * self._direction > band:  # went past the target
+            if (s - target) * self._direction > band:  # went past the target
                 self._anchor = s
                 self._depart(s, self._direction)
                 return self.state
@@ -184,6 +199,7 @@ class OCDetector:
         (approaching it, or within a quarter band), never beyond the plateau's band,
         so a ramp away cannot drag it along.
         """
+        assert self._anchor is not None
         before = self._hist[-1 - self.n_depart] if len(self._hist) > self.n_depart else s
         off = s - self._anchor
         if abs(off) > 0.5 * self.tol * self._anchor and (s - before) * off > 0:
@@ -201,6 +217,7 @@ class OCDetector:
         self._set(OCState(j, Phase.STEADY))
 
     def _depart(self, s: float, direction: float | None = None) -> None:
+        assert self._anchor is not None
         self._direction = math.copysign(1.0, s - self._anchor) if direction is None else direction
         target = self._target(self._direction)
         self._away = 0

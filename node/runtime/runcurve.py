@@ -5,7 +5,7 @@ thermal bow, vector sums whose phases no gas-path input carries: the same engine
 a resonance with a peak in one run and a dip in the next. What the run did at the same
 speed earlier tells: the run-up predicts the run-down. ``RunCurve`` gives, per sample,
 the mean target amplitude this run showed at the current switch speed (bins of
-``BIN_WIDTH``) in its *earlier* OC segments, and the fleet's characteristic curve
+``RuntimeConfig.run_curve_bin``) in its *earlier* OC segments, and the fleet's characteristic curve
 (the training runs' mean) where this run has not been yet. Samples of the current
 segment never count, so a fault inside it is not explained away by its own samples.
 
@@ -20,8 +20,9 @@ import math
 
 import numpy as np
 
+from node.models.config import RuntimeConfig
+
 RUN_CURVE = "run_curve"  # the derived input channel's name
-BIN_WIDTH = 50.0  # speed bin, in the switch channel's unit (rpm)
 
 
 class RunCurve:
@@ -29,11 +30,19 @@ class RunCurve:
 
     Args:
         fleet_speed, fleet_mean: the fleet characteristic curve (B,), (B,), speeds ascending.
-        bin_width: speed bin, rpm.
+        bin_width: speed bin, rpm (``RuntimeConfig.run_curve_bin``).
+
+    >>> rc = RunCurve(np.array([0.0, 10000.0]), np.array([0.0, 10.0]))  # fleet: 1 per 1000 rpm
+    >>> rc.step(4010.0, 7.0, True)  # first segment: the fleet curve
+    4.01
+    >>> rc.step(4020.0, 9.0, False)  # its own samples never count
+    4.02
+    >>> rc.step(4030.0, 1.0, True)  # a later segment: the run's own mean in that bin
+    8.0
     """
 
     def __init__(self, fleet_speed: np.ndarray, fleet_mean: np.ndarray,
-                 bin_width: float = BIN_WIDTH) -> None:
+                 bin_width: float = RuntimeConfig.run_curve_bin) -> None:
         self._xs = [float(x) for x in np.asarray(fleet_speed, float)]
         self._ys = [float(x) for x in np.asarray(fleet_mean, float)]
         if not self._xs or len(self._xs) != len(self._ys):

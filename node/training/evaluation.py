@@ -13,8 +13,9 @@ from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.ocmodel import Trajectory
 from node.runtime.runcurve import RUN_CURVE, add_run_curve
+from node.training.calibrate import alarm_mask
 from node.training.dataset import run_arrays, segment_runs
-from node.training.train import FS, HISTORY_S, OCResult, ewma_scores, pooled_eps
+from node.training.train import FS, HISTORY_S, OCResult, pooled_eps
 
 
 @dataclass
@@ -63,22 +64,6 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
             pred = res.model.predict(traj)
         out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], traj.seg_y, pred))
     return out
-
-
-def alarm_mask(residual: np.ndarray, res: OCResult) -> np.ndarray:
-    """Samples where the smoothed standardized residual has exceeded the threshold persistently.
-
-    Per segment, so without the node's run scale and off-delay (``node.runtime.pipeline``): a
-    quick per-OC view; the node's own figures come from ``ordervib replay``.
-    """
-    c = res.calibration
-    e = np.abs(ewma_scores(residual, c.sigma, c.ewma_alpha)) > c.threshold
-    run = np.zeros(e.size, dtype=np.int64)
-    count = 0
-    for k, v in enumerate(e):
-        count = count + 1 if v else 0
-        run[k] = count
-    return run >= c.persist
 
 
 def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,

@@ -22,8 +22,8 @@ from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.ocmodel import Method, OCModel, Trajectory, fit_oc_model, memory
-from node.runtime.alarms import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, RunScale, pooled_thresholds
 from node.runtime.runcurve import add_run_curve
+from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, peak_score, set_thresholds
 from node.training.dataset import Segment, run_arrays, segment_runs
 from node.training.features import rank_inputs
 
@@ -48,7 +48,7 @@ class Calibration:
     """Residual statistics of one OC: sigma (target units) and the alarm rule.
 
     threshold is on the smoothed standardized score (sigma units); peaks are the CV
-    segments' peak |scores| it was calibrated from (see ``node.runtime.alarms``).
+    segments' peak |scores| it was calibrated from (see ``node.training.calibrate``).
     """
 
     sigma: float
@@ -74,12 +74,6 @@ class OCResult:
     ranking: list[tuple[str, float]] = field(default_factory=list)
     cv_scores: list[tuple[dict, float]] = field(default_factory=list)
     note: str = ""
-
-
-def ewma_scores(residual: np.ndarray, sigma: float, alpha: float) -> np.ndarray:
-    """Smoothed standardized residual e_k = (1 - a) e_(k-1) + a r_k / sigma, from 0: (K,)."""
-    from scipy.signal import lfilter
-    return lfilter([alpha], [1.0, alpha - 1.0], residual / sigma)
 
 
 def pooled_eps(pairs: list[tuple[np.ndarray, np.ndarray]]) -> float:
@@ -175,7 +169,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         sigma = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
         sigma = max(sigma, 1e-9)
         c = Calibration(sigma, float("inf"))
-        c.peaks = [float(np.max(np.abs(ewma_scores(r, sigma, c.ewma_alpha)))) for r in res]
+        c.peaks = [peak_score(r, sigma, c.ewma_alpha) for r in res]
         rows = [i for f in folds for i, r in enumerate(d.runs) if r == f]  # the order of ``pairs``
         c.segments = [(d.runs[i], d.at[i], float(np.mean((r / sigma) ** 2))) for i, r in zip(rows, res)]
         calib = c
@@ -245,7 +239,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     the derived ``run_curve`` input (``node.runtime.runcurve``), a candidate like any channel.
 
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
-    (per hour of OC time in normal runs), see ``node.runtime.alarms.pooled_thresholds``.
+    (per hour of OC time in normal runs), see ``node.training.calibrate``.
     """
     meth = Method(method)
     if not runs:
@@ -283,41 +277,6 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
                 progress(results[i], i + 1, len(jobs))
     out = [r for r in results if r is not None]
     set_thresholds(out, datas, false_alarms_per_hour, cv_undercoverage)
-    return out
-
-
-def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float,
-                   undercoverage: float = CV_UNDERCOVERAGE) -> None:
-    """Give every calibrated OC its threshold from the pooled CV peaks and the alarm budget."""
-    hours = sum(y.size - s for d in datas for y, s in zip(d.y, d.start)) / FS / 3600.0
-    segments = sum(len(d.runs) for d in datas)
-    per_hour = segments / hours if hours > 0 else 1.0
-    calibs = {r.name: r.calibration for r in results if r.calibration is not None}
-    for name, scaled in run_scaled_peaks(calibs).items():
-        calibs[name].peaks = scaled
-    levels = pooled_thresholds({n: c.peaks for n, c in calibs.items()}, per_hour, budget, undercoverage)
-    for name, c in calibs.items():
-        c.threshold = levels[name]
-
-
-def run_scaled_peaks(calibs: dict[str, Calibration]) -> dict[str, list[float]]:
-    """CV peaks divided by the run scale the node would have used at each segment's start.
-
-    Within a held-out CV run, its segments (every OC) in time order feed ``RunScale``
-    exactly as the node's pipeline does; an OC without calibrated segments is left as is.
-    """
-    by_run: dict[int, list[tuple[int, str, int]]] = {}
-    for name, c in calibs.items():
-        if len(c.segments) != len(c.peaks):
-            continue
-        for k, (run, at, _) in enumerate(c.segments):
-            by_run.setdefault(run, []).append((at, name, k))
-    out = {name: list(c.peaks) for name, c in calibs.items()}
-    for segs in by_run.values():
-        scale = RunScale()
-        for _, name, k in sorted(segs):
-            out[name][k] = calibs[name].peaks[k] / scale.factor
-            scale.add(calibs[name].segments[k][2])
     return out
 
 
