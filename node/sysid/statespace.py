@@ -9,6 +9,7 @@ Arrays are time-major: inputs ``U`` are (K, m), outputs (K, p), states (K, n).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 from scipy import linalg
@@ -137,6 +138,18 @@ class StateSpace:
     def is_stable(self, margin: float = 0.0) -> bool:
         """True when every pole lies strictly inside the circle of radius 1 - margin."""
         return self.spectral_radius() < 1.0 - margin
+
+    @overload
+    def simulate(self, U: np.ndarray, x0: np.ndarray | None = None,
+                 return_states: Literal[False] = False) -> np.ndarray: ...
+
+    @overload
+    def simulate(self, U: np.ndarray, x0: np.ndarray | None,
+                 return_states: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def simulate(self, U: np.ndarray, x0: np.ndarray | None = None, *,
+                 return_states: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
 
     def simulate(self, U: np.ndarray, x0: np.ndarray | None = None,
                  return_states: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
