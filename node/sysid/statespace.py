@@ -94,6 +94,13 @@ class StateSpace:
     """A discrete-time LTI model (A, B, C, D) with sample time ``dt`` (s).
 
     Shapes: A (n, n), B (n, m), C (p, n), D (p, m).
+
+    >>> ss = StateSpace(np.array([[0.9, 0.2], [0.0, 0.5]]), np.array([[1.0], [0.5]]),
+    ...                 np.array([[1.0, 0.0]]), np.zeros((1, 1)))
+    >>> np.sort(ss.poles().real), ss.is_stable()
+    (array([0.5, 0.9]), True)
+    >>> ss.simulate(np.ones((3, 1)))[:, 0]  # from rest: y = C x, x[k+1] = A x[k] + B u[k]
+    array([0., 1., 2.])
     """
 
     A: np.ndarray

@@ -89,9 +89,11 @@ def alarm_mask(residual: np.ndarray, res: OCResult) -> np.ndarray:
 
 
 def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
-             target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None
+             target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
+             history_s: float = RuntimeConfig().history_s
              ) -> tuple[list[OCEvaluation], list[SegmentPrediction]]:
-    preds = predict_segments(results, runs, schedule, target, fleet)
+    """Per-OC held-out eps and alarm samples, and the predictions (see ``predict_segments``)."""
+    preds = predict_segments(results, runs, schedule, target, fleet, history_s)
     by_name = {r.name: r for r in results}
     out = []
     for j, name in enumerate(schedule.names):
