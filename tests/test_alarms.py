@@ -182,8 +182,8 @@ def test_run_scale_grows_only_for_an_unusual_run():
 
 
 def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
-    from node.runtime.alarms import RunScale
     from node.models.result import Calibration
+    from node.runtime.alarms import RunScale
     from node.training.train import run_scaled_peaks
 
     a = Calibration(1.0, 0.0, peaks=[2.0, 3.0], segments=[(0, 100, 9.0), (1, 100, 1.0)])
@@ -200,9 +200,9 @@ def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
     from node.contract.schedule import OperatingCondition, Schedule
     from node.models.bundle import Bundle
     from node.models.ocmodel import InputScaling, RegressionModel
+    from node.models.result import Calibration, OCResult
     from node.runtime.alarms import RESIDUAL_CLEAR_S
     from node.runtime.core import NodeCore
-    from node.models.result import Calibration, OCResult
 
     # an OC whose model predicts yB = 2 whatever nB does (Lasso with a zero weight)
     model = RegressionModel({"alpha": 1.0}, InputScaling(np.array([4000.0]), np.array([1.0])),

@@ -271,6 +271,16 @@ class StateSpaceRuntime:
 
     One matrix-vector product per sample: the input scaling is folded into
     G = [[C, D], [A, B]] acting on z = [x; u; 1] (raw inputs u). Memory: z (n + m + 1,).
+
+    x[k+1] = 0.5 x[k] + u[k], y = x, from rest under a unit step:
+
+    >>> ss = StateSpace(np.array([[0.5]]), np.array([[1.0, 0.0]]), np.array([[1.0]]),
+    ...                 np.zeros((1, 2)), 1.0 / FS)
+    >>> m = StateSpaceModel(Method.DELAY_DMD, {"delays": 1}, InputScaling(np.zeros(1), np.ones(1)), ss)
+    >>> rt = m.runtime()
+    >>> rt.start(np.zeros(0), np.zeros((0, 1)))
+    >>> [rt.step(np.array([1.0])) for _ in range(3)]
+    [0.0, 1.0, 1.5]
     """
 
     def __init__(self, model: StateSpaceModel) -> None:
@@ -370,6 +380,12 @@ class RegressionRuntime:
     """Online stepper of a :class:`RegressionModel`: one dot product per sample, no state.
 
     The input scaling is folded into the weights w acting on z = [u; 1] (raw inputs u).
+
+    >>> m = RegressionModel({"alpha": 0.1}, InputScaling(np.array([2.0]), np.array([0.5])),
+    ...                     coef=np.array([3.0]), intercept=1.0)
+    >>> rt = m.runtime()
+    >>> rt.step(np.array([2.5]))  # 3 (2.5 - 2) / 0.5 + 1
+    4.0
     """
 
     def __init__(self, model: RegressionModel) -> None:
