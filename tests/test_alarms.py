@@ -181,9 +181,9 @@ def test_run_scale_grows_only_for_an_unusual_run():
 
 
 def test_cv_peaks_are_scaled_by_the_run_so_far_in_time_order():
+    from node.models.result import Calibration
     from node.runtime.alarms import RunScale
     from node.training.calibrate import run_scaled_peaks
-    from node.training.train import Calibration
 
     a = Calibration(1.0, 0.0, peaks=[2.0, 3.0], segments=[(0, 100, 9.0), (1, 100, 1.0)])
     b = Calibration(1.0, 0.0, peaks=[4.0, 5.0], segments=[(0, 500, 4.0), (1, 500, 1.0)])
@@ -199,13 +199,13 @@ def test_residual_alarm_needs_persistence_to_rise_and_an_off_delay_to_clear():
     from node.contract.schedule import OperatingCondition, Schedule
     from node.models.bundle import Bundle
     from node.models.config import RuntimeConfig
-    from node.models.ocmodel import Method, OCModel
+    from node.models.ocmodel import InputScaling, RegressionModel
+    from node.models.result import Calibration, OCResult
     from node.runtime.core import NodeCore
-    from node.training.train import Calibration, OCResult
 
     # an OC whose model predicts yB = 2 whatever nB does (Lasso with a zero weight)
-    model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([4000.0]), np.array([1.0]),
-                    coef=np.array([0.0]), intercept=2.0)
+    model = RegressionModel({"alpha": 1.0}, InputScaling(np.array([4000.0]), np.array([1.0])),
+                            coef=np.array([0.0]), intercept=2.0)
     calib = Calibration(sigma=0.1, threshold=3.0, ewma_alpha=1.0, persist=40)  # no smoothing: score = z
     sched = Schedule((OperatingCondition("A", 4000.0),))
     res = OCResult("A", model, ["nB"], {}, 8, 0.1, 0.1, calib)

@@ -11,10 +11,10 @@ import pytest
 from node.contract.schedule import OperatingCondition, Schedule
 from node.mcap import Run
 from node.models.bundle import Bundle
-from node.models.ocmodel import Method, OCModel
+from node.models.ocmodel import InputScaling, RegressionModel
+from node.models.result import Calibration, OCResult
 from node.runtime.core import NodeCore
 from node.runtime.runcurve import RUN_CURVE, RunCurve, add_run_curve
-from node.training.train import Calibration, OCResult
 
 FLEET = (np.array([0.0, 10000.0]), np.array([1.0, 1.0]))  # the fleet says 1.0 everywhere
 
@@ -51,8 +51,8 @@ def _profile() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_the_node_computes_the_very_feature_training_saw():
     sched = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0)))
     # a Lasso model "yB = run_curve": the node's prediction is the feature itself
-    model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([0.0]), np.array([1.0]),
-                    coef=np.array([1.0]), intercept=0.0)
+    model = RegressionModel({"alpha": 1.0}, InputScaling(np.array([0.0]), np.array([1.0])),
+                            coef=np.array([1.0]), intercept=0.0)
     ocs = [OCResult(n, model, [RUN_CURVE], {}, 8, 0.1, 0.1, Calibration(1.0, 1e9)) for n in ("A", "B")]
     core = NodeCore(Bundle("lasso", "yB", sched, ocs, curve=FLEET))
     t, nb, yb = _profile()
@@ -83,8 +83,8 @@ def test_a_bundle_taking_run_curve_without_a_fleet_curve_is_refused(tmp_path):
     from node.models.bundle import load_bundle, save_bundle
 
     sched = Schedule((OperatingCondition("A", 4000.0),))
-    model = OCModel(Method.LASSO, {"alpha": 1.0}, np.array([0.0]), np.array([1.0]),
-                    coef=np.array([1.0]), intercept=0.0)
+    model = RegressionModel({"alpha": 1.0}, InputScaling(np.array([0.0]), np.array([1.0])),
+                            coef=np.array([1.0]), intercept=0.0)
     res = OCResult("A", model, [RUN_CURVE], {}, 8, 0.1, 0.1, Calibration(1.0, 5.0))
     save_bundle(Bundle("lasso", "yB", sched, [res], curve=FLEET), tmp_path / "ok")
     assert load_bundle(tmp_path / "ok").oc("A").inputs == [RUN_CURVE]

@@ -98,7 +98,7 @@ def test_training_survives_dropouts_and_a_missing_optional_channel(sim):
     assert len(fitted) >= len(schedule.ocs) - 1
     for r in fitted:
         assert "tG" not in r.inputs and len(r.inputs) == 4
-        assert np.isfinite(r.cv_eps) and np.isfinite(r.model.ss.A).all()
+        assert np.isfinite(r.cv_eps) and np.isfinite(r.model.arrays()["A"]).all()
     assert set(SENSOR_CHANNELS) >= set().union(*(r.inputs for r in fitted))
 
 

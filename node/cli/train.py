@@ -78,7 +78,7 @@ def print_results(results: list[OCResult], file: TextIO | None = None) -> None:
         if r.model is None:
             rows.append([r.name, "-", "-", "-", "-", "-", "-", "-", r.note or "no model"])
             continue
-        states = "0" if r.model.ss is None else str(r.model.ss.n_states)
+        states = str(r.model.n_states)
         hp = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.params.items())
         rows.append([r.name, ",".join(r.inputs), states, hp, f"{r.train_eps:.3f}", f"{r.cv_eps:.3f}",
                      f"{r.calibration.sigma:.3g}" if r.calibration else "-",
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from node.models.bundle import Bundle, save_bundle, sha256_file
     from node.models.config import RuntimeConfig
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
-    from node.training.train import DEFAULT_GRIDS, HISTORY_S, Method, fleet_curve, train
+    from node.training.train import DEFAULT_GRIDS, Method, fleet_curve, train
 
     if args.n_inputs < 1:
         raise OrdervibError("--n-inputs must be at least 1")
@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     checks = calibrate_checks(runs, schedule, args.target, per_rule)
     checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
-    bundle = Bundle(args.method, args.target, schedule, results, RuntimeConfig(history_s=HISTORY_S), training,
+    bundle = Bundle(args.method, args.target, schedule, results, RuntimeConfig(), training,
                     curve, checks)
     out = save_bundle(bundle, args.out)
     if inputs is None:

@@ -21,9 +21,8 @@ from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import OCModel
-from node.runtime.runcurve import RUN_CURVE
-from node.training.train import Calibration, OCResult
+from node.models.ocmodel import RUN_CURVE, model_from_arrays
+from node.models.result import Calibration, OCResult
 
 FORMAT = "ordervib-model"
 FORMAT_VERSION = 2  # 2: the run-time settings are stored ("runtime"); 1 is read with the defaults
@@ -40,7 +39,7 @@ def sha256_file(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class Bundle:
     """A trained switching model: per-OC results, schedule, target, provenance."""
 
@@ -77,7 +76,7 @@ def _manifest_oc(r: OCResult) -> dict:
          "model": None, "residual": None}
     if r.model is not None:
         d["model"] = {"method": r.model.method.value, "repaired": r.model.repaired,
-                      "n_states": 0 if r.model.ss is None else r.model.ss.n_states}
+                      "n_states": r.model.n_states}
     if r.calibration is not None:
         c = r.calibration
         d["residual"] = {"sigma": c.sigma, "threshold": c.threshold,
@@ -102,7 +101,7 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike) -> Path:
     if bundle.curve is not None:
         arrays["curve/speed"], arrays["curve/mean"] = bundle.curve
     buf = io.BytesIO()
-    np.savez(buf, **arrays)
+    np.savez(buf, **arrays)  # type: ignore[arg-type]  # numpy's stub mistakes ** for allow_pickle
     data = buf.getvalue()
     (out / ARRAYS).write_bytes(data)
     manifest = {
@@ -150,13 +149,13 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
             if d["model"] is not None:
                 mine = {k.split("/", 1)[1]: v for k, v in arrays.items()
                         if k.split("/", 1)[0] == d["name"]}
-                model = OCModel.from_arrays(d["model"]["method"], d["params"], mine,
-                                            d["model"]["repaired"])
+                model = model_from_arrays(d["model"]["method"], d["params"], mine,
+                                          d["model"]["repaired"])
             calib = None
             if d["residual"] is not None:
                 c = d["residual"]
                 calib = Calibration(c["sigma"], c["threshold"], c["ewma_alpha"], c["persist"],
-                                    [float(x) for x in c.get("cv_peaks", [])])
+                                    tuple(float(x) for x in c.get("cv_peaks", [])))
             ocs.append(OCResult(d["name"], model, list(d["inputs"]), dict(d["params"]), d["n_runs"],
                                 _f(d["train_eps"]), _f(d["cv_eps"]), calib,
                                 [(c, _f(s)) for c, s in d.get("ranking", [])], [], d.get("note", "")))

@@ -1,26 +1,33 @@
-"""One OC's model: the identified dynamics plus the input scaling, for any method.
+"""One OC's model: the identified dynamics plus the input scaling.
 
-``OCModel`` is what a bundle stores per OC and what training fits and
-evaluates. ``OCModel.runtime()`` gives the online stepper the node runs:
-seeded once from the measured history at the OC switch, then one ``step``
-per sample, with bounded memory and no I/O.
+Two kinds, one class each, behind the small protocol :class:`OCModel`:
 
-Methods: ``wdmd`` and ``delay-dmd`` (state-space, free run across the OC)
-and ``lasso`` (static regression, eq. 3.26-3.27). Inputs are standardised
-per OC and a constant input (1) is appended, so every model is affine.
+* :class:`StateSpaceModel` (``wdmd``, ``delay-dmd``): seeded from the measured
+  past at the OC switch, then free-running across the OC;
+* :class:`RegressionModel` (``lasso``): a static regression, eq. 3.26-3.27.
+
+Each is a frozen dataclass built complete by its ``fit`` (training) or its
+``from_arrays`` (the bundle loader); ``KINDS`` maps a method to its class.
+``model.runtime()`` gives the online stepper the node runs (:class:`OCRuntime`):
+``start`` once at the switch, then one ``step`` per sample, with bounded memory
+and no I/O. Inputs are standardised per OC and a constant input (1) is
+appended, so every model is affine.
 """
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import ClassVar, Protocol
 
 import numpy as np
 
 from node.contract import FS
 from node.sysid import WDMD, DelayDMD, LinearDMD, StateSpace
 
+RUN_CURVE = "run_curve"  # the derived input channel's name (node.runtime.runcurve computes it)
 
 class Method(StrEnum):
     WDMD = "wdmd"
@@ -28,24 +35,13 @@ class Method(StrEnum):
     LASSO = "lasso"
 
 
-def _dmd(method: Method, params: dict) -> LinearDMD:
-    # seed_window 0: at a switch the state is the lifted measured past itself; fitting this
-    # OC's model to a window of the previous OC's data (the observer) seeds worse (measured)
-    common = {"rcond": params.get("rcond", 1e-8), "estimator": params.get("estimator", "oe"),
-              "dt": 1.0 / FS, "seed_window": params.get("seed_window", 0)}
-    if method is Method.WDMD:
-        return WDMD(levels=int(params["levels"]), wavelet=params.get("wavelet", "haar"), **common)
-    if method is Method.DELAY_DMD:
-        return DelayDMD(delays=int(params["delays"]), lag=int(params.get("lag", 1)), **common)
-    raise ValueError(f"{method} is not a state-space method")
+def _readonly(a: np.ndarray) -> np.ndarray:
+    out = np.array(a, dtype=float)
+    out.setflags(write=False)
+    return out
 
 
-def memory(method: Method, params: dict) -> int:
-    """Samples of past target the method's state needs at a switch."""
-    return 0 if method is Method.LASSO else _dmd(method, params).memory()
-
-
-@dataclass
+@dataclass(frozen=True, eq=False)
 class Trajectory:
     """One OC segment with the past before it: y (K,), U (K, m); samples [start, K) are the OC."""
 
@@ -62,126 +58,113 @@ class Trajectory:
         return self.U[self.start:]
 
 
-@dataclass
-class OCModel:
-    """A fitted per-OC model.
+@dataclass(frozen=True, eq=False)
+class InputScaling:
+    """Per-OC input standardisation: (u - mean) / scale, then the constant 1 appended.
 
-    Attributes:
-        method, params: how it was made (params: levels/wavelet, delays/lag,
-            alpha, rcond, estimator).
-        u_mean, u_scale: (m,) input standardisation.
-        ss: the state-space model (inputs: m standardised + the constant), or None.
-        coef, intercept: the Lasso regression on standardised inputs, or None.
-        repaired: number of unstable poles moved inside the unit circle.
+    mean, scale: (m,), in the inputs' units; a (nearly) constant input keeps scale 1.
+
+    >>> s = InputScaling.fit(np.array([[1.0, 5.0], [3.0, 5.0]]))
+    >>> s.mean, s.scale
+    (array([2., 5.]), array([1., 1.]))
+    >>> s.apply(np.array([[3.0, 5.0]]))
+    array([[1., 0., 1.]])
     """
 
-    method: Method
-    params: dict
-    u_mean: np.ndarray
-    u_scale: np.ndarray
-    ss: StateSpace | None = None
-    coef: np.ndarray | None = None
-    intercept: float = 0.0
-    repaired: int = 0
-    _dmd_cache: LinearDMD | None = field(default=None, repr=False, compare=False)
+    mean: np.ndarray
+    scale: np.ndarray
 
-    # -- inputs -------------------------------------------------------------
-    def scale_inputs(self, U: np.ndarray) -> np.ndarray:
-        """(K, m) raw inputs -> (K, m + 1) standardised inputs plus the constant 1."""
-        Un = (np.asarray(U, float) - self.u_mean) / self.u_scale
-        return np.hstack([Un, np.ones((Un.shape[0], 1))])
-
-    def dmd(self) -> LinearDMD:
-        if self._dmd_cache is None:
-            self._dmd_cache = _dmd(self.method, self.params).restore(self.ss)
-        return self._dmd_cache
-
-    # -- batch prediction (training, evaluation) -------------------------------
-    def predict(self, traj: Trajectory) -> np.ndarray:
-        """Free-run prediction over the OC samples of ``traj``, seeded from its past: (K_seg,)."""
-        U = self.scale_inputs(traj.U)
-        if self.method is Method.LASSO:
-            return U[traj.start:, :-1] @ self.coef + self.intercept
-        if traj.start == 0:
-            return self.dmd().simulate(U, history=None)[:, 0]
-        hist = (traj.y[:traj.start, None], U[:traj.start])
-        return self.dmd().simulate(U[traj.start:], history=hist)[:, 0]
-
-    def runtime(self) -> OCRuntime:
-        return OCRuntime(self)
-
-    # -- storage ---------------------------------------------------------------
-    def arrays(self) -> dict[str, np.ndarray]:
-        out = {"u_mean": self.u_mean, "u_scale": self.u_scale}
-        if self.ss is not None:
-            out.update(A=self.ss.A, B=self.ss.B, C=self.ss.C, D=self.ss.D)
-        if self.coef is not None:
-            out.update(coef=self.coef, intercept=np.array([self.intercept]))
-        return out
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mean", _readonly(self.mean))
+        object.__setattr__(self, "scale", _readonly(self.scale))
 
     @classmethod
-    def from_arrays(cls, method: str, params: dict, arrays: dict[str, np.ndarray],
-                    repaired: int = 0) -> OCModel:
-        m = Method(method)
-        ss = None
-        if m is not Method.LASSO:
-            ss = StateSpace(arrays["A"], arrays["B"], arrays["C"], arrays["D"], 1.0 / FS)
-        return cls(m, dict(params), arrays["u_mean"], arrays["u_scale"], ss=ss,
-                   coef=arrays.get("coef"),
-                   intercept=float(arrays["intercept"][0]) if "intercept" in arrays else 0.0,
-                   repaired=repaired)
+    def fit(cls, U: np.ndarray) -> InputScaling:
+        """From the OC samples' inputs U (K, m)."""
+        mean = U.mean(axis=0)
+        scale = U.std(axis=0)
+        scale[scale < 1e-9 * (np.abs(mean) + 1.0)] = 1.0
+        return cls(mean, scale)
+
+    def apply(self, U: np.ndarray) -> np.ndarray:
+        """(K, m) raw inputs -> (K, m + 1) standardised inputs plus the constant 1."""
+        Un = (np.asarray(U, float) - self.mean) / self.scale
+        return np.hstack([Un, np.ones((Un.shape[0], 1))])
+
+    def folded(self) -> tuple[np.ndarray, np.ndarray]:
+        """(inv, shift), each (m,): standardised u = inv * u + shift (for the steppers)."""
+        inv = 1.0 / np.asarray(self.scale, float)
+        return inv, -np.asarray(self.mean, float) * inv
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"u_mean": self.mean, "u_scale": self.scale}
+
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray]) -> InputScaling:
+        return cls(arrays["u_mean"], arrays["u_scale"])
 
 
-class OCRuntime:
-    """Online stepper of one OC model: ``start`` at the switch, then ``step`` per sample.
-
-    One matrix-vector product per sample: the input scaling is folded into
-    G = [[C, D], [A, B]] acting on z = [x; u; 1] (raw inputs u).
-    """
-
-    def __init__(self, model: OCModel) -> None:
-        self.model = model
-        m = model
-        inv = 1.0 / np.asarray(m.u_scale, float)
-        shift = -np.asarray(m.u_mean, float) * inv
-        k = inv.size
-        if m.method is Method.LASSO:
-            self._w = np.append(np.asarray(m.coef, float) * inv, m.intercept + float(shift @ m.coef))
-            self._z = np.ones(k + 1)
-            self._n = 0
-            return
-        ss = m.ss
-        n = ss.n_states
-        top = np.hstack([ss.C[:1], ss.D[:1, :k] * inv, ss.D[:1, k:] + ss.D[:1, :k] @ shift[:, None]])
-        low = np.hstack([ss.A, ss.B[:, :k] * inv, ss.B[:, k:] + ss.B[:, :k] @ shift[:, None]])
-        self._G = np.ascontiguousarray(np.vstack([top, low]))
-        self._z = np.zeros(n + k + 1)
-        self._z[-1] = 1.0
-        self._n = n
+class OCRuntime(Protocol):
+    """The online stepper of one OC model (bounded memory, no I/O)."""
 
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
         """Seed from the measured past: y_hist (K1,), U_hist (K1, m) (K1 may be 0)."""
-        m = self.model
-        if m.method is Method.LASSO:
-            return
-        if len(y_hist) == 0:
-            self._z[: self._n] = 0.0
-            return
-        Un = m.scale_inputs(U_hist)
-        self._z[: self._n] = m.dmd().initial_state((np.asarray(y_hist, float)[:, None], Un))
 
-    def step(self, u) -> float:
+    def step(self, u: np.ndarray) -> float:
         """Prediction for this sample from its raw inputs u (m,); advances the state."""
-        z, n = self._z, self._n
-        z[n:-1] = u
-        if self.model.method is Method.LASSO:
-            return float(self._w @ z)
-        out = self._G @ z
-        z[:n] = out[1:]
-        return float(out[0])
+        ...
 
 
-# -- fitting -------------------------------------------------------------------------------
+class OCModel(Protocol):
+    """What every OC model kind gives (see :class:`StateSpaceModel`, :class:`RegressionModel`)."""
+
+    @property
+    def method(self) -> Method: ...
+
+    @property
+    def params(self) -> dict: ...
+
+    @property
+    def repaired(self) -> int:
+        """Number of unstable poles moved inside the unit circle."""
+        ...
+
+    @property
+    def n_states(self) -> int: ...
+
+    def predict(self, traj: Trajectory) -> np.ndarray:
+        """Prediction over the OC samples of ``traj``, seeded from its past: (K_seg,)."""
+        ...
+
+    def runtime(self) -> OCRuntime: ...
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The arrays a bundle stores (``from_arrays`` reads them back)."""
+        ...
+
+
+class OCModelKind(Protocol):
+    """A model class: how training fits it and how a bundle loads it."""
+
+    def fit(self, method: Method, params: dict, trajs: Sequence[Trajectory]) -> OCModel: ...
+
+    def from_arrays(self, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
+                    repaired: int = 0) -> OCModel: ...
+
+
+# -- state space -----------------------------------------------------------------------------
+def _dmd(method: Method, params: dict) -> LinearDMD:
+    # seed_window 0: at a switch the state is the lifted measured past itself; fitting this
+    # OC's model to a window of the previous OC's data (the observer) seeds worse (measured)
+    common = {"rcond": params.get("rcond", 1e-8), "estimator": params.get("estimator", "oe"),
+              "dt": 1.0 / FS, "seed_window": params.get("seed_window", 0)}
+    if method is Method.WDMD:
+        return WDMD(levels=int(params["levels"]), wavelet=params.get("wavelet", "haar"), **common)
+    if method is Method.DELAY_DMD:
+        return DelayDMD(delays=int(params["delays"]), lag=int(params.get("lag", 1)), **common)
+    raise ValueError(f"{method} is not a state-space method")
+
+
 def _stabilise(ss: StateSpace, radius: float = 0.999) -> tuple[StateSpace, int]:
     """Move poles outside ``radius`` onto it, keeping the state coordinates (A = V L V^-1)."""
     lam, V = np.linalg.eig(ss.A)
@@ -193,47 +176,248 @@ def _stabilise(ss: StateSpace, radius: float = 0.999) -> tuple[StateSpace, int]:
     return StateSpace(A, ss.B, ss.C, ss.D, ss.dt), int(bad.sum())
 
 
-def fit_oc_model(method: str, params: dict, trajs: list[Trajectory]) -> OCModel:
-    """Fit one OC's model on its trajectories (the past before each segment warms the lifting)."""
-    meth = Method(method)
-    U_all = np.vstack([t.seg_U for t in trajs])
-    u_mean = U_all.mean(axis=0)
-    u_scale = U_all.std(axis=0)
-    u_scale[u_scale < 1e-9 * (np.abs(u_mean) + 1.0)] = 1.0
-    model = OCModel(meth, dict(params), u_mean, u_scale)
-    if meth is Method.LASSO:
+@dataclass(frozen=True, eq=False)
+class StateSpaceModel:
+    """A state-space OC model (``wdmd`` or ``delay-dmd``) on standardised inputs.
+
+    Attributes:
+        method, params: how it was made (levels/wavelet or delays/lag, rcond, estimator).
+        scaling: the input standardisation.
+        ss: the identified model; inputs are the m standardised inputs and the constant 1.
+        repaired: number of unstable poles moved inside the unit circle.
+
+    A first-order system y[k+1] = 0.9 y[k] + 0.5 u[k] is recovered and its
+    stepper, seeded from the measured past, follows it:
+
+    >>> rng = np.random.default_rng(0)
+    >>> u = rng.normal(size=400)
+    >>> y = np.zeros(400)
+    >>> for k in range(399):
+    ...     y[k + 1] = 0.9 * y[k] + 0.5 * u[k]
+    >>> traj = Trajectory(y[:300], u[:300, None], start=100)
+    >>> m = StateSpaceModel.fit(Method.DELAY_DMD, {"delays": 1}, [traj])
+    >>> m.n_states, np.round(m.ss.poles().real, 6)
+    (1, array([0.9]))
+    >>> rt = m.runtime()
+    >>> rt.start(y[:300], u[:300, None])
+    >>> pred = [rt.step(u[k:k + 1]) for k in range(300, 400)]
+    >>> bool(np.max(np.abs(np.array(pred) - y[300:])) < 1e-9)
+    True
+    """
+
+    method: Method
+    params: dict
+    scaling: InputScaling
+    ss: StateSpace
+    repaired: int = 0
+    dmd: LinearDMD = field(init=False, repr=False)  # lifting and seeding, restored from ss
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "dmd", _dmd(self.method, self.params).restore(self.ss))
+
+    @property
+    def n_states(self) -> int:
+        return self.ss.n_states
+
+    @classmethod
+    def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> StateSpaceModel:
+        """Fit on the OC's trajectories (the past before each segment warms the lifting)."""
+        scaling = InputScaling.fit(np.vstack([t.seg_U for t in trajs]))
+        dmd = _dmd(method, params)
+        need = dmd.memory()
+        Ys, Us = [], []
+        for t in trajs:
+            lo = max(0, t.start - need)
+            y, U = t.y[lo:], scaling.apply(t.U[lo:])
+            pad = need - (t.start - lo)
+            if pad:  # not enough past: hold the first value (the lifting's own edge rule)
+                y = np.concatenate([np.repeat(y[:1], pad), y])
+                U = np.vstack([np.repeat(U[:1], pad, axis=0), U])
+            Ys.append(y[:, None])
+            Us.append(U)
+        dmd.warmup = need
+        dmd.fit(Ys, Us)
+        ss, moved = _stabilise(dmd.model_)
+        if moved:
+            from node.sysid.refine import refit_bd
+            x0s = [dmd._project(dmd._lift(y, u)[need]) for y, u in zip(Ys, Us)]
+            bd = refit_bd(ss.A, ss.C, [y[need:] for y in Ys], [u[need:] for u in Us], x0s)
+            if bd is not None:
+                ss = StateSpace(ss.A, bd[0], ss.C, bd[1], ss.dt)
+        return cls(method, dict(params), scaling, ss, moved)
+
+    def predict(self, traj: Trajectory) -> np.ndarray:
+        """Free-run prediction over the OC samples of ``traj``, seeded from its past: (K_seg,)."""
+        U = self.scaling.apply(traj.U)
+        if traj.start == 0:
+            return self.dmd.simulate(U, history=None)[:, 0]
+        hist = (traj.y[:traj.start, None], U[:traj.start])
+        return self.dmd.simulate(U[traj.start:], history=hist)[:, 0]
+
+    def runtime(self) -> StateSpaceRuntime:
+        return StateSpaceRuntime(self)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {**self.scaling.arrays(), "A": self.ss.A, "B": self.ss.B, "C": self.ss.C, "D": self.ss.D}
+
+    @classmethod
+    def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
+                    repaired: int = 0) -> StateSpaceModel:
+        ss = StateSpace(arrays["A"], arrays["B"], arrays["C"], arrays["D"], 1.0 / FS)
+        return cls(method, dict(params), InputScaling.from_arrays(arrays), ss, repaired)
+
+
+class StateSpaceRuntime:
+    """Online stepper of a :class:`StateSpaceModel`: ``start`` at the switch, then ``step`` per sample.
+
+    One matrix-vector product per sample: the input scaling is folded into
+    G = [[C, D], [A, B]] acting on z = [x; u; 1] (raw inputs u). Memory: z (n + m + 1,).
+
+    x[k+1] = 0.5 x[k] + u[k], y = x, from rest under a unit step:
+
+    >>> ss = StateSpace(np.array([[0.5]]), np.array([[1.0, 0.0]]), np.array([[1.0]]),
+    ...                 np.zeros((1, 2)), 1.0 / FS)
+    >>> m = StateSpaceModel(Method.DELAY_DMD, {"delays": 1}, InputScaling(np.zeros(1), np.ones(1)), ss)
+    >>> rt = m.runtime()
+    >>> rt.start(np.zeros(0), np.zeros((0, 1)))
+    >>> [rt.step(np.array([1.0])) for _ in range(3)]
+    [0.0, 1.0, 1.5]
+    """
+
+    def __init__(self, model: StateSpaceModel) -> None:
+        self._model = model
+        inv, shift = model.scaling.folded()
+        k = inv.size
+        ss = model.ss
+        n = ss.n_states
+        top = np.hstack([ss.C[:1], ss.D[:1, :k] * inv, ss.D[:1, k:] + ss.D[:1, :k] @ shift[:, None]])
+        low = np.hstack([ss.A, ss.B[:, :k] * inv, ss.B[:, k:] + ss.B[:, :k] @ shift[:, None]])
+        self._G = np.ascontiguousarray(np.vstack([top, low]))
+        self._z = np.zeros(n + k + 1)
+        self._z[-1] = 1.0
+        self._n = n
+
+    def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
+        """Seed from the measured past: y_hist (K1,), U_hist (K1, m) (K1 may be 0: from rest)."""
+        if len(y_hist) == 0:
+            self._z[: self._n] = 0.0
+            return
+        m = self._model
+        Un = m.scaling.apply(U_hist)
+        self._z[: self._n] = m.dmd.initial_state((np.asarray(y_hist, float)[:, None], Un))
+
+    def step(self, u: np.ndarray) -> float:
+        """Prediction for this sample from its raw inputs u (m,); advances the state."""
+        z, n = self._z, self._n
+        z[n:-1] = u
+        out = self._G @ z
+        z[:n] = out[1:]
+        return float(out[0])
+
+
+# -- regression ------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class RegressionModel:
+    """A static regression OC model (``lasso``): y = coef . standardised u + intercept.
+
+    Attributes:
+        params: how it was made (alpha).
+        scaling: the input standardisation.
+        coef: (m,) weights on the standardised inputs; intercept: target units.
+
+    >>> u = np.linspace(0.0, 10.0, 200)
+    >>> traj = Trajectory(2.0 * u + 1.0, u[:, None], start=0)
+    >>> m = RegressionModel.fit(Method.LASSO, {"alpha": 1e-6}, [traj])
+    >>> rt = m.runtime()
+    >>> rt.start(np.zeros(0), np.zeros((0, 1)))
+    >>> round(rt.step(np.array([4.0])), 4), round(float(m.predict(traj)[-1]), 4)
+    (9.0, 21.0)
+    """
+
+    params: dict
+    scaling: InputScaling
+    coef: np.ndarray
+    intercept: float
+    method: ClassVar[Method] = Method.LASSO
+    repaired: ClassVar[int] = 0
+    n_states: ClassVar[int] = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "coef", _readonly(self.coef))
+
+    @classmethod
+    def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> RegressionModel:
+        """Lasso on the OC samples of ``trajs`` (their past is not used)."""
         from sklearn.exceptions import ConvergenceWarning  # training only: the node starts faster
         from sklearn.linear_model import Lasso
 
-        X = np.vstack([model.scale_inputs(t.seg_U)[:, :-1] for t in trajs])
+        scaling = InputScaling.fit(np.vstack([t.seg_U for t in trajs]))
+        X = np.vstack([scaling.apply(t.seg_U)[:, :-1] for t in trajs])
         y = np.concatenate([t.seg_y for t in trajs])
         with warnings.catch_warnings():  # a small alpha may stop at max_iter: still the CV's pick
             warnings.simplefilter("ignore", ConvergenceWarning)
             reg = Lasso(alpha=float(params["alpha"]), precompute=True, max_iter=5_000, tol=1e-6).fit(X, y)
-        model.coef = reg.coef_.copy()
-        model.intercept = float(reg.intercept_)
-        return model
-    need = memory(meth, params)
-    Ys, Us = [], []
-    for t in trajs:
-        lo = max(0, t.start - need)
-        y, U = t.y[lo:], model.scale_inputs(t.U[lo:])
-        pad = need - (t.start - lo)
-        if pad:  # not enough past: hold the first value (the lifting's own edge rule)
-            y = np.concatenate([np.repeat(y[:1], pad), y])
-            U = np.vstack([np.repeat(U[:1], pad, axis=0), U])
-        Ys.append(y[:, None])
-        Us.append(U)
-    dmd = _dmd(meth, params)
-    dmd.warmup = need
-    dmd.fit(Ys, Us)
-    ss, moved = _stabilise(dmd.model_)
-    if moved:
-        from node.sysid.refine import refit_bd
-        x0s = [dmd._project(dmd._lift(y, u)[need]) for y, u in zip(Ys, Us)]
-        bd = refit_bd(ss.A, ss.C, [y[need:] for y in Ys], [u[need:] for u in Us], x0s)
-        if bd is not None:
-            ss = StateSpace(ss.A, bd[0], ss.C, bd[1], ss.dt)
-    model.ss = ss
-    model.repaired = moved
-    return model
+        return cls(dict(params), scaling, reg.coef_.copy(), float(reg.intercept_))
+
+    def predict(self, traj: Trajectory) -> np.ndarray:
+        """Prediction over the OC samples of ``traj`` from their inputs: (K_seg,)."""
+        U = self.scaling.apply(traj.U)
+        return U[traj.start:, :-1] @ self.coef + self.intercept
+
+    def runtime(self) -> RegressionRuntime:
+        return RegressionRuntime(self)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {**self.scaling.arrays(), "coef": self.coef, "intercept": np.array([self.intercept])}
+
+    @classmethod
+    def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
+                    repaired: int = 0) -> RegressionModel:
+        return cls(dict(params), InputScaling.from_arrays(arrays), arrays["coef"],
+                   float(arrays["intercept"][0]))
+
+
+class RegressionRuntime:
+    """Online stepper of a :class:`RegressionModel`: one dot product per sample, no state.
+
+    The input scaling is folded into the weights w acting on z = [u; 1] (raw inputs u).
+
+    >>> m = RegressionModel({"alpha": 0.1}, InputScaling(np.array([2.0]), np.array([0.5])),
+    ...                     coef=np.array([3.0]), intercept=1.0)
+    >>> rt = m.runtime()
+    >>> rt.step(np.array([2.5]))  # 3 (2.5 - 2) / 0.5 + 1
+    4.0
+    """
+
+    def __init__(self, model: RegressionModel) -> None:
+        inv, shift = model.scaling.folded()
+        coef = np.asarray(model.coef, float)
+        self._w = np.append(coef * inv, model.intercept + float(shift @ coef))
+        self._z = np.ones(inv.size + 1)
+
+    def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
+        """Nothing to seed: a static model ignores the past."""
+
+    def step(self, u: np.ndarray) -> float:
+        """Prediction for this sample from its raw inputs u (m,)."""
+        z = self._z
+        z[:-1] = u
+        return float(self._w @ z)
+
+
+KINDS: dict[Method, OCModelKind] = {
+    Method.WDMD: StateSpaceModel, Method.DELAY_DMD: StateSpaceModel, Method.LASSO: RegressionModel,
+}
+
+
+def fit_oc_model(method: str, params: dict, trajs: Sequence[Trajectory]) -> OCModel:
+    """Fit one OC's model of ``method`` on its trajectories."""
+    meth = Method(method)
+    return KINDS[meth].fit(meth, params, trajs)
+
+
+def model_from_arrays(method: str, params: dict, arrays: Mapping[str, np.ndarray],
+                      repaired: int = 0) -> OCModel:
+    """A model as a bundle stored it (``model.arrays()``)."""
+    meth = Method(method)
+    return KINDS[meth].from_arrays(meth, params, arrays, repaired)

@@ -21,8 +21,7 @@ import math
 import numpy as np
 
 from node.models.config import RuntimeConfig
-
-RUN_CURVE = "run_curve"  # the derived input channel's name
+from node.models.ocmodel import RUN_CURVE
 
 
 class RunCurve:

@@ -10,7 +10,7 @@ Arrays are time-major (samples, channels).
 from node.sysid.base import Estimator, LinearDMD
 from node.sysid.delay_dmd import DelayDMD, delay_embed
 from node.sysid.iodmd import IODMD
-from node.sysid.metrics import eps_fd, eps_td, mac
+from node.sysid.metrics import eps_fd, eps_td, mac, pooled_eps
 from node.sysid.observer import estimate_state
 from node.sysid.statespace import PoleResidue, StateSpace
 from node.sysid.wavelets import CausalMODWT, causal_modwt, modwt_mra
@@ -19,5 +19,5 @@ from node.sysid.wdmd import WDMD, Components
 __all__ = [
     "IODMD", "DelayDMD", "WDMD", "LinearDMD", "Estimator", "Components", "StateSpace",
     "PoleResidue", "CausalMODWT", "causal_modwt", "modwt_mra", "delay_embed",
-    "eps_td", "eps_fd", "mac", "estimate_state",
+    "eps_td", "eps_fd", "mac", "pooled_eps", "estimate_state",
 ]

@@ -51,6 +51,7 @@ class LinearDMD:
     """
 
     min_samples = 3
+    rank_: int | None
     seed_rcond = 1e-4  # relative tolerance of the seeding observer
 
     def __init__(self, rcond: float = 1e-10, rank: int | None = None,

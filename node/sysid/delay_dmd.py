@@ -29,6 +29,20 @@ class DelayDMD(LinearDMD):
     [u[k-1], ..., u[k-input_delays]] join the state, which makes the model an
     exact realisation of any LTI system of order <= p * delays.
     Other arguments as :class:`LinearDMD`.
+
+    y[k+1] = 1.5 y[k] - 0.7 y[k-1] + u[k] has the state [y[k], y[k-1]]: two
+    delays recover its poles (modulus sqrt(0.7)) and its free run:
+
+    >>> from node.sysid import eps_td
+    >>> u = np.random.default_rng(0).normal(size=(400, 1))
+    >>> y = np.zeros((400, 1))
+    >>> for k in range(1, 399):
+    ...     y[k + 1] = 1.5 * y[k] - 0.7 * y[k - 1] + u[k]
+    >>> m = DelayDMD(delays=2, warmup=1).fit(y, u)
+    >>> np.round(np.abs(m.model_.poles()), 4)
+    array([0.8367, 0.8367])
+    >>> bool(eps_td(y[300:], m.simulate(u[300:], history=(y[:300], u[:300]))) < 1e-8)
+    True
     """
 
     def __init__(self, delays: int = 10, lag: int = 1, input_delays: int = 0,

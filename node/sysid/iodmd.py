@@ -13,6 +13,17 @@ class IODMD(LinearDMD):
 
     ``fit(Y, U, X=X)`` with X (K, n) (or lists, one per trajectory). A history
     of outputs does not give the state: pass ``x0=`` to :meth:`simulate`.
+
+    A two-state system, its states measured, is recovered exactly:
+
+    >>> from node.sysid import StateSpace
+    >>> sys = StateSpace(np.array([[0.9, 0.2], [0.0, 0.5]]), np.array([[1.0], [0.5]]),
+    ...                  np.array([[1.0, 0.0]]), np.zeros((1, 1)))
+    >>> U = np.random.default_rng(0).normal(size=(200, 1))
+    >>> Y, X = sys.simulate(U, return_states=True)
+    >>> m = IODMD().fit(Y, U, X=X[:-1])
+    >>> np.round(np.sort(m.model_.poles().real), 6)
+    array([0.5, 0.9])
     """
 
     def fit(self, Y, U=None, X=None):

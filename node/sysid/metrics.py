@@ -1,20 +1,48 @@
-"""Fit metrics of section 4.4: eps_td, eps_fd (eq. 4.39) and MAC."""
+"""Fit metrics of section 4.4: eps_td (also pooled over segments), eps_fd (eq. 4.39) and MAC."""
 
 from __future__ import annotations
+
+from collections.abc import Iterable
 
 import numpy as np
 
 
+def _error_energy(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> tuple[float, float]:
+    """(sum ||y - yhat||^2, sum ||y||^2) over (y, yhat) pairs of matching shapes."""
+    pairs = list(pairs)
+    num = sum(float(np.sum((y - p) ** 2)) for y, p in pairs)
+    den = sum(float(np.sum(y ** 2)) for y, _ in pairs)
+    return num, den
+
+
 def eps_td(Y: np.ndarray, Yhat: np.ndarray) -> float:
-    """Relative time-domain error sqrt(sum ||y - yhat||^2 / sum ||y||^2); Y, Yhat (K, p)."""
+    """Relative time-domain error sqrt(sum ||y - yhat||^2 / sum ||y||^2); Y, Yhat (K, p).
+
+    >>> eps_td(np.array([3.0, 4.0]), np.array([3.0, 4.5]))
+    0.1
+    """
     Y = np.asarray(Y, float)
     Yhat = np.asarray(Yhat, float)
     if Y.shape != Yhat.shape:
         raise ValueError(f"shapes differ: {Y.shape} vs {Yhat.shape}")
-    den = np.sum(Y ** 2)
+    num, den = _error_energy([(Y, Yhat)])
     if den == 0:
         raise ValueError("reference signal is identically zero")
-    return float(np.sqrt(np.sum((Y - Yhat) ** 2) / den))
+    return float(np.sqrt(num / den))
+
+
+def pooled_eps(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> float:
+    """eps_td pooled over several segments (y, yhat): inf if any prediction is not finite
+    or the reference is zero.
+
+    >>> y = np.array([3.0, 4.0])
+    >>> pooled_eps([(y, y), (y, y + 0.5)]) == eps_td(np.r_[y, y], np.r_[y, y + 0.5])
+    True
+    """
+    num, den = _error_energy(pairs)
+    if not np.isfinite(num) or den == 0:
+        return float("inf")
+    return float(np.sqrt(num / den))
 
 
 def eps_fd(H: np.ndarray, Hhat: np.ndarray) -> float:

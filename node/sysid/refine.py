@@ -213,7 +213,7 @@ def refine_poles(A: np.ndarray, C: np.ndarray, Ys: list[np.ndarray], Us: list[np
     # group poles: real ones, and one representative (positive imaginary part) per pair
     real_idx = [i for i in range(n) if abs(lam[i].imag) <= 1e-12 * max(1.0, abs(lam[i]))]
     pos_idx = [i for i in range(n) if i not in real_idx and lam[i].imag > 0]
-    partner = {}
+    partner: dict[int, int] = {}
     for i in pos_idx:
         cand = [j for j in range(n) if j not in real_idx and lam[j].imag < 0 and j not in partner.values()]
         partner[i] = min(cand, key=lambda j: abs(lam[j] - np.conj(lam[i])))

@@ -9,6 +9,7 @@ Arrays are time-major: inputs ``U`` are (K, m), outputs (K, p), states (K, n).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 from scipy import linalg
@@ -93,6 +94,13 @@ class StateSpace:
     """A discrete-time LTI model (A, B, C, D) with sample time ``dt`` (s).
 
     Shapes: A (n, n), B (n, m), C (p, n), D (p, m).
+
+    >>> ss = StateSpace(np.array([[0.9, 0.2], [0.0, 0.5]]), np.array([[1.0], [0.5]]),
+    ...                 np.array([[1.0, 0.0]]), np.zeros((1, 1)))
+    >>> np.sort(ss.poles().real), ss.is_stable()
+    (array([0.5, 0.9]), True)
+    >>> ss.simulate(np.ones((3, 1)))[:, 0]  # from rest: y = C x, x[k+1] = A x[k] + B u[k]
+    array([0., 1., 2.])
     """
 
     A: np.ndarray
@@ -137,6 +145,18 @@ class StateSpace:
     def is_stable(self, margin: float = 0.0) -> bool:
         """True when every pole lies strictly inside the circle of radius 1 - margin."""
         return self.spectral_radius() < 1.0 - margin
+
+    @overload
+    def simulate(self, U: np.ndarray, x0: np.ndarray | None = None,
+                 return_states: Literal[False] = False) -> np.ndarray: ...
+
+    @overload
+    def simulate(self, U: np.ndarray, x0: np.ndarray | None,
+                 return_states: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def simulate(self, U: np.ndarray, x0: np.ndarray | None = None, *,
+                 return_states: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
 
     def simulate(self, U: np.ndarray, x0: np.ndarray | None = None,
                  return_states: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:

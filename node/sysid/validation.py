@@ -35,13 +35,13 @@ def as_trajectories(Y: object, U: object | None, name_y: str = "Y", name_u: str 
     ``U=None`` means no inputs (m = 0). Every trajectory must agree on p and m.
     """
     many = isinstance(Y, (list, tuple))
-    Ys: Sequence[object] = list(Y) if many else [Y]
+    Ys: Sequence[object] = list(Y) if isinstance(Y, (list, tuple)) else [Y]
     if U is None:
         Us: Sequence[object | None] = [None] * len(Ys)
     else:
         if isinstance(U, (list, tuple)) != many:
             raise ValueError(f"{name_y} and {name_u} must both be arrays or both be lists")
-        Us = list(U) if many else [U]
+        Us = list(U) if isinstance(U, (list, tuple)) else [U]
     if len(Ys) != len(Us):
         raise ValueError(f"{len(Ys)} output trajectories but {len(Us)} input trajectories")
     if not Ys:

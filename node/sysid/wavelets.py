@@ -100,9 +100,12 @@ class CausalMODWT:
         if first is None:
             self._past = None
             return
+        self._past = self._constant_past(first)
+
+    def _constant_past(self, first: np.ndarray) -> list[np.ndarray]:
         first = np.asarray(first, dtype=float).reshape(self.n_channels)
         # a constant signal c has V_j = c for Haar-like filters with sum(g) = 1
-        self._past = [np.tile(first, (s, 1)) for s in self.spans()]
+        return [np.tile(first, (s, 1)) for s in self.spans()]
 
     def transform(self, Y: np.ndarray) -> np.ndarray:
         """Coefficients of the block Y (K, p): returns (K, p, J + 1) = W_1..W_J, V_J.
@@ -118,20 +121,21 @@ class CausalMODWT:
         if self._past is None:
             if K == 0:
                 return np.zeros((0, self.n_channels, self.n_features))
-            self.reset(Y[0])
+            self._past = self._constant_past(Y[0])
+        past = self._past
         out = np.empty((K, self.n_channels, self.n_features))
         V = Y
         L = self.h.size
         for j, span in enumerate(self.spans()):
             s = 2 ** j
-            ext = np.concatenate([self._past[j], V], axis=0)  # (span + K, p)
+            ext = np.concatenate([past[j], V], axis=0)  # (span + K, p)
             W = np.zeros((K, self.n_channels))
             Vn = np.zeros((K, self.n_channels))
             for lag in range(L):  # fixed summation order: batch == step, bit for bit
                 seg = ext[span - lag * s: span - lag * s + K]
                 W += self.h[lag] * seg
                 Vn += self.g[lag] * seg
-            self._past[j] = ext[ext.shape[0] - span:] if span else ext[:0]
+            past[j] = ext[ext.shape[0] - span:] if span else ext[:0]
             out[:, :, j] = W
             V = Vn
         out[:, :, self.levels] = V

@@ -29,6 +29,18 @@ class WDMD(LinearDMD):
 
     Pseudo-state order: channel-major, [W_1 .. W_J, V_J] of output 1, then
     output 2, ... (eq. 4.30).
+
+    With one Haar level the pseudo-state [W_1, V_1] = [y[k] - y[k-1], y[k] + y[k-1]] / 2
+    realises any second-order autonomous system, here y[k] = 0.95^k cos(0.3 k):
+
+    >>> from node.sysid import eps_td
+    >>> k = np.arange(400)
+    >>> y = (0.95 ** k * np.cos(0.3 * k))[:, None]
+    >>> m = WDMD(levels=1, warmup=1).fit(y[:300])
+    >>> np.round(np.abs(m.model_.poles()), 6), np.round(np.abs(np.angle(m.model_.poles())), 6)
+    (array([0.95, 0.95]), array([0.3, 0.3]))
+    >>> bool(eps_td(y[300:], m.simulate(np.zeros((100, 0)), history=y[:300])) < 1e-8)
+    True
     """
 
     def __init__(self, levels: int = 4, wavelet: str = "haar", components: str = "causal",

@@ -29,17 +29,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from node.contract import FS, Phase
 from node.models.config import RuntimeConfig
+from node.models.result import Calibration, OCResult
 from node.runtime.alarms import RUN_SCALE_PRIOR_OCS, ResidualCheck, RunScale, StepCheck
 from node.runtime.ocdetect import OCDetector
 
 if TYPE_CHECKING:
-    from node.training.train import Calibration, OCData, OCResult
+    from node.training.train import OCData
 
 FALSE_ALARMS_PER_HOUR = 0.5  # false-alarm budget on normal runs per hour (residual + step rules)
 THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
@@ -123,17 +125,20 @@ def run_scaled_peaks(calibs: dict[str, Calibration]) -> dict[str, list[float]]:
 
 
 def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float,
-                   undercoverage: float = CV_UNDERCOVERAGE) -> None:
-    """Give every calibrated OC its threshold from the pooled CV peaks and the alarm budget."""
+                   undercoverage: float = CV_UNDERCOVERAGE) -> list[OCResult]:
+    """The results with every calibrated OC's threshold set from the pooled CV peaks and the
+    alarm budget (and its peaks scaled by the run, see ``run_scaled_peaks``)."""
     hours = sum(y.size - s for d in datas for y, s in zip(d.y, d.start)) / FS / 3600.0
     segments = sum(len(d.runs) for d in datas)
     per_hour = segments / hours if hours > 0 else 1.0
     calibs = {r.name: r.calibration for r in results if r.calibration is not None}
     for name, scaled in run_scaled_peaks(calibs).items():
-        calibs[name].peaks = scaled
-    levels = pooled_thresholds({n: c.peaks for n, c in calibs.items()}, per_hour, budget, undercoverage)
-    for name, c in calibs.items():
-        c.threshold = levels[name]
+        calibs[name] = replace(calibs[name], peaks=tuple(scaled))
+    levels = pooled_thresholds({n: list(c.peaks) for n, c in calibs.items()}, per_hour, budget,
+                               undercoverage)
+    calibs = {name: replace(c, threshold=levels[name]) for name, c in calibs.items()}
+    return [replace(r, calibration=calibs[r.name]) if r.calibration is not None else r
+            for r in results]
 
 
 def longest_repeat(y: np.ndarray, running: np.ndarray) -> int:

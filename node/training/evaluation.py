@@ -7,15 +7,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
+from node.models.config import RuntimeConfig
 from node.models.ocmodel import Trajectory
+from node.models.result import OCResult
 from node.runtime.runcurve import RUN_CURVE, add_run_curve
+from node.sysid.metrics import pooled_eps
 from node.training.calibrate import alarm_mask
 from node.training.dataset import run_arrays, segment_runs
-from node.training.train import FS, HISTORY_S, OCResult, pooled_eps
 
 
 @dataclass
@@ -37,15 +40,16 @@ class OCEvaluation:
 
 
 def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedule,
-                     target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None
-                     ) -> list[SegmentPrediction]:
+                     target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
+                     history_s: float = RuntimeConfig().history_s) -> list[SegmentPrediction]:
     """Free-run predictions of every OC segment found in ``runs`` that has a model.
 
     fleet: the bundle's characteristic curve, needed when a model takes ``run_curve``.
+    history_s: measured past seeding each segment (the bundle's ``config.history_s``).
     """
     by_oc = {schedule.index(r.name): r for r in results if r.model is not None}
     out = []
-    hist = int(HISTORY_S * FS)
+    hist = int(history_s * FS)
     inputs_needed = sorted({c for r in by_oc.values() for c in r.inputs})
     if RUN_CURVE in inputs_needed:
         if fleet is None:
@@ -54,7 +58,7 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
     arrays = [run_arrays(run, target, inputs_needed) for run in runs]
     for s in segment_runs(runs, schedule):
         res = by_oc.get(s.oc)
-        if res is None:
+        if res is None or res.model is None:
             continue
         ra = arrays[s.run]
         cols = [inputs_needed.index(c) for c in res.inputs]
@@ -67,9 +71,11 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
 
 
 def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
-             target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None
+             target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
+             history_s: float = RuntimeConfig().history_s
              ) -> tuple[list[OCEvaluation], list[SegmentPrediction]]:
-    preds = predict_segments(results, runs, schedule, target, fleet)
+    """Per-OC held-out eps and alarm samples, and the predictions (see ``predict_segments``)."""
+    preds = predict_segments(results, runs, schedule, target, fleet, history_s)
     by_name = {r.name: r for r in results}
     out = []
     for j, name in enumerate(schedule.names):

@@ -21,15 +21,14 @@ from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
-from node.models.ocmodel import Method, OCModel, Trajectory, fit_oc_model, memory
+from node.models.config import RuntimeConfig
+from node.models.ocmodel import Method, OCModel, StateSpaceModel, Trajectory, fit_oc_model
+from node.models.result import EWMA_ALPHA, Calibration, OCResult
 from node.runtime.runcurve import add_run_curve
+from node.sysid.metrics import pooled_eps
 from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, peak_score, set_thresholds
 from node.training.dataset import Segment, run_arrays, segment_runs
 from node.training.features import rank_inputs
-
-HISTORY_S = 60.0  # seconds of measured past kept before each OC for seeding
-EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
-PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
     Method.WDMD: {"levels": [1, 2, 3, 4, 5], "rcond": [1e-8]},
@@ -43,46 +42,6 @@ def grid_points(grid: dict[str, list]) -> list[dict]:
     return [dict(zip(keys, vals)) for vals in itertools.product(*(grid[k] for k in keys))]
 
 
-@dataclass
-class Calibration:
-    """Residual statistics of one OC: sigma (target units) and the alarm rule.
-
-    threshold is on the smoothed standardized score (sigma units); peaks are the CV
-    segments' peak |scores| it was calibrated from (see ``node.training.calibrate``).
-    """
-
-    sigma: float
-    threshold: float
-    ewma_alpha: float = 2.0 / (EWMA_SPAN_S * FS + 1.0)
-    persist: int = int(PERSIST_S * FS)
-    peaks: list[float] = field(default_factory=list)
-    segments: list[tuple[int, int, float]] = field(default_factory=list)  # CV: (run, start, mean z^2)
-
-
-@dataclass
-class OCResult:
-    """What training learned and measured for one OC."""
-
-    name: str
-    model: OCModel | None
-    inputs: list[str]
-    params: dict
-    n_runs: int
-    train_eps: float
-    cv_eps: float
-    calibration: Calibration | None
-    ranking: list[tuple[str, float]] = field(default_factory=list)
-    cv_scores: list[tuple[dict, float]] = field(default_factory=list)
-    note: str = ""
-
-
-def pooled_eps(pairs: list[tuple[np.ndarray, np.ndarray]]) -> float:
-    """sqrt(sum (y - yhat)^2 / sum y^2) over several segments; inf if any prediction is not finite."""
-    num = sum(float(np.sum((y - p) ** 2)) for y, p in pairs)
-    den = sum(float(np.sum(y ** 2)) for y, _ in pairs)
-    if not np.isfinite(num) or den == 0:
-        return float("inf")
-    return float(np.sqrt(num / den))
 
 
 @dataclass
@@ -130,7 +89,6 @@ def _predict_pairs(model: OCModel, trajs: list[Trajectory]) -> list[tuple[np.nda
 def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | None,
              n_inputs: int) -> OCResult:
     """Leave-one-run-out CV over ``grid`` (inputs chosen inside each fold), then the final fit."""
-    meth = Method(method)
     folds = sorted(set(d.runs))
     if len(folds) < 2:
         return OCResult(d.name, None, [], {}, len(folds), float("nan"), float("nan"), None,
@@ -140,9 +98,9 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         rows = [i for i, r in enumerate(d.runs) if r != f]
         fold_inputs[f] = _choose_inputs(d, rows, inputs, n_inputs)[0]
     cv_scores = []
-    best: tuple[float, dict, list] | None = None
+    best: tuple[float, dict, list[tuple[np.ndarray, np.ndarray]]] | None = None
     for params in grid_points(grid):
-        pairs_all = []
+        pairs_all: list[tuple[np.ndarray, np.ndarray]] = []
         for f in folds:
             train_rows = [i for i, r in enumerate(d.runs) if r != f]
             test_rows = [i for i, r in enumerate(d.runs) if r == f]
@@ -157,6 +115,8 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         cv_scores.append((params, score))
         if best is None or score < best[0]:
             best = (score, params, pairs_all)
+    if best is None:
+        raise ValueError("empty hyper-parameter grid")
     cv_eps, params, pairs = best
     all_rows = list(range(len(d.runs)))
     chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs)
@@ -168,20 +128,21 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         res = [y - p for y, p in pairs]
         sigma = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
         sigma = max(sigma, 1e-9)
-        c = Calibration(sigma, float("inf"))
-        c.peaks = [peak_score(r, sigma, c.ewma_alpha) for r in res]
         rows = [i for f in folds for i, r in enumerate(d.runs) if r == f]  # the order of ``pairs``
-        c.segments = [(d.runs[i], d.at[i], float(np.mean((r / sigma) ** 2))) for i, r in zip(rows, res)]
-        calib = c
+        calib = Calibration(
+            sigma, float("inf"),
+            peaks=tuple(peak_score(r, sigma, EWMA_ALPHA) for r in res),
+            segments=tuple((d.runs[i], d.at[i], float(np.mean((r / sigma) ** 2))) for i, r in zip(rows, res)))
     note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
-    if meth is not Method.LASSO and not np.isfinite(cv_eps):
+    if isinstance(model, StateSpaceModel) and not np.isfinite(cv_eps):
         note = "no stable candidate in cross-validation"
     return OCResult(d.name, model, chosen, params, len(folds), train_eps, cv_eps, calib,
                     ranking, cv_scores, note)
 
 
 def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: list[str],
-                segments: list[Segment] | None = None, history_s: float = HISTORY_S) -> list[OCData]:
+                segments: list[Segment] | None = None,
+                history_s: float = RuntimeConfig().history_s) -> list[OCData]:
     """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it."""
     segments = segment_runs(runs, schedule) if segments is None else segments
     arrays = [run_arrays(run, target, candidates) for run in runs]
@@ -232,8 +193,12 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           workers: int | None = None, progress: Callable[[OCResult, int, int], None] | None = None,
           false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
           cv_undercoverage: float = CV_UNDERCOVERAGE,
-          fleet: tuple[np.ndarray, np.ndarray] | None = None) -> list[OCResult]:
+          fleet: tuple[np.ndarray, np.ndarray] | None = None,
+          config: RuntimeConfig | None = None) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
+
+    config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
+    OC's model is evaluated seeded from ``config.history_s`` of past, as the node seeds it.
 
     fleet: the training runs' characteristic curve (speeds, means); given, every run gains
     the derived ``run_curve`` input (``node.runtime.runcurve``), a candidate like any channel.
@@ -257,7 +222,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     if not candidates:
         raise OrdervibError("no usable input channel in the recordings")
     grid = grid or DEFAULT_GRIDS[meth]
-    datas = oc_datasets(runs, schedule, target, candidates)
+    datas = oc_datasets(runs, schedule, target, candidates,
+                        history_s=(config or RuntimeConfig()).history_s)
     workers = workers or min(2, os.cpu_count() or 1)
     jobs = [(d, method, grid, inputs, n_inputs) for d in datas]
     results: list[OCResult | None] = [None] * len(jobs)
@@ -267,19 +233,15 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
             from concurrent.futures import as_completed
             for done, fut in enumerate(as_completed(futures), 1):
                 i = futures[fut]
-                results[i] = fut.result()
+                results[i] = r = fut.result()
                 if progress:
-                    progress(results[i], done, len(jobs))
+                    progress(r, done, len(jobs))
     else:
         for i, job in enumerate(jobs):
-            results[i] = train_oc(*job)
+            results[i] = r = train_oc(*job)
             if progress:
-                progress(results[i], i + 1, len(jobs))
+                progress(r, i + 1, len(jobs))
     out = [r for r in results if r is not None]
-    set_thresholds(out, datas, false_alarms_per_hour, cv_undercoverage)
-    return out
+    return set_thresholds(out, datas, false_alarms_per_hour, cv_undercoverage)
 
 
-def memory_needed(results: list[OCResult]) -> int:
-    """Samples of past the largest model's state needs (for the node's ring buffer)."""
-    return max((memory(r.model.method, r.params) for r in results if r.model), default=0)

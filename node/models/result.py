@@ -1,0 +1,59 @@
+"""What training learned for one OC: its model, inputs, scores and residual calibration.
+
+Both are frozen: training builds them complete, a bundle stores and loads them.
+
+>>> c = Calibration(sigma=0.2, threshold=4.0, peaks=[3.1, 2.7])
+>>> c.persist, round(c.ewma_alpha, 4), c.peaks
+(40, 0.0247, (3.1, 2.7))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from node.contract import FS
+from node.models.ocmodel import OCModel
+
+EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
+PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
+EWMA_ALPHA = 2.0 / (EWMA_SPAN_S * FS + 1.0)
+PERSIST = int(PERSIST_S * FS)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Residual statistics of one OC: sigma (target units) and the alarm rule.
+
+    threshold is on the smoothed standardized score (sigma units); ewma_alpha its
+    smoothing per sample; persist the samples it must stay beyond. peaks are the CV
+    segments' peak |scores| it was calibrated from (see ``node.runtime.alarms``);
+    segments the CV segments as (run, start sample, mean z^2).
+    """
+
+    sigma: float
+    threshold: float
+    ewma_alpha: float = EWMA_ALPHA
+    persist: int = PERSIST
+    peaks: tuple[float, ...] = ()
+    segments: tuple[tuple[int, int, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "peaks", tuple(self.peaks))
+        object.__setattr__(self, "segments", tuple(self.segments))
+
+
+@dataclass(frozen=True, eq=False)
+class OCResult:
+    """What training learned and measured for one OC (``model`` None: not trained, see ``note``)."""
+
+    name: str
+    model: OCModel | None
+    inputs: list[str]
+    params: dict
+    n_runs: int
+    train_eps: float
+    cv_eps: float
+    calibration: Calibration | None
+    ranking: list[tuple[str, float]] = field(default_factory=list)
+    cv_scores: list[tuple[dict, float]] = field(default_factory=list)
+    note: str = ""
