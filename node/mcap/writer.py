@@ -179,8 +179,8 @@ class McapWriter:
                 buf, offs = self._buf, self._offs
         return n
 
-    def add_columns(self, cids: Sequence[int] | np.ndarray, log_times: Sequence[int],
-                    publish_times: Sequence[int], payloads: Sequence[bytes]) -> None:
+    def add_columns(self, cids: Sequence[int] | np.ndarray, log_times: Sequence[int] | np.ndarray,
+                    publish_times: Sequence[int] | np.ndarray, payloads: Sequence[bytes]) -> None:
         """Append many messages at once: record heads built with numpy, joined with the payloads."""
         n = len(payloads)
         if n == 0:
@@ -437,8 +437,8 @@ class RecordingWriter:
         """Write (key, log_time ns, publish_time ns, JSON bytes) messages, e.g. ``Message`` tuples."""
         self.count += self._open().add_many(messages, self._channels, self.channel_id)
 
-    def write_columns(self, keys: Sequence[str], log_times: Sequence[int],
-                      publish_times: Sequence[int], payloads: Sequence[bytes]) -> None:
+    def write_columns(self, keys: Sequence[str], log_times: Sequence[int] | np.ndarray,
+                      publish_times: Sequence[int] | np.ndarray, payloads: Sequence[bytes]) -> None:
         """``write_many`` given as four columns (the fastest way to write many messages)."""
         writer = self._open()
         channels = self._channels

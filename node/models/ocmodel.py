@@ -110,7 +110,7 @@ class OCRuntime(Protocol):
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
         """Seed from the measured past: y_hist (K1,), U_hist (K1, m) (K1 may be 0)."""
 
-    def step(self, u: np.ndarray) -> float:
+    def step(self, u: Sequence[float] | np.ndarray) -> float:
         """Prediction for this sample from its raw inputs u (m,); advances the state."""
         ...
 
@@ -306,7 +306,7 @@ class StateSpaceRuntime:
         Un = m.scaling.apply(U_hist)
         self._z[: self._n] = m.dmd.initial_state((np.asarray(y_hist, float)[:, None], Un))
 
-    def step(self, u: np.ndarray) -> float:
+    def step(self, u: Sequence[float] | np.ndarray) -> float:
         """Prediction for this sample from its raw inputs u (m,); advances the state."""
         z, n = self._z, self._n
         z[n:-1] = u
@@ -398,7 +398,7 @@ class RegressionRuntime:
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
         """Nothing to seed: a static model ignores the past."""
 
-    def step(self, u: np.ndarray) -> float:
+    def step(self, u: Sequence[float] | np.ndarray) -> float:
         """Prediction for this sample from its raw inputs u (m,)."""
         z = self._z
         z[:-1] = u

@@ -165,7 +165,7 @@ def solve_normal_equations(x: np.ndarray, phi: np.ndarray, r: np.ndarray,
 
 
 def vkf_orders(x: object, fs: float, rpm: object, orders: object, *,
-               bandwidth_hz: float | object = DEFAULT_BANDWIDTH_HZ,
+               bandwidth_hz: float | np.ndarray = DEFAULT_BANDWIDTH_HZ,
                solver: str = "banded") -> OrderTrack:
     """Order amplitude and phase by the joint second-generation Vold-Kalman filter.
 

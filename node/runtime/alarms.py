@@ -245,9 +245,10 @@ class EpisodeLog:
     ``episodes``: list of dicts {"key", "start", "end", "reason"} (times in s, the first
     alarm sample's reason).
 
+    >>> from node.contract import Reason
     >>> log = EpisodeLog(gap_s=1.0)
     >>> for t in (10.0, 10.5, 12.0):
-    ...     log.add("k", {"t": t, "flag": "alarm", "reason": "step"})
+    ...     log.add("k", {"t": t, "flag": Flag.ALARM, "reason": Reason.STEP})
     >>> [(e["start"], e["end"]) for e in log.episodes]
     [(10.0, 10.5), (12.0, 12.0)]
     """

@@ -21,7 +21,7 @@ Training steps the very rule objects the node runs:
 6.007
 >>> longest_repeat(np.array([1.0, 1.0, np.nan, 1.0, 2.0]), np.ones(5, dtype=bool))
 2
->>> flatline_limit(30, 40.0)  # 4 x 30 repeats, above the 2 s floor
+>>> flatline_limit(30, FS)  # 4 x 30 repeats at 40 Hz, above the 2 s floor
 120
 """
 
