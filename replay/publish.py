@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import time
 
-from node.contract import parse_sensor_key
+from node.contract import OrdervibError, parse_sensor_key
 from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints, open_session, zenoh_config
 from node.mcap import iter_messages
 
@@ -19,6 +19,8 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
     """Publish a recording's sensor messages in their original timing (``speed`` x; 0: flat out).
 
     Connects to ``connect``, else to the endpoints of ``config_file``, else to DEFAULT_ENDPOINT.
+    Waits up to ``wait_s`` for a subscriber to match the first key; none: ``OrdervibError``,
+    nothing published (a test bed stand-in that talks to nobody is no success).
     """
     endpoints: list[str] | None
     if connect:
@@ -44,6 +46,11 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
                     deadline = time.monotonic() + wait_s
                     while not pub.matching_status.matching and time.monotonic() < deadline:
                         time.sleep(0.02)
+                    if not pub.matching_status.matching:
+                        where = connect or (endpoints[0] if endpoints else f"the endpoints of {config_file}")
+                        raise OrdervibError(f"no subscriber matched {m.topic} on {where} within "
+                                            f"{wait_s:g} s: nothing published (is the node running? "
+                                            "--wait S waits longer)")
             if speed > 0:
                 t_first = m.log_time if t_first is None else t_first
                 due = start + (m.log_time - t_first) / 1e9 / speed

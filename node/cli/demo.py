@@ -21,7 +21,9 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", default="out/demo", metavar="DIR", help="output folder (default out/demo)")
+    p.add_argument("--out", default="out/demo", metavar="DIR",
+                   help="output folder (default out/demo): new, empty or an earlier demo's; its model, "
+                        "node.mcap and node.rrd are replaced only by complete new ones")
     p.add_argument("--method", default="wdmd", choices=["wdmd", "delay-dmd", "lasso"])
     p.add_argument("--speed", type=float, default=0.0,
                    help="publishing speed, x real time (default 0: as fast as the link takes)")
@@ -36,12 +38,17 @@ def _free_port() -> int:
 
 def run(args: argparse.Namespace) -> int:
     from node.cli import main as cli
+    from node.cli.outputs import MODEL_MARKER, replacing
     from node.contract.errors import OrdervibError
     from node.live.node import LiveNode
     from node.models.bundle import load_bundle
     from replay.publish import publish_recording
 
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise OrdervibError(f"--out {out} is a file, not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / "model" / MODEL_MARKER).is_file():
+        raise OrdervibError(f"--out {out} holds other files than a demo's: give a new or empty folder")
     out.mkdir(parents=True, exist_ok=True)
     rec_train = ROOT / "recordings" / "engine1_runs.mcap"
     rec_test = ROOT / "recordings" / "engine1_fault.mcap"
@@ -60,16 +67,18 @@ def run(args: argparse.Namespace) -> int:
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
     node_rec = out / "node.mcap"
     log.info("[2/4] live node listening on %s, recording to %s", endpoint, node_rec)
-    node = LiveNode(load_bundle(model), str(node_rec), listen=[endpoint])
-    node.start()
-    try:
-        log.info("[3/4] publishing %s (a run with an imbalance fault) through Zenoh ...", rec_test.name)
-        sent = publish_recording(str(rec_test), endpoint, args.speed, quiet=True)
-        deadline = time.monotonic() + 60
-        while node.stats.received < sent and time.monotonic() < deadline:
-            time.sleep(0.1)
-    finally:
-        node.stop()
+    with replacing(str(node_rec)) as part:  # the last demo's recording stays until this one is whole
+        node = LiveNode(load_bundle(model), part, listen=[endpoint])
+        node.start()
+        try:
+            log.info("[3/4] publishing %s (a run with an imbalance fault) through Zenoh ...",
+                     rec_test.name)
+            sent = publish_recording(str(rec_test), endpoint, args.speed, quiet=True)
+            deadline = time.monotonic() + 60
+            while node.stats.received < sent and time.monotonic() < deadline:
+                time.sleep(0.1)
+        finally:
+            node.stop()
     alarms = sum(b.alarm_samples for b in node.core.beds.values())
     log.info("      node: %d received of %d sent, %d published, %d dropped, %d alarm samples",
              node.stats.received, sent, node.stats.published, node.stats.overflow, alarms)

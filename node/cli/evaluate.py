@@ -10,8 +10,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from node.cli.outputs import check_output, replacing
 from node.cli.table import print_table
-from node.contract import FS
+from node.contract import FS, OrdervibError
 
 if TYPE_CHECKING:
     from node.mcap import Run
@@ -40,7 +41,11 @@ def run(args: argparse.Namespace) -> int:
     from node.training.dataset import run_arrays
     from node.training.evaluation import evaluate
 
+    png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
+    check_output(str(png), "--png", suffix=".png", inputs=[args.model, *args.recordings])
     bundle = load_bundle(args.model)
+    if not any(r.model is not None for r in bundle.ocs):
+        raise OrdervibError(f"{args.model} holds no trained OC: nothing to evaluate")
     runs = load_runs(args.recordings, args.quiet)
     evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve)
     curve = None
@@ -70,7 +75,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"mean held-out eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
               f"(characteristic-curve baseline {np.nanmean(base):.3f})")
     print(node_alarms(args.model, args.recordings))
-    png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
     if _plot(bundle, preds, png):
         print(f"plot written to {png}")
     return 0
@@ -116,6 +120,9 @@ def _plot(bundle: Bundle, preds: list[SegmentPrediction], png: Path) -> bool:
         return False
     names = bundle.schedule.names
     present = sorted({p.oc for p in preds})
+    if not present:
+        log.warning("no OC of the model in the recordings: no plot")
+        return False
     cols = 3
     rows = -(-len(present) // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 2.6 * rows), squeeze=False)
@@ -131,7 +138,7 @@ def _plot(bundle: Bundle, preds: list[SegmentPrediction], png: Path) -> bool:
     for ax in axes.ravel()[len(present):]:
         ax.axis("off")
     fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=90)
+    with replacing(str(png)) as tmp:  # an existing plot is replaced only by a complete one
+        fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)
     return True

@@ -19,8 +19,7 @@ import time
 from dataclasses import dataclass, field
 from typing import IO
 
-from node.cli.paths import check_output_file
-from node.contract.errors import OrdervibError
+from node.cli.outputs import check_output, replacing
 from node.mcap import McapWriter, Message, ReadStats, copy_messages, open_recording
 
 NAME = "recover"
@@ -85,10 +84,7 @@ def recover_file(src: str | os.PathLike, dst: IO[bytes]) -> RecoverReport:
 
 
 def _check(args: argparse.Namespace) -> None:
-    src, out = args.recording, args.out
-    check_output_file(out, "--out")
-    if os.path.exists(src) and os.path.exists(out) and os.path.samefile(src, out):
-        raise OrdervibError("--out must differ from the input recording")
+    check_output(args.out, "--out", inputs=[args.recording])
 
 
 def _summary(r: RecoverReport, src: str, out: str, seconds: float) -> str:
@@ -109,14 +105,8 @@ def _summary(r: RecoverReport, src: str, out: str, seconds: float) -> str:
 def run(args: argparse.Namespace) -> int:
     _check(args)
     start = time.perf_counter()
-    part = args.out + ".part"
-    try:
-        with open(part, "wb") as dst:
-            report = recover_file(args.recording, dst)
-        os.replace(part, args.out)
-    finally:
-        if os.path.exists(part):
-            os.remove(part)
+    with replacing(args.out) as part, open(part, "wb") as dst:
+        report = recover_file(args.recording, dst)
     if not args.quiet:
         print(_summary(report, args.recording, args.out, time.perf_counter() - start))
         for topic in sorted(report.topics):

@@ -6,6 +6,7 @@ import argparse
 import logging
 from typing import Any
 
+from node.cli.outputs import check_output, replacing, warn_unfinished
 from node.contract import FS
 from node.contract.errors import OrdervibError
 
@@ -27,6 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --publish: Zenoh configuration file (e.g. TLS root CA; see docs/zenoh/)")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="with --publish: X times real time (default 1; 0: as fast as possible)")
+    p.add_argument("--wait", type=float, default=5.0, metavar="S",
+                   help="with --publish: how long to wait for a subscriber before giving up "
+                        "(default 5 s; exit status 2 if none matched)")
     p.add_argument("--workers", type=int, choices=(0, 1), default=None,
                    help="with --model: 1 runs the node's logic in a second process while this one "
                         "reads and writes, 0 keeps it in one (default: 1 on 2+ cores)")
@@ -42,7 +46,14 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
     from node.models.bundle import load_bundle
     from replay.offline import replay
 
-    r = replay(recording, load_bundle(model), out, workers)
+    bundle = load_bundle(model)
+    if out is None:
+        r = replay(recording, bundle, None, workers)
+    else:
+        with replacing(out) as tmp:  # an existing output is replaced only by a complete one
+            r = replay(recording, bundle, tmp, workers)
+    if r.truncated:
+        warn_unfinished(log, recording, f"{r.inputs} sensor messages")
     summary = {"inputs": r.inputs, "published": r.published, "malformed": r.malformed,
                "seconds": r.seconds, "truncated": r.truncated, "workers": r.workers,
                "alarm_episodes": r.alarm_episodes,
@@ -63,14 +74,24 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
 
 
 def run(args: argparse.Namespace) -> int:
+    from node.mcap import open_recording
+
     if args.publish == bool(args.model):
         raise OrdervibError("give either --model (offline node) or --publish (to Zenoh)")
+    with open_recording(args.recording):  # one line for a missing or non-MCAP file, before any output
+        pass
     if args.model:
+        if args.out:
+            check_output(args.out, "--out", suffix=".mcap", inputs=[args.recording, args.model])
         replay_offline(args.recording, args.model, args.out, args.quiet, args.workers)
         return 0
-    if args.speed < 0:
+    if args.out:
+        raise OrdervibError("--out goes with --model (the node offline), not with --publish")
+    if not args.speed >= 0:
         raise OrdervibError("--speed must be >= 0")
+    if not args.wait >= 0:
+        raise OrdervibError("--wait must be >= 0")
     from replay.publish import publish_recording
     publish_recording(args.recording, args.connect, args.speed, args.quiet,
-                      config_file=args.zenoh_config)
+                      wait_s=args.wait, config_file=args.zenoh_config)
     return 0

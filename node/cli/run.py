@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import glob
+
+from node.cli.outputs import check_new_files, check_output
+from node.contract.errors import OrdervibError
 
 NAME = "run"
 HELP = "the live node: subscribe to test beds over Zenoh, predict, publish, record to MCAP"
@@ -27,20 +31,39 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="Zenoh configuration file (TLS, access control; see docs/zenoh/); "
                         "--listen replaces its listen endpoints, --connect its connect endpoints")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite an existing recording (or rotated files of that name); without it "
+                        "an existing file is refused, and the file is created only once the Zenoh "
+                        "session is up")
     p.add_argument("--quiet", action="store_true")
 
 
 def run(args: argparse.Namespace) -> int:
     from node.live.node import run_node
     from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints
+    from node.mcap import RecordingWriter, RotatingRecorder
     from node.models.bundle import load_bundle
+
+    rotating = args.rotate_mb is not None or args.rotate_minutes is not None
+    inputs = [args.zenoh_config] if args.zenoh_config else []
+    check_output(args.record, "--record", inputs=inputs, replace=False, force=args.force)
+    if rotating:  # node.mcap -> node.0000.mcap, node.0001.mcap, ...
+        stem = args.record.removesuffix(".mcap")
+        check_new_files([glob.escape(stem) + ".[0-9][0-9][0-9][0-9]*.mcap"], "--record", args.force)
+    if args.duration is not None and not args.duration > 0:
+        raise OrdervibError("--duration must be > 0")
     listen = args.listen
     if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):
         listen = [DEFAULT_ENDPOINT]
     bundle = load_bundle(args.model)
-    record = args.record
-    if args.rotate_mb is not None or args.rotate_minutes is not None:
-        from node.mcap.rotation import RotatingRecorder
-        record = RotatingRecorder(args.record, max_mb=args.rotate_mb, max_minutes=args.rotate_minutes)
+    # the file is created at the first flush, after the session is up: a failed start leaves
+    # no file, and an existing one is only ever opened with --force
+    opts = {"deferred": True, "exclusive": not args.force}
+    record: RecordingWriter | RotatingRecorder
+    if rotating:
+        record = RotatingRecorder(args.record, max_mb=args.rotate_mb, max_minutes=args.rotate_minutes,
+                                  **opts)
+    else:
+        record = RecordingWriter(args.record, **opts)
     run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration)
     return 0

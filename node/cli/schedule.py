@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from node.cli.outputs import check_output, replacing
 from node.contract import FS
 
 if TYPE_CHECKING:
@@ -111,11 +112,13 @@ def infer(runs: list[Run], switch: str, tol: float, min_len: int) -> Schedule:
 
 def run(args: argparse.Namespace) -> int:
     from node.cli.train import load_runs
+    if args.out:
+        check_output(args.out, "--out", inputs=args.recordings)
     runs = load_runs(args.recordings, quiet=True)
     schedule = infer(runs, args.switch, args.tolerance, int(args.min_plateau * FS))
     text = "# proposed by ordervib schedule infer: check names and order\n" + schedule.to_toml()
     if args.out:
-        with open(args.out, "w") as f:
+        with replacing(args.out) as tmp, open(tmp, "w") as f:
             f.write(text)
         log.info("schedule with %d OCs written to %s", len(schedule.ocs), args.out)
     else:

@@ -17,7 +17,7 @@ import re
 import time
 
 from node.cli.logs import Progress
-from node.cli.paths import check_output_file
+from node.cli.outputs import check_output, replacing
 from node.contract.errors import OrdervibError
 
 log = logging.getLogger(__name__)
@@ -134,7 +134,8 @@ def _check(args: argparse.Namespace) -> None:
         raise OrdervibError(f"--noise-scale must be > 0 and finite, got {args.noise_scale:g}")
     if not 0 <= args.skip < args.runs:
         raise OrdervibError(f"--skip must be between 0 and runs - 1, got {args.skip}")
-    check_output_file(args.out, "--out", ".mcap")
+    inputs = [args.schedule] if args.schedule else []
+    check_output(args.out, "--out", suffix=".mcap", inputs=inputs)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -157,16 +158,11 @@ def run(args: argparse.Namespace) -> int:
         schedule=schedule,
         noise_scale=args.noise_scale,
     )
-    part = args.out + ".part"
     progress = Progress(NAME, log)
-    try:
+    with replacing(args.out) as part:
         count = write_recording(
             campaign, part, args.bed, args.seed, args.skip, progress, channels=channels
         )
-        os.replace(part, args.out)
-    finally:
-        if os.path.exists(part):
-            os.remove(part)
     schedule_path, truth_path = write_sidecars(
         campaign, args.out, args.bed, args.seed, args.skip, channels
     )

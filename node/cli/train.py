@@ -6,10 +6,12 @@ import argparse
 import logging
 import math
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
+from node.cli.outputs import check_output_dir, replacing_dir, warn_unfinished
 from node.cli.table import print_table
 from node.contract.errors import OrdervibError
 
@@ -49,6 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "1 trusts the cross-validation as it is)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
+    p.add_argument("--allow-empty", action="store_true",
+                   help="write the model even when no OC could be trained (such a node flags "
+                        "every sample no-model); without it that is an error")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -59,9 +64,10 @@ def load_runs(paths: list[str], quiet: bool = False) -> list[Run]:
     for path in paths:
         stats = ReadStats()
         found = read_runs(path, stats=stats)
+        if stats.truncated:
+            warn_unfinished(log, path, f"{stats.messages} messages, {len(found)} run(s)")
         if not quiet:
             extra = f", {stats.malformed} malformed payloads skipped" if stats.malformed else ""
-            extra += ", unfinished file" if stats.truncated else ""
             log.info("read %s: %d run(s)%s", path, len(found), extra)
         runs += found
     if not runs:
@@ -107,6 +113,9 @@ def run(args: argparse.Namespace) -> int:
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.training.train import DEFAULT_GRIDS, Method, fleet_curve, train
 
+    check_output_dir(args.out, "--out", inputs=[*args.recordings, args.schedule])
+    if args.workers is not None and args.workers < 1:
+        raise OrdervibError("--workers must be at least 1")
     if args.n_inputs < 1:
         raise OrdervibError("--n-inputs must be at least 1")
     budget = FALSE_ALARMS_PER_HOUR if args.false_alarms_per_hour is None else args.false_alarms_per_hour
@@ -143,17 +152,23 @@ def run(args: argparse.Namespace) -> int:
                     n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
                     false_alarms_per_hour=per_rule, cv_undercoverage=under,
                     fleet=curve)
+    trained = sum(r.model is not None for r in results)
+    if not trained and not args.allow_empty:
+        notes = sorted({r.note for r in results if r.note})
+        raise OrdervibError(f"no OC could be trained ({'; '.join(notes) or 'no segment'}): no model "
+                            f"written (--allow-empty writes one that flags every sample no-model)")
     training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     checks = calibrate_checks(runs, schedule, args.target, per_rule)
     checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
     bundle = Bundle(args.method, args.target, schedule, results, RuntimeConfig(), training,
                     curve, checks)
-    out = save_bundle(bundle, args.out)
+    with replacing_dir(args.out) as tmp:  # an existing model is replaced only by a complete one
+        save_bundle(bundle, tmp)
     if inputs is None:
         print_ranking(results)
     print_results(results)
-    print(f"model written to {out} ({time.perf_counter() - t0:.1f} s)")
+    print(f"model written to {Path(args.out)} ({time.perf_counter() - t0:.1f} s)")
     return 0
 
 

@@ -14,11 +14,12 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
-from node.cli.paths import check_output_file
+from node.cli.outputs import check_output, replacing
 from node.contract import OrdervibError
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
+    from replay.view_data import ViewData
 
 NAME = "view"
 HELP = "show a recording in the Rerun viewer, or save the Rerun file (--save OUT.rrd)"
@@ -62,7 +63,7 @@ def _schedule_for(args: argparse.Namespace) -> Schedule | None:
 def _check(args: argparse.Namespace) -> None:
     if args.save is None:
         return
-    check_output_file(args.save, "--save", ".rrd")
+    check_output(args.save, "--save", suffix=".rrd", inputs=[args.recording])
 
 
 def _has_display() -> bool:
@@ -73,6 +74,18 @@ def _has_display() -> bool:
 
 
 _NO_VIEWER = "cannot start the Rerun viewer ({why}); use --save OUT.rrd and open it with `rerun OUT.rrd`"
+
+
+def _log(data: ViewData) -> dict[str, int]:
+    """Log the view to the Rerun sink opened (saved file or viewer), then disconnect."""
+    import rerun as rr
+
+    from replay.rerun_view import log_view
+
+    try:
+        return log_view(data)
+    finally:
+        rr.disconnect()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -87,24 +100,20 @@ def run(args: argparse.Namespace) -> int:
 
     import rerun as rr
 
-    from replay.rerun_view import blueprint, log_view
+    from replay.rerun_view import blueprint
 
     bp = blueprint(data)
     rr.init("ordervib_view", spawn=False)
     if args.save is not None:
-        part = args.save + ".part"
-        rr.save(part, default_blueprint=bp)
+        with replacing(args.save) as part:  # an existing file is replaced only by a complete one
+            rr.save(part, default_blueprint=bp)
+            counts = _log(data)
     else:
         try:
             rr.spawn(default_blueprint=bp)
         except Exception as exc:  # viewer binary missing or unable to start
             raise OrdervibError(_NO_VIEWER.format(why=str(exc).splitlines()[0])) from None
-    try:
-        counts = log_view(data)
-    finally:
-        rr.disconnect()
-    if args.save is not None:
-        os.replace(part, args.save)
+        counts = _log(data)
     if not args.quiet:
         where = f"-> {args.save} ({os.path.getsize(args.save)} bytes)" if args.save else "-> viewer"
         extra = " (unfinished file: read up to its last complete chunk)" if stats.truncated else ""

@@ -348,6 +348,38 @@ class McapWriter:
         self._stream.flush()
 
 
+class _OutputFile:
+    """A file to write, opened at once or at its first write (deferred); "xb" mode if exclusive."""
+
+    def __init__(self, path: str | os.PathLike, deferred: bool, exclusive: bool) -> None:
+        self.path = os.fspath(path)
+        self.mode = "xb" if exclusive else "wb"
+        self._f: IO[bytes] | None = None
+        if not deferred:
+            self._open()
+
+    def _open(self) -> IO[bytes]:
+        if self._f is None:
+            try:
+                self._f = open(self.path, self.mode)  # noqa: SIM115
+            except FileExistsError:
+                raise OrdervibError(f"{self.path} exists: not overwritten") from None
+            except OSError as exc:
+                raise OrdervibError(f"cannot write {self.path}: {exc.strerror}") from exc
+        return self._f
+
+    def write(self, data: bytes | bytearray) -> int:
+        return self._open().write(data)
+
+    def flush(self) -> None:
+        if self._f is not None:
+            self._f.flush()
+
+    def close(self) -> None:
+        if self._f is not None:
+            self._f.close()
+
+
 class RecordingWriter:
     """Writes a recording: one topic per key expression, one message per sample.
 
@@ -355,7 +387,10 @@ class RecordingWriter:
     chunk and pushes it to the file, so a crash loses nothing written before it.
     Output is deterministic: no wall clock is written anywhere. ``background=True``
     compresses the chunks in a worker thread (same bytes; for bulk writers).
-    ``path`` may be a binary stream (not closed by ``close()``).
+    ``path`` may be a binary stream (not closed by ``close()``). For a file path,
+    ``deferred=True`` creates the file only when the first bytes go out (the first
+    ``flush()`` or ``close()``), and ``exclusive=True`` never opens an existing file
+    (one-line ``OrdervibError``): the live node checks its session before it touches a file.
 
     >>> import io
     >>> from node.mcap import iter_messages
@@ -379,14 +414,13 @@ class RecordingWriter:
         compression: str = "zstd",
         message_index: bool = True,
         background: bool = False,
+        deferred: bool = False,
+        exclusive: bool = False,
     ) -> None:
         _compression(compression)  # before creating the file
         if isinstance(path, (str, os.PathLike)):
-            try:
-                self._file: IO[bytes] | None = open(path, "wb")  # noqa: SIM115
-            except OSError as exc:
-                raise OrdervibError(f"cannot write {os.fspath(path)}: {exc.strerror}") from exc
-            stream: IO[bytes] = self._file
+            self._file: _OutputFile | None = _OutputFile(path, deferred, exclusive)
+            stream = cast(IO[bytes], self._file)
         else:
             self._file, stream = None, path
         self._writer = McapWriter(stream, chunk_size=chunk_size, compression=compression,
@@ -401,6 +435,9 @@ class RecordingWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def __str__(self) -> str:
+        return self._file.path if self._file is not None else "a stream"
 
     def channel_id(self, key: str) -> int:
         """The MCAP channel of a key expression, registering schema and channel once."""

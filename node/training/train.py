@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -188,6 +189,25 @@ def fleet_curve(runs: list[Run], switch: str, target: str) -> tuple[np.ndarray, 
     return c.centres_, c.means_
 
 
+def _worker_init() -> None:
+    """A training worker leaves Ctrl-C to its parent, which stops it; SIGTERM ends it at once."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 2.0) -> None:
+    """End the pool's workers now (busy or not) and drop the jobs still queued."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # 3.14: pool.terminate_workers()
+    for p in procs:
+        p.terminate()
+    for p in procs:
+        p.join(grace_s)
+        if p.is_alive():
+            p.kill()
+            p.join()
+    pool.shutdown(wait=False, cancel_futures=True)
+
+
 def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str = "wdmd",
           inputs: list[str] | None = None, n_inputs: int = 4, grid: dict[str, list] | None = None,
           workers: int | None = None, progress: Callable[[OCResult, int, int], None] | None = None,
@@ -228,14 +248,18 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     jobs = [(d, method, grid, inputs, n_inputs) for d in datas]
     results: list[OCResult | None] = [None] * len(jobs)
     if workers > 1:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init)
+        try:
             futures = {pool.submit(train_oc, *job): i for i, job in enumerate(jobs)}
-            from concurrent.futures import as_completed
             for done, fut in enumerate(as_completed(futures), 1):
                 i = futures[fut]
                 results[i] = r = fut.result()
                 if progress:
                     progress(r, done, len(jobs))
+        except BaseException:  # Ctrl-C, SIGTERM made KeyboardInterrupt, a failed job: stop them all
+            _stop_pool(pool)
+            raise
+        pool.shutdown()
     else:
         for i, job in enumerate(jobs):
             results[i] = r = train_oc(*job)
