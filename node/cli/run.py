@@ -58,12 +58,11 @@ def run(args: argparse.Namespace) -> int:
     bundle = load_bundle(args.model)
     # the file is created at the first flush, after the session is up: a failed start leaves
     # no file, and an existing one is only ever opened with --force
-    opts = {"deferred": True, "exclusive": not args.force}
     record: RecordingWriter | RotatingRecorder
     if rotating:
         record = RotatingRecorder(args.record, max_mb=args.rotate_mb, max_minutes=args.rotate_minutes,
-                                  **opts)
+                                  deferred=True, exclusive=not args.force)
     else:
-        record = RecordingWriter(args.record, **opts)
+        record = RecordingWriter(args.record, deferred=True, exclusive=not args.force)
     run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration)
     return 0
