@@ -41,11 +41,11 @@ def run(args: argparse.Namespace) -> int:
     from node.training.dataset import run_arrays
     from node.training.evaluation import evaluate
 
-    png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
-    check_output(str(png), "--png", suffix=".png", inputs=[args.model, *args.recordings])
     bundle = load_bundle(args.model)
     if not any(r.model is not None for r in bundle.ocs):
         raise OrdervibError(f"{args.model} holds no trained OC: nothing to evaluate")
+    png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
+    check_output(str(png), "--png", suffix=".png", inputs=[args.model, *args.recordings])
     runs = load_runs(args.recordings, args.quiet)
     evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve)
     curve = None

@@ -66,7 +66,7 @@ def check_output(path: str, option: str, *, inputs: Iterable[str] = (), suffix: 
         raise OrdervibError(f"output directory does not exist: {parent}")
     for src in inputs:
         if same_file(src, path):
-            raise OrdervibError(f"{option} {path} is an input of this command: give another name")
+            raise OrdervibError(f"{option} {path} must differ from the input {src}: give another name")
     if not (replace or force) and os.path.lexists(path):
         raise OrdervibError(f"{option} {path} exists: give a new name, or --force to overwrite it")
 
