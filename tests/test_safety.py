@@ -253,7 +253,7 @@ def test_publish_with_no_subscriber_fails(sim: Path, capsys: pytest.CaptureFixtu
     _one_line_error(capsys, "no subscriber", "--wait")
 
 
-@pytest.mark.parametrize("command", ["train", "replay", "evaluate", "schedule"])
+@pytest.mark.parametrize("command", ["train", "replay", "evaluate", "schedule", "view"])
 def test_readers_say_a_recording_is_unfinished(command: str, sim: Path, model: Path, unfinished: Path,
                                                tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     sched = str(sim.with_suffix(".schedule.toml"))
@@ -262,7 +262,8 @@ def test_readers_say_a_recording_is_unfinished(command: str, sim: Path, model: P
             "replay": ["replay", str(unfinished), "--model", str(model), "--quiet"],
             "evaluate": ["evaluate", str(model), str(unfinished), "--quiet", "--png",
                          str(tmp_path / "e.png")],
-            "schedule": ["schedule", "infer", str(unfinished)]}[command]
+            "schedule": ["schedule", "infer", str(unfinished)],
+            "view": ["view", str(unfinished), "--save", str(tmp_path / "v.rrd"), "--quiet"]}[command]
     assert main(argv) == 0
     err = capsys.readouterr().err
     line = next(x for x in err.splitlines() if "unfinished" in x)

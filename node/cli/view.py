@@ -9,17 +9,20 @@ over the speed.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 import time
 from typing import TYPE_CHECKING
 
-from node.cli.outputs import check_output, replacing
+from node.cli.outputs import check_output, replacing, warn_unfinished
 from node.contract import OrdervibError
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
     from replay.view_data import ViewData
+
+log = logging.getLogger(__name__)
 
 NAME = "view"
 HELP = "show a recording in the Rerun viewer, or save the Rerun file (--save OUT.rrd)"
@@ -95,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     data, source, stats = load_view_data(args.recording, args.bed, args.target, args.switch,
                                          _schedule_for(args))
+    if stats.truncated:
+        warn_unfinished(log, args.recording, f"{stats.messages} messages")
     if args.save is None and not _has_display():
         raise OrdervibError(_NO_VIEWER.format(why="no display"))
 
@@ -116,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
         counts = _log(data)
     if not args.quiet:
         where = f"-> {args.save} ({os.path.getsize(args.save)} bytes)" if args.save else "-> viewer"
-        extra = " (unfinished file: read up to its last complete chunk)" if stats.truncated else ""
+        extra = " (unfinished file)" if stats.truncated else ""
         print(
             f"view: bed {data.bed}, {data.switch} {counts.get('speed', 0)} samples, "
             f"{data.target} {counts.get('curve', 0)} curve points in {counts.get('runs', 0)} runs, "
