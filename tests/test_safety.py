@@ -212,7 +212,7 @@ def test_interrupted_train_stops_at_once_and_leaves_no_worker(tmp_path: Path, si
 
 # -- failure 6: false successes
 
-def test_train_with_no_trained_oc_is_an_error_unless_allowed(sim: Path, tmp_path: Path,
+def test_train_with_no_trained_oc_is_an_error_unless_allowed(sim: Path, model: Path, tmp_path: Path,
                                                              capsys: pytest.CaptureFixture[str]) -> None:
     one = tmp_path / "one.mcap"
     assert main([*SIM, "--runs", "1", "--out", str(one)]) == 0
@@ -221,7 +221,14 @@ def test_train_with_no_trained_oc_is_an_error_unless_allowed(sim: Path, tmp_path
     assert main(argv) == 2
     _one_line_error(capsys, "no OC could be trained", "--allow-empty")
     assert not (tmp_path / "m").exists()
+    shutil.copytree(model, tmp_path / "m")  # a model there stays until a new one is complete
+    before = _digest(tmp_path / "m" / "manifest.json")
+    assert main(argv) == 2
+    capsys.readouterr()
+    assert _digest(tmp_path / "m" / "manifest.json") == before
     assert main([*argv, "--allow-empty"]) == 0
+    assert _digest(tmp_path / "m" / "manifest.json") != before
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
     capsys.readouterr()
     assert main(["evaluate", str(tmp_path / "m"), str(sim)]) == 2  # was a traceback
     _one_line_error(capsys, "no trained OC")

@@ -130,13 +130,10 @@ def replacing_dir(path: str) -> Iterator[str]:
         yield tmp
         if os.path.isdir(path):
             os.replace(path, old)
-        try:
-            os.replace(tmp, path)
-        except OSError:
-            if os.path.isdir(old):
-                os.replace(old, path)
-            raise
+        os.replace(tmp, path)
     finally:
+        if os.path.isdir(old) and not os.path.lexists(path):  # stopped between the two renames
+            os.replace(old, path)
         _remove(tmp)
         _remove(old)
 
