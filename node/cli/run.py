@@ -46,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
 
     rotating = args.rotate_mb is not None or args.rotate_minutes is not None
     inputs = [args.zenoh_config] if args.zenoh_config else []
-    check_output(args.record, "--record", inputs=inputs, replace=False, force=args.force)
+    # written in place (a killed node's file stays recoverable): an existing one needs --force
+    check_output(args.record, "--record", inputs=inputs, replace=rotating, force=args.force)
     if rotating:  # node.mcap -> node.0000.mcap, node.0001.mcap, ...
         stem = args.record.removesuffix(".mcap")
         check_new_files([glob.escape(stem) + ".[0-9][0-9][0-9][0-9]*.mcap"], "--record", args.force)
