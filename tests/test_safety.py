@@ -130,6 +130,12 @@ def test_run_record_never_overwrites_without_force(model: Path, tmp_path: Path,
                  "--duration", "1"]) == 2
     _one_line_error(capsys, "other.0003.mcap", "--force")
     assert rec.read_bytes() == b"keep" and (tmp_path / "other.0003.mcap").read_bytes() == b"keep"
+    busy, port = _busy_port()
+    busy.close()  # a free port
+    # rotating, node.mcap itself is no output: only node.NNNN.mcap files count
+    assert main(["run", "--model", str(model), "--record", str(rec), "--rotate-mb", "1", "--quiet",
+                 "--listen", f"tcp/127.0.0.1:{port}", "--duration", "0.5"]) == 0
+    assert rec.read_bytes() == b"keep" and (tmp_path / "node.0000.mcap").stat().st_size > 0
 
 
 def test_train_out_refuses_a_folder_that_is_no_model(sim: Path, tmp_path: Path,
