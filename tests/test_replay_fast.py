@@ -10,8 +10,8 @@ import orjson
 import pytest
 
 from node.contract import RUN_GAP
-from node.contract.slotting import ChannelPhase
 from node.contract.schedule import OperatingCondition, Schedule
+from node.contract.slotting import ChannelPhase
 from node.models.bundle import Bundle
 from node.runtime.align import AlignedSample, Aligner
 from node.runtime.core import NodeCore
@@ -64,7 +64,8 @@ def _stream(seed: int, n: int = 3000) -> list[tuple[str, float, float | None]]:
     chans = ["a", "b", "c", "x"]
     msgs = []
     t0 = 1000.0 - rng.uniform(0, 0.1)
-    offset = dict(zip(chans, rng.uniform(-0.45, 0.45, len(chans)), strict=True))  # clock phases, periods
+    phases = rng.uniform(-0.45, 0.45, len(chans)).tolist()
+    offset = dict(zip(chans, phases, strict=True))  # each channel's clock phase, periods
     for k in range(n):
         if k == n // 2:
             t0 += RUN_GAP + rng.uniform(0, 5)

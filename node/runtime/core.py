@@ -139,7 +139,8 @@ class NodeCore:
             "t": b.latest_t if b.latest_t is not None else float("nan"), "wall": wall,
             "received": b.received, "malformed": b.malformed, "dropped": dropped, "samples": a.samples,
             "late": a.late, "duplicates": a.duplicates, "missing": dict(a.missing),
-            "alarm_samples": b.alarm_samples}
+            "alarm_samples": b.alarm_samples, "late_by_channel": dict(a.late_by_channel),
+            "phase_ms": b.aligner.phase_ms()}
         if lag_ms is not None:
             msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
         return msg
