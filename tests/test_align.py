@@ -97,14 +97,19 @@ def test_malformed_payloads_are_counted_and_skipped(tmp_path):
 
 
 def test_a_sample_is_emitted_by_the_message_that_completes_it():
-    # live latency: no waiting for the next sample once every expected channel is in
-    a = Aligner(["nB", "yB", "tF"])
-    for k in range(5):
+    # live latency: no waiting for the next sample once every expected channel is in (a run's
+    # first slot waits for 0.1 s of data: an earlier message might still come)
+    a = Aligner(["nB", "yB", "tF"], max_wait=0.1)
+    for k in range(10):
         t = 1000.0 + k / 40
-        assert a.push("yB", t + 0.001, 1.0) == []
+        first = a.push("yB", t + 0.001, 1.0)
+        assert [s.t for s in first] == ([(40000 + i) / 40 for i in range(4)] if k == 4 else [])
         assert a.push("zz", t, 1.0) == []  # a channel the model does not need
         assert a.push("tF", t - 0.001, 2.0) == []
         out = a.push("nB", t, 3.0)
+        if k < 4:
+            assert out == []
+            continue
         assert len(out) == 1 and out[0].values == {"nB": 3.0, "yB": 1.0, "tF": 2.0}
         assert out[0].t == (40000 + k) / 40  # the absolute grid, whichever channel came first
     assert a.flush() == []

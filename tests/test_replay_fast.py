@@ -37,7 +37,7 @@ class ReferenceAligner(Aligner):
             self._started, self._next, self._newest = True, k, k
         self._last_t = t if self._last_t is None else max(self._last_t, t)
         if k < self._next:
-            if self._emitted:
+            if self._emitted or self._newest - k >= self.wait_slots:
                 self.stats.late += 1
                 self.stats.late_by_channel[channel] += 1
                 return out
@@ -50,7 +50,7 @@ class ReferenceAligner(Aligner):
         self._newest = max(self._newest, k)
         while True:
             head = self._open.get(self._next)
-            complete = head is not None and len(head) == len(self.channels)
+            complete = self._emitted and head is not None and len(head) == len(self.channels)
             expired = self._newest - self._next >= self.wait_slots
             if not (complete or expired):
                 break

@@ -7,9 +7,11 @@ is the time k / fs), phi_c the channel's phase as estimated from its own earlier
 samples of the run (``node.contract.slotting``, the rule training shares).
 A slot is emitted when every expected channel has filled it, or when data
 ``max_wait`` seconds newer than the slot has arrived (a bounded wait for late
-channels). Decisions depend only on the order and content of the messages,
-never on the wall clock, so replaying the messages in the order the node
-received them reproduces its output exactly.
+channels); a run's first slot only by the wait (the first message to arrive need
+not be the earliest), so reorderings within the wait change nothing. Decisions
+depend only on the order and content of the messages, never on the wall clock, so
+replaying the messages in the order the node received them reproduces its output
+exactly.
 """
 
 from __future__ import annotations
@@ -61,21 +63,23 @@ class Aligner:
         max_wait: seconds of newer data after which an incomplete slot is emitted anyway
             (``RuntimeConfig.align_wait_s``).
 
-    >>> a = Aligner(["nB", "yB"])
-    >>> a.push("nB", 100.0, 4000.0), a.push("nB", 100.025, 4001.0)
+    >>> a = Aligner(["nB", "yB"], max_wait=0.1)
+    >>> a.push("nB", 100.025, 4001.0), a.push("nB", 100.0, 4000.0)  # any order
     ([], [])
-    >>> a.push("yB", 100.011, 2.5)  # yB samples 11 ms after nB: the same slot
-    [AlignedSample(t=100.0, values={'nB': 4000.0, 'yB': 2.5}, new_run=True)]
-    >>> a.push("yB", 100.0365, None)  # null: NaN; a slot's time is that of the grid
-    [AlignedSample(t=100.025, values={'nB': 4001.0, 'yB': nan}, new_run=False)]
+    >>> a.push("yB", 100.011, 2.5), a.push("yB", 100.0365, None)  # yB samples 11 ms after nB
+    ([], [])
+    >>> [(s.t, s.values) for s in a.push("nB", 100.1, 4004.0)]  # a run's first slot waits 0.1 s
+    [(100.0, {'nB': 4000.0, 'yB': 2.5}), (100.025, {'nB': 4001.0, 'yB': nan})]
     >>> round(a.phase_ms()["yB"], 1)  # yB's clock phase, ms (to 6 us)
     11.0
-    >>> a.push("nB", 100.125, 4002.0)  # slot 5: slot 2 (empty) still waits...
-    []
-    >>> a.push("nB", 100.15, 4003.0)[0].values  # ...until data 0.1 s (4 slots) newer came
-    {'nB': nan, 'yB': nan}
+    >>> a.push("nB", 100.05, 4002.0), a.push("yB", 100.061, 3.0)  # then a slot goes out when complete
+    ([], [AlignedSample(t=100.05, values={'nB': 4002.0, 'yB': 3.0}, new_run=False)])
+    >>> a.push("yB", 100.086, 4.0), a.push("yB", 100.111, 5.0)  # slot 4003 lacks nB: it waits...
+    ([], [])
+    >>> [s.values for s in a.push("nB", 100.175, 4007.0)]  # ...until data 0.1 s newer came
+    [{'yB': 4.0, 'nB': nan}, {'nB': 4004.0, 'yB': 5.0}]
     >>> a.stats.missing
-    Counter({'nB': 1, 'yB': 1})
+    Counter({'nB': 1})
     """
 
     def __init__(self, channels: list[str], fs: float = FS,
@@ -115,7 +119,7 @@ class Aligner:
             self._started, self._next, self._newest = True, k, k
         self._last_t = t if self._last_t is None else max(self._last_t, t)
         if k < self._next:
-            if self._emitted:  # its slot is gone
+            if self._emitted or self._newest - k >= self.wait_slots:  # its slot is gone (or expired)
                 self.stats.late += 1
                 self.stats.late_by_channel[channel] += 1
                 return out
@@ -127,8 +131,8 @@ class Aligner:
         slot[channel] = _NAN if v is None else float(v)
         self._newest = max(self._newest, k)
         while True:  # emit in order every slot complete (every channel in) or expired
-            head = self._open.get(self._next)
-            complete = head is not None and len(head) == self._n
+            head = self._open.get(self._next)  # (a run's first slot is known once the wait has passed)
+            complete = self._emitted and head is not None and len(head) == self._n
             expired = self._newest - self._next >= self.wait_slots
             if not (complete or expired):
                 return out
