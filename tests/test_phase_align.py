@@ -47,8 +47,8 @@ def _deliver(slot0: int, n: int, rng: np.random.Generator, first: float | None =
             if j == 0 and phase == first:
                 t = (slot0 + phase) / FS + first_jitter
             for c in group:
-                arrival = -math.inf if (j == 0 and phase == first and c == group[0]) else t + rng.uniform(0, delay)
-                msgs.append((arrival, c, t, float(slot0 + j)))
+                lead = j == 0 and phase == first and c == group[0]  # the run's first message
+                msgs.append((-math.inf if lead else t + rng.uniform(0, delay), c, t, float(slot0 + j)))
     msgs.sort()
     return msgs
 
