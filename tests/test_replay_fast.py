@@ -183,7 +183,7 @@ def test_handle_batch_of_clean_single_bed_batches_equals_handle() -> None:
     msgs[5000] = (msgs[5000][0], b'{"t": 1000, "v": 1.0}')
     msgs[7000] = (msgs[7000][0], b"{")
     one, many, want, got = _one_and_many(bundle, msgs, 500)
-    assert orjson.dumps(got) == orjson.dumps(want) and len(got) > 1000
+    assert orjson.dumps(got) == orjson.dumps(want) and len(got) > 800  # messages that completed some
     _same_counts(one, many)
     assert many.malformed == 1
     a = many.beds["b1"].aligner.stats

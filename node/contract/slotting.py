@@ -48,7 +48,7 @@ from node.contract.keys import FS
 
 Q = 4096  # phase resolution: 1/Q period (6 us at 40 Hz)
 SCALE = 1 << 20  # the unit vectors' integer scale
-BLOCK = 10  # samples averaged before the estimate moves
+BLOCK = 40  # samples averaged before the estimate moves
 N_MEAN = 100  # a plain running mean up to this many samples...
 ALPHA = 0.01  # ...then an exponential one, this weight per sample
 _ALPHA_BLOCK = 1.0 - (1.0 - ALPHA) ** BLOCK  # that weight per block
@@ -107,25 +107,29 @@ class ChannelPhase:
             return np.zeros(0, dtype=np.int64)
         x = t * self._fs
         q = np.rint((x - np.floor(x)) * Q).astype(np.int64) % Q
-        phi = np.empty(m)
+        phis: list[float] = []  # the phase of each stretch of samples (constant within a block)
+        lens: list[int] = []
         i = 0
         if self.phi is None:
             self._start(int(q[0]))
-            phi[0], i = self.phi, 1
-        # sums of the unit vectors of samples a..b-1: c[b - i0] - c[a - i0] (exact integers)
-        i0 = i
-        cx = np.concatenate([[0], np.cumsum(COS[q[i0:]])]).tolist()
-        cy = np.concatenate([[0], np.cumsum(SIN[q[i0:]])]).tolist()
-        while i < m:
-            end = min(m, i + BLOCK - self._bn)  # samples i..end-1 fill the current block (or end)
-            phi[i:end] = self.phi
-            self._bx += cx[end - i0] - cx[i - i0]
-            self._by += cy[end - i0] - cy[i - i0]
-            self._bn += end - i
-            if self._bn == BLOCK:
-                self._fold()
-            i = end
-        return np.rint(x - phi).astype(np.int64)
+            phis.append(self.phi)  # type: ignore[arg-type]  # set by _start
+            lens.append(1)
+            i = 1
+        if i < m:
+            # the stretches [starts[j], ends[j]): the rest of the current block, then whole blocks
+            starts = [i, *range(i + BLOCK - self._bn, m, BLOCK)]
+            ends = [*starts[1:], m]
+            bx = np.add.reduceat(COS[q], starts).tolist()  # exact integer sums
+            by = np.add.reduceat(SIN[q], starts).tolist()
+            for a, b, sx, sy in zip(starts, ends, bx, by, strict=True):
+                phis.append(self.phi)  # type: ignore[arg-type]  # set by the first sample
+                lens.append(b - a)
+                self._bx += sx
+                self._by += sy
+                self._bn += b - a
+                if self._bn == BLOCK:
+                    self._fold()
+        return np.rint(x - np.repeat(phis, lens)).astype(np.int64)
 
     def _start(self, q: int) -> None:
         """The first sample (quantised phase q): phi is its phase."""

@@ -164,9 +164,12 @@ class Aligner:
             return []
         t, v, code = t[at], v[at], ci[at]
         k = np.empty(len(t), dtype=np.int64)
-        for j in np.unique(code).tolist():  # each channel's messages, in arrival order
-            mine = np.flatnonzero(code == j)
-            name = self.channels[j]
+        by_channel = np.argsort(code, kind="stable")  # each channel's messages, in arrival order
+        cuts = np.searchsorted(code[by_channel], np.arange(self._n + 1)).tolist()
+        for j, name in enumerate(self.channels):
+            if cuts[j] == cuts[j + 1]:
+                continue
+            mine = by_channel[cuts[j]:cuts[j + 1]]
             phase = self._phase.get(name)
             if phase is None:
                 phase = self._phase[name] = ChannelPhase(self.fs)
