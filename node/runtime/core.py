@@ -54,14 +54,18 @@ class NodeCore:
     >>> core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []))
     >>> core.handle("testbed/b1/sensor/nB", b'{"t": 100.0, "v": 4000.0}')
     []
-    >>> out = core.handle("testbed/b1/sensor/yB", b'{"t": 100.0, "v": 2.5}')  # completes a sample
-    >>> [(key, msg["flag"].value) for key, msg in out]
+    >>> core.handle("testbed/b1/sensor/yB", b'{"t": 100.011, "v": 2.5}')  # completes a sample...
+    []
+    >>> out = core.handle("testbed/b1/sensor/nB", b'{"t": 100.25, "v": 4000.0}')  # ...a run's first
+    >>> [(key, msg["flag"].value) for key, msg in out]  # goes out after 0.25 s of data (the wait)
     [('testbed/b1/monitor/yB', 'no-model')]
     >>> core.handle("testbed/b1/sensor/yB", b'{"t": "soon"}'), core.beds["b1"].malformed
     ([], 1)
     >>> h = core.health("b1", wall=1700000000.0)
-    >>> h["t"], h["received"], h["samples"], h["missing"]
-    (100.0, 3, 1, {})
+    >>> h["t"], h["received"], h["samples"], h["missing"], h["late_by_channel"]
+    (100.25, 4, 1, {}, {})
+    >>> {c: round(ms, 1) for c, ms in h["phase_ms"].items()}  # each channel's clock phase
+    {'nB': 0.0, 'yB': 11.0}
     """
 
     def __init__(self, bundle: Bundle) -> None:
