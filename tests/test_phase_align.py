@@ -211,3 +211,16 @@ def _aligned(chans: list[str], msgs: list[Msg], batch: int) -> list[tuple]:
 def test_duplicates_and_reorderings_within_the_wait_change_nothing(case) -> None:
     chans, clean, messy, batch = case
     assert _aligned(chans, messy, batch) == _aligned(chans, clean, 1)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_jitter_up_to_six_ms_keeps_every_sample_in_its_own_slot(seed: int) -> None:
+    """The README's bound: jitter up to +-6 ms (under a quarter period) at any offset, the
+    first sample at its worst: consecutive samples go to consecutive slots."""
+    rng = np.random.default_rng(seed)
+    n, offset, j = 800, rng.uniform(-0.5, 0.5), 6e-3
+    jitter = rng.uniform(-j, j, n)
+    jitter[0] = j if seed % 2 else -j
+    t = 1767600000.0 + (np.arange(n) + offset) / FS + jitter
+    k = ChannelPhase().slots(t)
+    assert (np.diff(k) == 1).all()
