@@ -74,7 +74,7 @@ def test_gap_starts_a_new_run_on_a_new_grid():
     out = feed(Aligner(["nB"]), msgs)
     assert len(out) == 40
     assert out[20].new_run and not out[19].new_run and out[0].new_run
-    assert math.isclose(out[20].t, 1300.513, abs_tol=1e-9)
+    assert out[20].t == 52021 / 40  # the absolute grid: slot k is k / 40 s; 1300.513 s is 20.52 slots
 
 
 def test_malformed_payloads_are_counted_and_skipped(tmp_path):
@@ -97,16 +97,21 @@ def test_malformed_payloads_are_counted_and_skipped(tmp_path):
 
 
 def test_a_sample_is_emitted_by_the_message_that_completes_it():
-    # live latency: no waiting for the next sample once every expected channel is in
-    a = Aligner(["nB", "yB", "tF"])
-    for k in range(5):
+    # live latency: no waiting for the next sample once every expected channel is in (a run's
+    # first slot waits for 0.1 s of data: an earlier message might still come)
+    a = Aligner(["nB", "yB", "tF"], max_wait=0.1)
+    for k in range(10):
         t = 1000.0 + k / 40
-        assert a.push("yB", t + 0.001, 1.0) == []
+        first = a.push("yB", t + 0.001, 1.0)
+        assert [s.t for s in first] == ([(40000 + i) / 40 for i in range(4)] if k == 4 else [])
         assert a.push("zz", t, 1.0) == []  # a channel the model does not need
         assert a.push("tF", t - 0.001, 2.0) == []
         out = a.push("nB", t, 3.0)
+        if k < 4:
+            assert out == []
+            continue
         assert len(out) == 1 and out[0].values == {"nB": 3.0, "yB": 1.0, "tF": 2.0}
-        assert math.isclose(out[0].t, 1000.001 + k / 40)  # the grid starts at the first message
+        assert out[0].t == (40000 + k) / 40  # the absolute grid, whichever channel came first
     assert a.flush() == []
 
 

@@ -104,6 +104,8 @@ class HealthMessage(TypedDict):
     duplicates: Annotated[int, "messages repeating a channel's sample"]
     missing: Annotated[dict[str, int], "samples each expected channel was absent from"]
     alarm_samples: Annotated[int, "monitor samples flagged alarm"]
+    late_by_channel: Annotated[dict[str, int], "late messages of each expected channel"]
+    phase_ms: Annotated[dict[str, float], "each expected channel's clock phase this run, ms after its slot"]
     lag_ms_p50: NotRequired[Annotated[float | None, "receive to publish, ms, median of the last ones"]]
     lag_ms_p99: NotRequired[Annotated[float | None, "receive to publish, ms, 99th percentile"]]
     staleness: NotRequired[Annotated[float | None, "wall minus the receipt of the bed's last message, s"]]

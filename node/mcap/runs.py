@@ -1,8 +1,11 @@
 """Pass-off runs of a recording, for training: ``read_runs`` and ``Run``.
 
 ``read_runs`` reads every sensor payload (``read_payloads``), decodes them with the
-contract's payload rule (``node.contract.decode_samples``), snaps them to the 40 Hz
-grid and splits them into runs: time-major arrays (samples, channels).
+contract's payload rule (``node.contract.decode_samples``), puts them on the 40 Hz
+grid by the node's own rule (``node.contract.slotting``: the absolute grid, each
+channel by its clock phase, its samples taken in the order they were recorded, so
+every sample lands in the slot the node gave it) and splits them into runs:
+time-major arrays (samples, channels).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from node.contract import (
     decode_samples,
     parse_sensor_key,
 )
+from node.contract.slotting import ChannelPhase
 from node.mcap.reader import ReadStats, Source, read_payloads
 
 MIN_RUN = 10.0  # shorter stretches of "engine on" are not runs (noise), s
@@ -55,15 +59,19 @@ def _order_channels(found: Sequence[str], wanted: Sequence[str] | None) -> tuple
 
 def _align(
     t: np.ndarray, col: np.ndarray, v: np.ndarray, n_channels: int
-) -> tuple[float, np.ndarray]:
-    """Snap samples (t sorted) to a 40 Hz grid: returns (t0, data (K, n_channels))."""
-    k = np.rint((t - t[0]) * FS)
-    t0 = t[0] + float(np.median(t - t[0] - k / FS))
-    k = np.rint((t - t0) * FS).astype(np.int64)
-    k -= k.min()
-    data = np.full((int(k.max()) + 1, n_channels), np.nan)
-    data[k, col] = v
-    return t0 + k.min() / FS, data
+) -> tuple[int, np.ndarray]:
+    """The samples of one run (t, col, v: (n,), each channel's in recorded order) on the
+    node's grid: returns (k0, data (K, n_channels)), row i being slot k0 + i (time (k0 + i) / FS).
+    A slot keeps a channel's first sample, as the node does (later ones are duplicates)."""
+    k = np.empty(len(t), dtype=np.int64)
+    for j in np.unique(col).tolist():
+        mine = np.flatnonzero(col == j)
+        k[mine] = ChannelPhase().slots(t[mine])
+    k0 = int(k.min())
+    data = np.full((int(k.max()) - k0 + 1, n_channels), np.nan)
+    first = np.unique((k - k0) * n_channels + col, return_index=True)[1]
+    data[k[first] - k0, col[first]] = v[first]
+    return k0, data
 
 
 def _ffill(x: np.ndarray) -> np.ndarray:
@@ -157,26 +165,26 @@ def _bed_runs(
     tops = np.array([np.nanmax(v[col == j]) if np.any(col == j) else np.nan for j in speed_cols])
     tops = np.where(np.isfinite(tops) & (tops > 0), tops, np.inf)
 
-    order = np.argsort(t, kind="stable")
-    t, v, col = t[order], v[order], col[order]
-    cuts = np.flatnonzero(np.diff(t) >= RUN_GAP) + 1
+    order = np.argsort(t, kind="stable")  # t, v, col stay in recorded order, channel by channel
+    cuts = np.flatnonzero(np.diff(t[order]) >= RUN_GAP) + 1
     runs: list[Run] = []
     last_on_end: float | None = None
     for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [len(t)]]), strict=True):
-        t0, data = _align(t[a:b], col[a:b], v[a:b], width)
+        mine = np.sort(order[a:b])  # this run's samples, each channel's in recorded order
+        k0, data = _align(t[mine], col[mine], v[mine], width)
         for r0, r1 in _split_on(data, speed_cols, tops[: len(speed_cols)]):
             if (r1 - r0) / FS < MIN_RUN:
                 continue
-            start = t0 + r0 / FS
+            start = (k0 + r0) / FS
             shutdown = None if last_on_end is None else start - last_on_end
             runs.append(
                 Run(
-                    t=start + np.arange(r1 - r0) / FS,
+                    t=np.arange(k0 + r0, k0 + r1) / FS,
                     data=np.ascontiguousarray(data[r0:r1, : len(names)]),
                     channels=names,
                     bed=bed,
                     shutdown_before=shutdown,
                 )
             )
-            last_on_end = t0 + r1 / FS
+            last_on_end = (k0 + r1) / FS
     return runs

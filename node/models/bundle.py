@@ -20,7 +20,7 @@ from node import __version__
 from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.models.config import RuntimeConfig
+from node.models.config import V1_SETTINGS, RuntimeConfig
 from node.models.ocmodel import RUN_CURVE, model_from_arrays
 from node.models.result import Calibration, OCResult
 
@@ -165,7 +165,7 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
         if curve is None and any(RUN_CURVE in r.inputs for r in ocs):
             raise ValueError(f"an OC takes {RUN_CURVE!r} but the bundle has no characteristic curve")
         if version == 1:  # written before the settings were stored: the values of that code
-            config = RuntimeConfig(history_s=float(manifest["history_s"]))
+            config = RuntimeConfig(**V1_SETTINGS, history_s=float(manifest["history_s"]))
         else:
             config = RuntimeConfig.from_dict(manifest["runtime"])
         return Bundle(manifest["method"], manifest["target"], schedule, ocs,

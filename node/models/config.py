@@ -4,12 +4,12 @@ A bundle keeps behaving as it did when it was trained: every timing the node's
 per-sample logic uses (the aligner's wait, the OC detector's timings, the alarm
 rules' windows and delays, the run-curve bin) is read from the bundle's
 ``RuntimeConfig``, never from a module constant. Bundles of format version 1,
-written before the settings were stored, get the defaults below, which are the
-values those versions had in code.
+written before the settings were stored, get the values those versions had in
+code: the defaults below, but for ``V1_SETTINGS``.
 
 >>> c = RuntimeConfig()
 >>> c.align_wait_s, c.residual_clear_s
-(0.1, 5.0)
+(0.25, 5.0)
 >>> RuntimeConfig.from_dict(c.to_dict()) == c
 True
 >>> RuntimeConfig.from_dict({"align_wait_s": -1})
@@ -24,13 +24,17 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+V1_SETTINGS = {"align_wait_s": 0.1}  # where bundles of format version 1 differ from the defaults
+
 
 @dataclass(frozen=True)
 class RuntimeConfig:
     """Run-time settings of the node's per-sample logic (seconds unless said).
 
     Attributes:
-        align_wait_s: newer data after which an incomplete 40 Hz slot is emitted anyway.
+        align_wait_s: newer data after which an incomplete 40 Hz slot is emitted anyway (and
+            a run's first slot; complete slots go out at once). 0.25 s covers a reordering
+            of 0.2 s at any clock phases (the earlier 0.1 s left a 0.1 s one borderline).
         history_s: measured past kept to seed an OC's model at a switch.
         residual_clear_s: a residual alarm clears after this long back under its threshold.
         episode_gap_s: alarm samples of one rule less than this apart form one episode.
@@ -47,7 +51,7 @@ class RuntimeConfig:
         step_persist_s: how long its statistic must stay beyond the threshold.
     """
 
-    align_wait_s: float = 0.1
+    align_wait_s: float = 0.25
     history_s: float = 60.0
     residual_clear_s: float = 5.0
     episode_gap_s: float = 1.0

@@ -1,12 +1,17 @@
 """Aligning independently published channels into 40 Hz samples.
 
 Each channel's samples arrive on their own (any order, jitter, duplicates,
-dropouts). A sample of channel c at time t belongs to slot round((t - t0) fs).
+dropouts), each channel at its own clock phase within the period. A sample of
+channel c at time t belongs to slot round(t fs - phi_c) of the absolute grid (slot k
+is the time k / fs), phi_c the channel's phase as estimated from its own earlier
+samples of the run (``node.contract.slotting``, the rule training shares).
 A slot is emitted when every expected channel has filled it, or when data
 ``max_wait`` seconds newer than the slot has arrived (a bounded wait for late
-channels). Decisions depend only on the order and content of the messages,
-never on the wall clock, so replaying the messages in the order the node
-received them reproduces its output exactly.
+channels); a run's first slot only by the wait (the first message to arrive need
+not be the earliest), so reorderings within the wait change nothing. Decisions
+depend only on the order and content of the messages, never on the wall clock, so
+replaying the messages in the order the node received them reproduces its output
+exactly.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from itertools import compress, repeat
 import numpy as np
 
 from node.contract import FS, RUN_GAP
+from node.contract.slotting import ChannelPhase
 from node.models.config import RuntimeConfig
 
 _NAN = float("nan")
@@ -39,13 +45,14 @@ class AlignedSample:
 class AlignStats:
     samples: int = 0
     late: int = 0  # arrived after their slot was emitted
+    late_by_channel: Counter = field(default_factory=Counter)  # the same, per channel
     duplicates: int = 0
     missing: Counter = field(default_factory=Counter)  # expected channel absent from a slot
     unknown: Counter = field(default_factory=Counter)  # channels not expected (ignored)
 
 
 class Aligner:
-    """Slots samples of ``channels`` on a 40 Hz grid anchored at the first sample of a run.
+    """Slots samples of ``channels`` on the absolute 40 Hz grid, each channel by its own phase.
 
     ``push`` is the rule, one message at a time; ``push_columns`` gives the very same
     results for a batch of messages, computed at once where it can.
@@ -56,19 +63,23 @@ class Aligner:
         max_wait: seconds of newer data after which an incomplete slot is emitted anyway
             (``RuntimeConfig.align_wait_s``).
 
-    >>> a = Aligner(["nB", "yB"])
-    >>> a.push("nB", 100.0, 4000.0), a.push("nB", 100.025, 4001.0)
+    >>> a = Aligner(["nB", "yB"], max_wait=0.1)
+    >>> a.push("nB", 100.025, 4001.0), a.push("nB", 100.0, 4000.0)  # any order
     ([], [])
-    >>> a.push("yB", 100.0, 2.5)  # completes the first slot
-    [AlignedSample(t=100.0, values={'nB': 4000.0, 'yB': 2.5}, new_run=True)]
-    >>> a.push("yB", 100.026, None)  # null: NaN; this slot's time is that of the grid
-    [AlignedSample(t=100.025, values={'nB': 4001.0, 'yB': nan}, new_run=False)]
-    >>> a.push("nB", 100.125, 4002.0)  # slot 5: slot 2 (empty) still waits...
-    []
-    >>> a.push("nB", 100.15, 4003.0)[0].values  # ...until data 0.1 s (4 slots) newer came
-    {'nB': nan, 'yB': nan}
+    >>> a.push("yB", 100.011, 2.5), a.push("yB", 100.0365, None)  # yB samples 11 ms after nB
+    ([], [])
+    >>> [(s.t, s.values) for s in a.push("nB", 100.1, 4004.0)]  # a run's first slot waits 0.1 s
+    [(100.0, {'nB': 4000.0, 'yB': 2.5}), (100.025, {'nB': 4001.0, 'yB': nan})]
+    >>> round(a.phase_ms()["yB"], 1)  # yB's clock phase, ms (to 6 us)
+    11.0
+    >>> a.push("nB", 100.05, 4002.0), a.push("yB", 100.061, 3.0)  # then a slot goes out when complete
+    ([], [AlignedSample(t=100.05, values={'nB': 4002.0, 'yB': 3.0}, new_run=False)])
+    >>> a.push("yB", 100.086, 4.0), a.push("yB", 100.111, 5.0)  # slot 4003 lacks nB: it waits...
+    ([], [])
+    >>> [s.values for s in a.push("nB", 100.175, 4007.0)]  # ...until data 0.1 s newer came
+    [{'yB': 4.0, 'nB': nan}, {'nB': 4004.0, 'yB': 5.0}]
     >>> a.stats.missing
-    Counter({'nB': 1, 'yB': 1})
+    Counter({'nB': 1})
     """
 
     def __init__(self, channels: list[str], fs: float = FS,
@@ -80,7 +91,8 @@ class Aligner:
         self.fs = fs
         self.wait_slots = max(1, math.ceil(max_wait * fs))
         self.stats = AlignStats()
-        self._t0: float | None = None
+        self._phase: dict[str, ChannelPhase] = {}  # each channel's, this run
+        self._started = False  # a run is under way
         self._next = 0  # first slot not yet emitted
         self._open: dict[int, dict[str, float]] = {}
         self._newest = -1
@@ -97,15 +109,19 @@ class Aligner:
         out: list[AlignedSample] = []
         if self._last_t is not None and t - self._last_t >= RUN_GAP:  # a new run, on a new grid
             out += self.flush()
-            self._t0 = None
-            self._new_run, self._emitted = True, False
-        if self._t0 is None:
-            self._t0, self._next, self._newest = t, 0, 0
+            self._phase.clear()
+            self._started, self._new_run, self._emitted = False, True, False
+        phase = self._phase.get(channel)
+        if phase is None:
+            phase = self._phase[channel] = ChannelPhase(self.fs)
+        k = phase.slot(t)  # round(t fs - phi), phi before this sample
+        if not self._started:
+            self._started, self._next, self._newest = True, k, k
         self._last_t = t if self._last_t is None else max(self._last_t, t)
-        k = round((t - self._t0) * self.fs)
         if k < self._next:
-            if self._emitted:  # its slot is gone
+            if self._emitted or self._newest - k >= self.wait_slots:  # its slot is gone (or expired)
                 self.stats.late += 1
+                self.stats.late_by_channel[channel] += 1
                 return out
             self._next = k  # nothing emitted yet: the run starts earlier than its first message
         slot = self._open.setdefault(k, {})
@@ -115,8 +131,8 @@ class Aligner:
         slot[channel] = _NAN if v is None else float(v)
         self._newest = max(self._newest, k)
         while True:  # emit in order every slot complete (every channel in) or expired
-            head = self._open.get(self._next)
-            complete = head is not None and len(head) == self._n
+            head = self._open.get(self._next)  # (a run's first slot is known once the wait has passed)
+            complete = self._emitted and head is not None and len(head) == self._n
             expired = self._newest - self._next >= self.wait_slots
             if not (complete or expired):
                 return out
@@ -130,9 +146,13 @@ class Aligner:
         message i that completed samples. Inside a run that has emitted already, where no
         message of the batch can start a new run (the common case), the batch is aligned at
         once with numpy; otherwise, and for a few messages, message by message.
+
+        No rounding question arises: ``ChannelPhase.slots`` gives each message the very
+        phase ``push`` would (the estimate moves only at the end of a block of a channel's
+        samples, and block sums are exact integers), so the slots are bit-identical.
         """
-        n, last, t0 = len(t), self._last_t, self._t0
-        if (n < SMALL_BATCH or not self._emitted or last is None or t0 is None
+        n, last = len(t), self._last_t
+        if (n < SMALL_BATCH or not self._emitted or last is None
                 or float(t.max()) - last >= RUN_GAP or len(self._code) != self._n):
             one_by_one = (self.push(c, ti, vi) for c, ti, vi in zip(channels, t.tolist(), v.tolist()))
             return [(i, out) for i, out in enumerate(one_by_one) if out]
@@ -143,7 +163,17 @@ class Aligner:
         if not len(at):
             return []
         t, v, code = t[at], v[at], ci[at]
-        k = np.rint((t - t0) * self.fs).astype(np.int64)  # round((t - t0) fs)
+        k = np.empty(len(t), dtype=np.int64)
+        by_channel = np.argsort(code, kind="stable")  # each channel's messages, in arrival order
+        cuts = np.searchsorted(code[by_channel], np.arange(self._n + 1)).tolist()
+        for j, name in enumerate(self.channels):
+            if cuts[j] == cuts[j + 1]:
+                continue
+            mine = by_channel[cuts[j]:cuts[j + 1]]
+            phase = self._phase.get(name)
+            if phase is None:
+                phase = self._phase[name] = ChannelPhase(self.fs)
+            k[mine] = phase.slots(t[mine])  # round(t fs - phi), phi before each message
         newest = np.maximum.accumulate(np.maximum(k, self._newest))  # after each message
         taken, emit_at = self._plan(k, code, newest)
         self._fill(k[taken], code[taken], v[taken])
@@ -190,6 +220,10 @@ class Aligner:
         gone = ~late & (rel < len(emit_at))
         late[gone] = emit_at[rel[gone]] < np.flatnonzero(gone)
         self.stats.late += int(late.sum())
+        if late.any():
+            codes, counts = np.unique(c[late], return_counts=True)
+            self.stats.late_by_channel.update(
+                dict(zip(map(self.channels.__getitem__, codes.tolist()), counts.tolist(), strict=True)))
         self.stats.duplicates += int((~late & ~first).sum())
         return first & ~late, emit_at
 
@@ -220,10 +254,13 @@ class Aligner:
         self._next = k + 1
         self._emitted = True
         self.stats.samples += 1
-        assert self._t0 is not None  # a run is under way
-        s = AlignedSample(self._t0 + k / self.fs, vals, self._new_run)
+        s = AlignedSample(k / self.fs, vals, self._new_run)
         self._new_run = False
         return s
+
+    def phase_ms(self) -> dict[str, float]:
+        """Each channel's estimated clock phase in this run, ms after its slot's time."""
+        return {c: p.phase_ms for c, p in self._phase.items() if p.phase_ms is not None}
 
     def flush(self) -> list[AlignedSample]:
         """Emit every open slot (end of stream, or before a new run)."""

@@ -54,14 +54,18 @@ class NodeCore:
     >>> core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []))
     >>> core.handle("testbed/b1/sensor/nB", b'{"t": 100.0, "v": 4000.0}')
     []
-    >>> out = core.handle("testbed/b1/sensor/yB", b'{"t": 100.0, "v": 2.5}')  # completes a sample
-    >>> [(key, msg["flag"].value) for key, msg in out]
+    >>> core.handle("testbed/b1/sensor/yB", b'{"t": 100.011, "v": 2.5}')  # completes a sample...
+    []
+    >>> out = core.handle("testbed/b1/sensor/nB", b'{"t": 100.25, "v": 4000.0}')  # ...a run's first
+    >>> [(key, msg["flag"].value) for key, msg in out]  # goes out after 0.25 s of data (the wait)
     [('testbed/b1/monitor/yB', 'no-model')]
     >>> core.handle("testbed/b1/sensor/yB", b'{"t": "soon"}'), core.beds["b1"].malformed
     ([], 1)
     >>> h = core.health("b1", wall=1700000000.0)
-    >>> h["t"], h["received"], h["samples"], h["missing"]
-    (100.0, 3, 1, {})
+    >>> h["t"], h["received"], h["samples"], h["missing"], h["late_by_channel"]
+    (100.25, 4, 1, {}, {})
+    >>> {c: round(ms, 1) for c, ms in h["phase_ms"].items()}  # each channel's clock phase
+    {'nB': 0.0, 'yB': 11.0}
     """
 
     def __init__(self, bundle: Bundle) -> None:
@@ -139,7 +143,8 @@ class NodeCore:
             "t": b.latest_t if b.latest_t is not None else float("nan"), "wall": wall,
             "received": b.received, "malformed": b.malformed, "dropped": dropped, "samples": a.samples,
             "late": a.late, "duplicates": a.duplicates, "missing": dict(a.missing),
-            "alarm_samples": b.alarm_samples}
+            "alarm_samples": b.alarm_samples, "late_by_channel": dict(a.late_by_channel),
+            "phase_ms": b.aligner.phase_ms()}
         if lag_ms is not None:
             msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
         return msg
