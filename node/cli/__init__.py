@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 import threading
@@ -84,6 +85,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"ordervib {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def console() -> None:
+    """The ``ordervib`` executable: ``main`` and exit with its status.
+
+    An interrupted command (Ctrl-C, SIGTERM) has already stopped its workers, removed its
+    temporary files and printed its one line: it then leaves without the interpreter's exit
+    hooks, which can only add noise (a stopped process pool's wake-up pipe, CPython 3.11).
+    """
+    code = main()
+    if code in (130, 128 + signal.SIGTERM):
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(code)
+    sys.exit(code)
 
 
 class Terminated(KeyboardInterrupt):
