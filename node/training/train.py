@@ -214,7 +214,7 @@ def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 2.0) -> None:
     if manager is not None:
         manager.join(grace_s)
         from concurrent.futures import process as futures_process
-        futures_process._threads_wakeups.pop(manager, None)  # type: ignore[attr-defined]
+        futures_process._threads_wakeups.pop(manager, None)
 
 
 def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str = "wdmd",
