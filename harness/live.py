@@ -49,7 +49,7 @@ class Stream:
 
 def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
     """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
-    from node.contract import parse_sensor_key
+    from node.contract import TopicKind, parse_sensor_key, topic_kind
     from node.mcap import iter_messages_fast
     n = int(round(seconds * FS))
     last_t: float | None = None
@@ -282,7 +282,8 @@ class Soak:
     sent: int  # sensor messages published
     recorded: int  # of them, in the node's recording
     samples: int  # complete samples published (every channel the model needs)
-    monitored: int  # monitor messages received back
+    monitored: int  # monitor messages received back while publishing
+    recorded_monitor: int  # monitor messages in the node's recording (with those its stop flushed)
     lat_ms: np.ndarray  # per monitor message: its arrival minus the publish of the sample's last message
     rss_mb: list[tuple[float, float]]  # (s since the start, node RSS MB), once a second
     health: dict  # the node's last health message
@@ -297,10 +298,10 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
     """Push ``hours`` of a recording's sensor data (its runs over and over, each pass shifted in
     time after the last, gaps between runs squeezed out of the pacing) through ``ordervib run``
     at ``speed`` x real time; every reply timed, the node's RSS sampled once a second."""
-    from node.contract import parse_sensor_key
+    from node.contract import TopicKind, parse_sensor_key, topic_kind
     from node.mcap import iter_messages_fast
-    from node.runtime.pipeline import MonitorPipeline
     from node.models.bundle import load_bundle
+    from node.runtime.pipeline import MonitorPipeline
     needed = set(MonitorPipeline(load_bundle(model)).sensor_channels)
     msgs = []
     for m in iter_messages_fast(recording):
@@ -377,9 +378,13 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
         bench.close()
         stop_node(node)
     from node.mcap import iter_messages
-    recorded = sum(1 for m in iter_messages(tmp / "soak.mcap") if "/sensor/" in m.topic)
-    return Soak(passes * per_pass / 3600, wall, sent, recorded, samples, monitored[0], np.array(lat), rss,
-                dict(health), node.returncode)
+    recorded = recorded_monitor = 0
+    for m in iter_messages(tmp / "soak.mcap"):
+        kind = topic_kind(m.topic)
+        recorded += kind == TopicKind.SENSOR
+        recorded_monitor += kind == TopicKind.MONITOR
+    return Soak(passes * per_pass / 3600, wall, sent, recorded, samples, monitored[0], recorded_monitor,
+                np.array(lat), rss, dict(health), node.returncode)
 
 
 def main(argv: list[str] | None = None) -> int:

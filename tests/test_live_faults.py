@@ -302,7 +302,8 @@ def test_health_is_per_bed_on_the_sensor_clock(setup, tmp_path):
             client.put(key, payload)
         for i in range(3):
             client.put(sensor_key("b2", "nB"), orjson.dumps({"t": t2 + i / 40, "v": 1.0}))
-        assert wait_for(lambda: client.health("b2") and client.health("bed1")[-1]["received"] == len(good), 20)
+        assert wait_for(lambda: client.health("b2") and client.health("bed1")[-1]["received"] == len(good),
+                        20)
         time.sleep(2.2)  # staleness grows while b2 is silent
     finally:
         node.stop()
@@ -323,3 +324,14 @@ def test_health_is_per_bed_on_the_sensor_clock(setup, tmp_path):
     times = {m.topic: m.log_time for m in iter_messages(tmp_path / "h.mcap") if m.topic.endswith("/health")}
     assert times[health_key("b2")] == round(last2["t"] * 1e9)
     assert first_t * 1e9 <= times[health_key("bed1")] <= last_t * 1e9 + 1
+
+
+def test_soak_short(setup, tmp_path):
+    """Failure 8's soak, short (``python -m bench soak`` is the long one): the test run pushed several
+    times through ``ordervib run`` at 20 x real time; nothing lost, every sample monitored, latency bounded."""
+    from harness.live import soak
+    r = soak(str(setup / "m"), str(setup / "test.mcap"), 0.15, 20.0, tmp_path)
+    assert r.exit_code == 0 and r.lost == 0 and r.sent > 3 * 27000
+    assert r.recorded_monitor == r.samples and len(r.lat_ms) > 0.9 * r.samples
+    assert r.health["received"] == r.sent and r.health["dropped"] == 0 and r.health["recording"] is True
+    assert float(r.lat_ms.max()) < 2000.0

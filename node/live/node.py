@@ -54,6 +54,7 @@ log = logging.getLogger(__name__)
 BATCH_MAX = 4096  # messages handled at once at most
 LAG_KEPT = 4000  # latencies (per bed) the health message's percentiles are taken over
 WATCHDOG_S = 0.5  # how often run_node checks the worker thread, s
+STALL_S = 0.5  # a worker pass longer than this is logged as a warning with its breakdown, s
 
 
 @dataclass
@@ -97,6 +98,8 @@ class LiveNode:
         self._name = record if isinstance(record, str) else getattr(record, "path", None) or "the recording"
         self._written = 0  # messages the recorder took
         self._flushed = 0  # of them, those taken before its last successful flush
+        self._spent = dict.fromkeys(("core", "put", "flush", "gc"), 0.0)  # s, this pass
+        self._gc_start = 0.0
 
     @property
     def recording(self) -> bool:
@@ -133,7 +136,7 @@ class LiveNode:
     def _record(self, key: str, t: float, data: bytes, recv_ns: int) -> None:
         if self.stats.recording_error is None:
             try:
-                self.writer.write(key, t, data, recv_ns)
+                self.writer.write(key, t, data, recv_ns)  # may close a full chunk (compress, write)
                 self._written += 1
                 return
             except Exception as exc:  # noqa: BLE001 - any recorder failure: go on without it
@@ -166,7 +169,9 @@ class LiveNode:
             pub = self.session.declare_publisher(key, encoding=self._json, congestion_control=self._block)
             self._publishers[key] = pub
         data = orjson.dumps(msg)
-        pub.put(data)
+        t0 = time.perf_counter()
+        pub.put(data)  # blocks while Zenoh's queue to a slow subscriber is full
+        self._spent["put"] += time.perf_counter() - t0
         self._record(key, msg["t"], data, time.time_ns())
         self.stats.published += 1
 
@@ -198,7 +203,9 @@ class LiveNode:
             bed = self._bed(key)
             if bed is not None and r > self._last_recv.get(bed, 0):
                 self._last_recv[bed] = r
+        t0 = time.perf_counter()
         result = self.core.handle_batch(keys, payloads)
+        self._spent["core"] += time.perf_counter() - t0
         t = result.t.tolist()
         record = self._record
         start = 0
@@ -218,22 +225,39 @@ class LiveNode:
                 if lag > self._lag_max.get(bed, 0.0):
                     self._lag_max[bed] = lag
 
+    def _on_gc(self, phase: str, info: dict) -> None:  # gc.callbacks: time the collections
+        if phase == "start":
+            self._gc_start = time.perf_counter()
+        else:
+            self._spent["gc"] += time.perf_counter() - self._gc_start
+
     def _work(self) -> None:
+        import gc
+        gc.callbacks.append(self._on_gc)
         try:
             next_tick = time.monotonic() + 1.0
             while not (self._stop.is_set() and self.queue.empty()):
+                t0 = time.perf_counter()
+                spent = self._spent = dict.fromkeys(self._spent, 0.0)
                 batch = self._drain()
                 if batch:
                     self._handle(batch)
                 if time.monotonic() >= next_tick:
                     next_tick = max(next_tick + 1.0, time.monotonic())  # no burst after a long batch
                     self._tick()
+                took = time.perf_counter() - t0
+                if took > STALL_S:  # where the time went (gc overlaps the others)
+                    rest = took - spent["core"] - spent["put"] - spent["flush"]
+                    log.warning("worker stalled %.2f s over %d messages (%s, recording and rest %.2f s)",
+                                took, len(batch), ", ".join(f"{k} {v:.2f} s" for k, v in spent.items()), rest)
             for k, msg in self.core.finish():
                 self._publish(k, msg)
         except BaseException as exc:  # the node is dead: say so at once, never look alive
             self.stats.worker_error = f"{type(exc).__name__}: {exc}"
             log.debug("the worker thread died", exc_info=True)
             self._withdraw()
+        finally:
+            gc.callbacks.remove(self._on_gc)
 
     def _withdraw(self) -> None:
         """Undeclare the liveliness token (once)."""
@@ -264,7 +288,9 @@ class LiveNode:
         for bed, state in list(self.core.beds.items()):
             if state.latest_t is not None:  # a bed of malformed messages only has no sensor time
                 self._publish(health_key(bed), self.health(bed, wall))
+        t0 = time.perf_counter()
         self._flush()
+        self._spent["flush"] += time.perf_counter() - t0
 
     def stop(self) -> None:
         """Stop receiving, drain the queue, finish the recording (unless it failed), close the session."""
