@@ -335,3 +335,45 @@ def test_soak_short(setup, tmp_path):
     assert r.recorded_monitor == r.samples and len(r.lat_ms) > 0.9 * r.samples
     assert r.health["received"] == r.sent and r.health["dropped"] == 0 and r.health["recording"] is True
     assert float(r.lat_ms.max()) < 2000.0
+
+
+def test_a_hung_subscriber_never_stalls_the_node(setup, tmp_path):
+    """Failure 8's stall: a subscriber whose callback never returns (small socket buffers fill in
+    seconds). Published with BLOCK, the node's worker sat 5 s in ``put`` (Zenoh's wait_before_close)
+    and every other subscriber waited too; now the hung one loses messages, nobody else."""
+    import json
+
+    from node.live.node import LiveNode
+    from node.live.zenoh import open_session, zenoh_config
+    from node.models.bundle import load_bundle
+    conf = tmp_path / "small.json5"
+    conf.write_text(json.dumps({"transport": {"link": {"tcp": {"so_sndbuf": 4096, "so_rcvbuf": 4096}}}}))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint],
+                    config_file=str(conf))
+    node.start()
+    gate = threading.Event()
+    hung = open_session(zenoh_config(None, [endpoint], str(conf)))
+    hung.declare_subscriber("testbed/*/monitor/**", lambda s: gate.wait(60))
+    client = Client(endpoint)
+    good = [(m.topic, bytes(m.payload)) for m in iter_messages(setup / "test.mcap")
+            if parse_sensor_key(m.topic)][:12000]
+    arrivals: list[float] = []
+    client.session.declare_subscriber(monitor_key("bed1", "yB"), lambda s: arrivals.append(time.monotonic()))
+    try:
+        for i, (key, payload) in enumerate(good):  # 1200 messages/s
+            client.put(key, payload)
+            if i % 30 == 29:
+                time.sleep(0.025)
+        assert wait_for(lambda: node.stats.received >= len(good), 30)
+        time.sleep(1.0)
+    finally:
+        gate.set()
+        node.stop()
+        client.close()
+        hung.close()
+    lag_max = max(max(d) for d in node._lag.values())
+    gaps = max(b - a for a, b in zip(arrivals, arrivals[1:], strict=False))
+    assert node.stats.received == len(good) and node.stats.overflow == 0
+    assert lag_max < 1000.0 and gaps < 1.0, (lag_max, gaps)
+    assert len(arrivals) == len(good) // 3  # the healthy subscriber got every monitor message

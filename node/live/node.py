@@ -17,6 +17,12 @@ Failures (README "Health and liveliness"):
   counted (health ``recording: false``, ``unrecorded: N``), one error line is
   logged, the unfinished file is left for ``ordervib recover``, and ``run_node``
   ends with an ``OrdervibError`` (``ordervib run`` exits non-zero);
+- outputs are published with Zenoh's ``CongestionControl.DROP``: a subscriber that stops
+  reading loses live messages (after Zenoh's ``wait_before_drop``, 1 ms), it never stalls
+  the node. With ``BLOCK`` one hung subscriber held the worker 5 s in ``put`` (Zenoh's
+  ``wait_before_close``, then it closes that link) -- the 5 s stall of issue 12 -- while
+  inputs queued up and every other subscriber waited too. The recording keeps every output;
+- a worker pass longer than ``STALL_S`` is logged with where its time went;
 - a worker thread that dies withdraws the node's liveliness token at once;
   ``run_node``'s watchdog notices it within ``WATCHDOG_S``, stops the node and
   raises an ``OrdervibError`` naming the cause.
@@ -126,7 +132,7 @@ class LiveNode:
         import zenoh
         self.session = open_session(self.conf)
         self._json = zenoh.Encoding.APPLICATION_JSON
-        self._block = zenoh.CongestionControl.BLOCK
+        self._congestion = zenoh.CongestionControl.DROP  # see the module: never BLOCK on a subscriber
         self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
         self.sub = self.session.declare_subscriber(SENSOR_SUBSCRIPTION, self._on_sample)
         self.thread = threading.Thread(target=self._work, name="ordervib-node", daemon=True)
@@ -166,11 +172,11 @@ class LiveNode:
     def _publish(self, key: str, msg: dict | Any) -> None:
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self.session.declare_publisher(key, encoding=self._json, congestion_control=self._block)
+            pub = self.session.declare_publisher(key, encoding=self._json, congestion_control=self._congestion)
             self._publishers[key] = pub
         data = orjson.dumps(msg)
         t0 = time.perf_counter()
-        pub.put(data)  # blocks while Zenoh's queue to a slow subscriber is full
+        pub.put(data)  # waits at most Zenoh's wait_before_drop for a congested subscriber
         self._spent["put"] += time.perf_counter() - t0
         self._record(key, msg["t"], data, time.time_ns())
         self.stats.published += 1
