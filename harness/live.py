@@ -49,7 +49,7 @@ class Stream:
 
 def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
     """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
-    from node.contract import TopicKind, parse_sensor_key, topic_kind
+    from node.contract import parse_sensor_key
     from node.mcap import iter_messages_fast
     n = int(round(seconds * FS))
     last_t: float | None = None

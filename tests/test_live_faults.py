@@ -327,8 +327,9 @@ def test_health_is_per_bed_on_the_sensor_clock(setup, tmp_path):
 
 
 def test_soak_short(setup, tmp_path):
-    """Failure 8's soak, short (``python -m bench soak`` is the long one): the test run pushed several
-    times through ``ordervib run`` at 20 x real time; nothing lost, every sample monitored, latency bounded."""
+    """Failure 8's soak, short (``python -m bench soak`` is the long one): the test run pushed
+    several times through ``ordervib run`` at 20 x real time; nothing lost, every sample
+    monitored, latency bounded."""
     from harness.live import soak
     r = soak(str(setup / "m"), str(setup / "test.mcap"), 0.15, 20.0, tmp_path)
     assert r.exit_code == 0 and r.lost == 0 and r.sent > 3 * 27000

@@ -172,7 +172,8 @@ class LiveNode:
     def _publish(self, key: str, msg: dict | Any) -> None:
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self.session.declare_publisher(key, encoding=self._json, congestion_control=self._congestion)
+            pub = self.session.declare_publisher(key, encoding=self._json,
+                                                 congestion_control=self._congestion)
             self._publishers[key] = pub
         data = orjson.dumps(msg)
         t0 = time.perf_counter()
