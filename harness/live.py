@@ -314,7 +314,9 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
     steps[steps > 1.0] = 0.0  # a gap between runs takes no time
     pace = np.cumsum(steps)  # s of data before each message
     per_pass = float(pace[-1]) + 1 / FS
-    span = float(times[-1] - times[0]) + 2 * RUN_GAP
+    span = float(np.ceil(times[-1] - times[0] + 2 * RUN_GAP))  # whole seconds: whole samples
+    slots = [round(d["t"] * FS) if need else None for _, need, d in msgs]  # each pass's own, unshifted
+    per_pass_samples = len({x for x in slots if x is not None})
     passes = max(1, int(np.ceil(hours * 3600 / per_pass)))
     port = free_port()
     node = start_node(model, str(tmp / "soak.mcap"), port)
@@ -341,7 +343,7 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
     pubs = {topic: bench.session.declare_publisher(topic, congestion_control=zenoh.CongestionControl.BLOCK)
             for topic in {k for k, _, _ in msgs}}
     rss: list[tuple[float, float]] = []
-    sent = samples = 0
+    sent = 0
     start = time.monotonic()
     try:
         wait_for(lambda: all(p.matching_status.matching for p in pubs.values()), 60)
@@ -351,9 +353,9 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
         clock = time.monotonic_ns
         for k in range(passes):
             shift = k * span
+            slot_shift = k * round(span * FS)
             base = k * per_pass
-            last_slot = None
-            for (topic, need, d), due in zip(msgs, pace.tolist(), strict=True):
+            for (topic, _, d), slot, due in zip(msgs, slots, pace.tolist(), strict=True):
                 now = time.monotonic()
                 if now >= next_rss:
                     rss.append((now - start, rss_mb(node.pid)))
@@ -364,13 +366,10 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
                 t = d["t"] + shift
                 pubs[topic].put(orjson.dumps({**d, "t": t}))
                 sent += 1
-                if need:
-                    slot = round(t * FS)
-                    sent_at[slot] = clock()
-                    if slot != last_slot:
-                        samples += 1
-                        last_slot = slot
+                if slot is not None:
+                    sent_at[slot + slot_shift] = clock()
         wall = time.monotonic() - start
+        samples = passes * per_pass_samples
         wait_for(lambda: monitored[0] >= samples, 30)
         time.sleep(2.2)  # two health periods
         rss.append((time.monotonic() - start, rss_mb(node.pid)))
