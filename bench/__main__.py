@@ -13,6 +13,7 @@ BENCHMARKS = {
     "replay-speed": "bench.replay_speed",
     "rotor": "bench.rotor",
     "live": "bench.live",
+    "soak": "bench.soak",
 }
 
 

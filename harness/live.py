@@ -5,7 +5,9 @@
   stamps every reply on arrival; :func:`latencies` turns the stamps into per-sample latencies;
 * :func:`start_node` / :func:`stop_node` -- ``ordervib run`` as a separate process;
 * :func:`start_peer` / :func:`stop_peer` -- a bare Zenoh process (``python -m harness.live --peer``)
-  that echoes one message per complete sample or only counts: the ceiling a node is set beside.
+  that echoes one message per complete sample or only counts: the ceiling a node is set beside;
+* :func:`soak` -- hours of a recording's data pushed through ``ordervib run`` faster than real time:
+  inputs lost, monitor coverage, the node's memory and latency over the whole push.
 
 Publisher and subscriber share this process's monotonic clock.
 """
@@ -20,6 +22,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -94,13 +97,16 @@ def cpu_seconds(pid: int) -> float:
 class Bench:
     """This process's side: one Zenoh session that publishes the beds and collects replies."""
 
-    def __init__(self, endpoint: str, beds: list[str], channels: list[str], reply_keys: str) -> None:
+    def __init__(self, endpoint: str, beds: list[str], channels: list[str], reply_keys: str,
+                 on_reply: Callable[[str, bytes, int], None] | None = None) -> None:
+        """``on_reply(key, payload, arrival ns)`` instead of keeping every reply in ``arrivals``."""
         import zenoh
 
         from node.live.zenoh import open_session, zenoh_config
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.beds = beds
         self.arrivals: list[tuple[str, bytes, int]] = []
+        self._handler = on_reply or (lambda *reply: self.arrivals.append(reply))
         self.sub = self.session.declare_subscriber(reply_keys, self._on_reply)
         block = zenoh.CongestionControl.BLOCK
         self.pubs = {(b, c): self.session.declare_publisher(f"testbed/{b}/sensor/{c}",
@@ -108,7 +114,7 @@ class Bench:
                      for b in beds for c in channels}
 
     def _on_reply(self, sample) -> None:  # Zenoh thread: stamp and keep only
-        self.arrivals.append((str(sample.key_expr), sample.payload.to_bytes(), time.monotonic_ns()))
+        self._handler(str(sample.key_expr), sample.payload.to_bytes(), time.monotonic_ns())
 
     def wait_matched(self, timeout: float = 60.0) -> None:
         deadline = time.monotonic() + timeout
@@ -257,6 +263,128 @@ def last_health(bench: Bench) -> dict[str, dict]:
         if key.endswith("/monitor/health"):
             out[key.split("/")[1]] = orjson.loads(payload)
     return out
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of a process, MB (Linux /proc)."""
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+@dataclass
+class Soak:
+    """What :func:`soak` measured."""
+
+    hours: float  # sensor data pushed, h (gaps between runs not counted)
+    wall_s: float  # the push took, s
+    sent: int  # sensor messages published
+    recorded: int  # of them, in the node's recording
+    samples: int  # complete samples published (every channel the model needs)
+    monitored: int  # monitor messages received back while publishing
+    recorded_monitor: int  # monitor messages in the node's recording (with those its stop flushed)
+    lat_ms: np.ndarray  # per monitor message: its arrival minus the publish of the sample's last message
+    rss_mb: list[tuple[float, float]]  # (s since the start, node RSS MB), once a second
+    health: dict  # the node's last health message
+    exit_code: int
+
+    @property
+    def lost(self) -> int:
+        return self.sent - self.recorded
+
+
+def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> Soak:
+    """Push ``hours`` of a recording's sensor data (its runs over and over, each pass shifted in
+    time after the last, gaps between runs squeezed out of the pacing) through ``ordervib run``
+    at ``speed`` x real time; every reply timed, the node's RSS sampled once a second."""
+    from node.contract import TopicKind, parse_sensor_key, topic_kind
+    from node.mcap import iter_messages_fast
+    from node.models.bundle import load_bundle
+    from node.runtime.pipeline import MonitorPipeline
+    needed = set(MonitorPipeline(load_bundle(model)).sensor_channels)
+    msgs = []
+    for m in iter_messages_fast(recording):
+        parsed = parse_sensor_key(m.topic)
+        if parsed is not None:
+            msgs.append((m.topic, parsed[1] in needed, orjson.loads(m.payload)))
+    msgs.sort(key=lambda x: x[2]["t"])
+    times = np.array([d["t"] for _, _, d in msgs])
+    steps = np.diff(times, prepend=times[0])
+    steps[steps > 1.0] = 0.0  # a gap between runs takes no time
+    pace = np.cumsum(steps)  # s of data before each message
+    per_pass = float(pace[-1]) + 1 / FS
+    span = float(np.ceil(times[-1] - times[0] + 2 * RUN_GAP))  # whole seconds: whole samples
+    slots = [round(d["t"] * FS) if need else None for _, need, d in msgs]  # each pass's own, unshifted
+    per_pass_samples = len({x for x in slots if x is not None})
+    passes = max(1, int(np.ceil(hours * 3600 / per_pass)))
+    port = free_port()
+    node = start_node(model, str(tmp / "soak.mcap"), port)
+    sent_at: dict[int, int] = {}  # sample (round(t * FS)) -> publish of its last needed message
+    lat: list[float] = []
+    monitored = [0]
+    health: dict = {}
+
+    def on_reply(key: str, payload: bytes, arrival: int) -> None:
+        d = orjson.loads(payload)
+        if key.endswith("/monitor/health"):
+            health.clear()
+            health.update(d)
+            return
+        if key.endswith("/monitor/oc"):
+            return
+        monitored[0] += 1
+        sent = sent_at.pop(round(d["t"] * FS), None)
+        if sent is not None:
+            lat.append((arrival - sent) / 1e6)
+
+    bench = Bench(f"tcp/127.0.0.1:{port}", [], [], "testbed/*/monitor/**", on_reply)
+    import zenoh
+    pubs = {topic: bench.session.declare_publisher(topic, congestion_control=zenoh.CongestionControl.BLOCK)
+            for topic in {k for k, _, _ in msgs}}
+    rss: list[tuple[float, float]] = []
+    sent = 0
+    start = time.monotonic()
+    try:
+        wait_for(lambda: all(p.matching_status.matching for p in pubs.values()), 60)
+        time.sleep(0.5)
+        start = time.monotonic()
+        next_rss = start
+        clock = time.monotonic_ns
+        for k in range(passes):
+            shift = k * span
+            slot_shift = k * round(span * FS)
+            base = k * per_pass
+            for (topic, _, d), slot, due in zip(msgs, slots, pace.tolist(), strict=True):
+                now = time.monotonic()
+                if now >= next_rss:
+                    rss.append((now - start, rss_mb(node.pid)))
+                    next_rss += 1.0
+                delay = start + (base + due) / speed - now
+                if delay > 0.002:
+                    time.sleep(delay)
+                t = d["t"] + shift
+                pubs[topic].put(orjson.dumps({**d, "t": t}))
+                sent += 1
+                if slot is not None:
+                    sent_at[slot + slot_shift] = clock()
+        wall = time.monotonic() - start
+        samples = passes * per_pass_samples
+        wait_for(lambda: monitored[0] >= samples, 30)
+        time.sleep(2.2)  # two health periods
+        rss.append((time.monotonic() - start, rss_mb(node.pid)))
+    finally:
+        bench.close()
+        stop_node(node)
+    from node.mcap import iter_messages
+    recorded = recorded_monitor = 0
+    for m in iter_messages(tmp / "soak.mcap"):
+        kind = topic_kind(m.topic)
+        recorded += kind == TopicKind.SENSOR
+        recorded_monitor += kind == TopicKind.MONITOR
+    return Soak(passes * per_pass / 3600, wall, sent, recorded, samples, monitored[0], recorded_monitor,
+                np.array(lat), rss, dict(health), node.returncode)
+
 
 def main(argv: list[str] | None = None) -> int:
     """The peer process of :func:`start_peer`."""

@@ -98,7 +98,7 @@ class HealthMessage(TypedDict):
     wall: Annotated[float, "the node's clock, s since the Unix epoch"]
     received: Annotated[int, "sensor messages received from this bed"]
     malformed: Annotated[int, "of them, payloads that break the sensor payload rule"]
-    dropped: Annotated[int, "messages lost in the node's queue (node-wide, shared by every bed)"]
+    dropped: Annotated[int, "this bed's messages lost in the node's queue"]
     samples: Annotated[int, "aligned 40 Hz samples"]
     late: Annotated[int, "messages that arrived after their sample went out"]
     duplicates: Annotated[int, "messages repeating a channel's sample"]
@@ -109,6 +109,9 @@ class HealthMessage(TypedDict):
     lag_ms_p50: NotRequired[Annotated[float | None, "receive to publish, ms, median of the last ones"]]
     lag_ms_p99: NotRequired[Annotated[float | None, "receive to publish, ms, 99th percentile"]]
     staleness: NotRequired[Annotated[float | None, "wall minus the receipt of the bed's last message, s"]]
+    lag_ms_max: NotRequired[Annotated[float | None, "receive to publish, ms, largest since the last health"]]
+    recording: NotRequired[Annotated[bool, "the node's recording is being written; false: an alarm"]]
+    unrecorded: NotRequired[Annotated[int, "messages (every bed) the failed recording could not keep"]]
 
 
 MESSAGE_TYPES: dict[TopicKind, type] = {

@@ -1,11 +1,31 @@
 """The live edges: Zenoh in and out, MCAP recording. The logic is ``NodeCore``'s.
 
 The subscriber callback only stamps and enqueues (bounded queue, overflow
-counted); one worker thread drains the queue in batches (everything waiting, up
-to ``BATCH_MAX``), runs the node logic once per batch (``NodeCore.handle_batch``,
-as offline replay does), records every input, publishes and records every
-output, flushes the recording once a second (a killed node loses at most the
-last second) and publishes a health message per bed once a second.
+counted per key); one worker thread drains the queue in batches (everything
+waiting, up to ``BATCH_MAX``), runs the node logic once per batch
+(``NodeCore.handle_batch``, as offline replay does), records every input,
+publishes and records every output, flushes the recording once a second (a
+killed node loses at most the last second) and publishes a health message per
+bed once a second.
+
+Failures (README "Health and liveliness"):
+
+- a malformed payload is counted and recorded at its receive time; it never
+  reaches code that can throw;
+- a recording that fails (disk full, I/O error) stops being written: the node
+  goes on monitoring and publishing, every message it can no longer record is
+  counted (health ``recording: false``, ``unrecorded: N``), one error line is
+  logged, the unfinished file is left for ``ordervib recover``, and ``run_node``
+  ends with an ``OrdervibError`` (``ordervib run`` exits non-zero);
+- outputs are published with Zenoh's ``CongestionControl.DROP``: a subscriber that stops
+  reading loses live messages (after Zenoh's ``wait_before_drop``, 1 ms), it never stalls
+  the node. With ``BLOCK`` one hung subscriber held the worker 5 s in ``put`` (Zenoh's
+  ``wait_before_close``, then it closes that link) -- the 5 s stall of issue 12 -- while
+  inputs queued up and every other subscriber waited too. The recording keeps every output;
+- a worker pass longer than ``STALL_S`` is logged with where its time went;
+- a worker thread that dies withdraws the node's liveliness token at once;
+  ``run_node``'s watchdog notices it within ``WATCHDOG_S``, stops the node and
+  raises an ``OrdervibError`` naming the cause.
 """
 
 from __future__ import annotations
@@ -14,13 +34,21 @@ import logging
 import queue
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
 import orjson
 
-from node.contract import SENSOR_SUBSCRIPTION, health_key, liveliness_key
+from node.contract import (
+    SENSOR_SUBSCRIPTION,
+    HealthMessage,
+    OrdervibError,
+    health_key,
+    liveliness_key,
+    parse_sensor_key,
+)
 from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
@@ -30,7 +58,9 @@ from node.runtime.core import NodeCore
 log = logging.getLogger(__name__)
 
 BATCH_MAX = 4096  # messages handled at once at most
-LAG_KEPT = 4000  # latencies the health message's percentiles are taken over
+LAG_KEPT = 4000  # latencies (per bed) the health message's percentiles are taken over
+WATCHDOG_S = 0.5  # how often run_node checks the worker thread, s
+STALL_S = 0.5  # a worker pass longer than this is logged as a warning with its breakdown, s
 
 
 @dataclass
@@ -38,13 +68,20 @@ class LiveStats:
     received: int = 0
     overflow: int = 0  # dropped because the queue was full
     published: int = 0
+    unrecorded: int = 0  # messages not in the recording because it failed
+    recording_error: str | None = None  # why the recording stopped, if it did
+    worker_error: str | None = None  # why the worker thread died, if it did
 
 
 class LiveNode:
     """Subscribes to every test bed's sensors, predicts, publishes, records.
 
     A context manager: ``with LiveNode(...) as node:`` starts it and stops it (draining
-    the queue, finishing the recording) on the way out.
+    the queue, finishing the recording) on the way out. ``record`` is a path or a
+    recorder with ``RecordingWriter``'s write/flush/close (e.g. ``RotatingRecorder``).
+
+    >>> LiveStats().recording_error is None
+    True
     """
 
     def __init__(self, bundle: Bundle, record: str | RecordingWriter | RotatingRecorder,
@@ -52,14 +89,28 @@ class LiveNode:
                  connect: list[str] | None = None, config_file: str | None = None,
                  queue_size: int = 1_000_000) -> None:
         self.core = NodeCore(bundle)
-        # a path, or a recorder with RecordingWriter's write/flush/close (e.g. RotatingRecorder)
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
         self.conf = zenoh_config(listen, connect, config_file)
         self.queue: queue.Queue[tuple[str, bytes, int]] = queue.Queue(maxsize=queue_size)
         self.stats = LiveStats()
+        self.token: Any = None
         self._stop = threading.Event()
         self._publishers: dict[str, Any] = {}
-        self._lag: list[float] = []
+        self._bed_of: dict[str, str | None] = {}  # key -> bed (None: no sensor key)
+        self._lag: dict[str, deque[float]] = {}  # bed -> receive-to-publish latencies, ms
+        self._lag_max: dict[str, float] = {}  # bed -> the largest latency since its last health, ms
+        self._last_recv: dict[str, int] = {}  # bed -> receive time of its newest message, ns
+        self._overflow: dict[str, int] = {}  # key -> messages lost in the queue
+        self._name = record if isinstance(record, str) else getattr(record, "path", None) or "the recording"
+        self._written = 0  # messages the recorder took
+        self._flushed = 0  # of them, those taken before its last successful flush
+        self._spent = dict.fromkeys(("core", "put", "flush", "gc"), 0.0)  # s, this pass
+        self._gc_start = 0.0
+
+    @property
+    def recording(self) -> bool:
+        """Whether the recording is still being written."""
+        return self.stats.recording_error is None
 
     def __enter__(self) -> LiveNode:
         self.start()
@@ -74,25 +125,61 @@ class LiveNode:
             self.queue.put_nowait((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
         except queue.Full:
             self.stats.overflow += 1
+            key = str(sample.key_expr)
+            self._overflow[key] = self._overflow.get(key, 0) + 1
 
     def start(self) -> None:
         import zenoh
         self.session = open_session(self.conf)
         self._json = zenoh.Encoding.APPLICATION_JSON
-        self._block = zenoh.CongestionControl.BLOCK
+        self._congestion = zenoh.CongestionControl.DROP  # see the module: never BLOCK on a subscriber
         self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
         self.sub = self.session.declare_subscriber(SENSOR_SUBSCRIPTION, self._on_sample)
         self.thread = threading.Thread(target=self._work, name="ordervib-node", daemon=True)
         self.thread.start()
 
+    # -- recording: a failure stops it, never the node
+    def _record(self, key: str, t: float, data: bytes, recv_ns: int) -> None:
+        if self.stats.recording_error is None:
+            try:
+                self.writer.write(key, t, data, recv_ns)  # may close a full chunk (compress, write)
+                self._written += 1
+                return
+            except Exception as exc:  # noqa: BLE001 - any recorder failure: go on without it
+                self._recording_failed(exc)
+        self.stats.unrecorded += 1
+
+    def _flush(self) -> None:
+        if self.stats.recording_error is None:
+            try:
+                self.writer.flush()
+                self._flushed = self._written
+            except Exception as exc:  # noqa: BLE001
+                self._recording_failed(exc)
+
+    def _recording_failed(self, exc: BaseException) -> None:
+        """The recorder failed: what it took since its last flush counts as lost, nothing more
+        is written; the unfinished file is left as it is (``ordervib recover`` reads it)."""
+        lost = self._written - self._flushed
+        self.stats.recording_error = f"{type(exc).__name__}: {exc}"
+        self.stats.unrecorded += lost
+        log.error("recording to %s failed (%s); monitoring goes on unrecorded, %d messages lost so far",
+                  self._name, self.stats.recording_error, lost)
+        abandon = getattr(self.writer, "abandon", None)
+        if abandon is not None:
+            abandon()
+
     def _publish(self, key: str, msg: dict | Any) -> None:
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self.session.declare_publisher(key, encoding=self._json, congestion_control=self._block)
+            pub = self.session.declare_publisher(key, encoding=self._json,
+                                                 congestion_control=self._congestion)
             self._publishers[key] = pub
         data = orjson.dumps(msg)
-        pub.put(data)
-        self.writer.write(key, msg["t"], data, time.time_ns())
+        t0 = time.perf_counter()
+        pub.put(data)  # waits at most Zenoh's wait_before_drop for a congested subscriber
+        self._spent["put"] += time.perf_counter() - t0
+        self._record(key, msg["t"], data, time.time_ns())
         self.stats.published += 1
 
     def _drain(self) -> list[tuple[str, bytes, int]]:
@@ -108,69 +195,154 @@ class LiveNode:
             pass
         return batch
 
+    def _bed(self, key: str) -> str | None:
+        bed = self._bed_of.get(key, "")
+        if bed == "":
+            parsed = parse_sensor_key(key)
+            bed = self._bed_of[key] = parsed[0] if parsed else None
+        return bed
+
     def _handle(self, batch: list[tuple[str, bytes, int]]) -> None:
         """One batch: each input recorded, then the outputs it completed published and recorded."""
         keys, payloads, recv = zip(*batch, strict=True)
         self.stats.received += len(batch)
+        for key, r in dict(zip(keys, recv, strict=True)).items():  # each key's newest receipt
+            bed = self._bed(key)
+            if bed is not None and r > self._last_recv.get(bed, 0):
+                self._last_recv[bed] = r
+        t0 = time.perf_counter()
         result = self.core.handle_batch(keys, payloads)
+        self._spent["core"] += time.perf_counter() - t0
         t = result.t.tolist()
-        write = self.writer.write
+        record = self._record
         start = 0
         for i, outs in [*result.done, (len(batch) - 1, [])]:
             for j in range(start, i + 1):  # malformed: recorded at its receive time
-                write(keys[j], t[j] if t[j] == t[j] else recv[j] / 1e9, payloads[j], recv[j])
+                record(keys[j], t[j] if t[j] == t[j] else recv[j] / 1e9, payloads[j], recv[j])
             start = i + 1
-            for key, msg in outs:
-                self._publish(key, msg)
-                self._lag.append((time.time_ns() - recv[i]) / 1e6)
+            if outs:
+                for key, msg in outs:
+                    self._publish(key, msg)
+                lag = (time.time_ns() - recv[i]) / 1e6
+                bed = self._bed(keys[i]) or ""
+                lags = self._lag.get(bed)
+                if lags is None:
+                    lags = self._lag[bed] = deque(maxlen=LAG_KEPT)
+                lags.append(lag)
+                if lag > self._lag_max.get(bed, 0.0):
+                    self._lag_max[bed] = lag
+
+    def _on_gc(self, phase: str, info: dict) -> None:  # gc.callbacks: time the collections
+        if phase == "start":
+            self._gc_start = time.perf_counter()
+        else:
+            self._spent["gc"] += time.perf_counter() - self._gc_start
 
     def _work(self) -> None:
-        next_tick = time.monotonic() + 1.0
-        while not (self._stop.is_set() and self.queue.empty()):
-            batch = self._drain()
-            if batch:
-                self._handle(batch)
-            if time.monotonic() >= next_tick:
-                next_tick += 1.0
-                self._tick()
-        for k, msg in self.core.finish():
-            self._publish(k, msg)
+        import gc
+        gc.callbacks.append(self._on_gc)
+        try:
+            next_tick = time.monotonic() + 1.0
+            while not (self._stop.is_set() and self.queue.empty()):
+                t0 = time.perf_counter()
+                spent = self._spent = dict.fromkeys(self._spent, 0.0)
+                batch = self._drain()
+                if batch:
+                    self._handle(batch)
+                if time.monotonic() >= next_tick:
+                    next_tick = max(next_tick + 1.0, time.monotonic())  # no burst after a long batch
+                    self._tick()
+                took = time.perf_counter() - t0
+                if took > STALL_S:  # where the time went (gc overlaps the others)
+                    rest = took - spent["core"] - spent["put"] - spent["flush"]
+                    log.warning("worker stalled %.2f s over %d messages (%s, recording and rest %.2f s)",
+                                took, len(batch), ", ".join(f"{k} {v:.2f} s" for k, v in spent.items()), rest)
+            for k, msg in self.core.finish():
+                self._publish(k, msg)
+        except BaseException as exc:  # the node is dead: say so at once, never look alive
+            self.stats.worker_error = f"{type(exc).__name__}: {exc}"
+            log.debug("the worker thread died", exc_info=True)
+            self._withdraw()
+        finally:
+            gc.callbacks.remove(self._on_gc)
+
+    def _withdraw(self) -> None:
+        """Undeclare the liveliness token (once)."""
+        token, self.token = self.token, None
+        if token is not None:
+            try:
+                token.undeclare()
+            except Exception:  # noqa: BLE001 - the session may be gone already
+                pass
+
+    def health(self, bed: str, wall: float) -> HealthMessage:
+        """``bed``'s health message: the core's counters, with this node's clock, staleness,
+        queue losses, latency and recording state (README "Health and liveliness")."""
+        lags = sorted(self._lag.get(bed, ()))
+        lag = (lags[len(lags) // 2], lags[int(0.99 * (len(lags) - 1))]) if lags else (None, None)
+        dropped = sum(n for key, n in list(self._overflow.items()) if self._bed(key) == bed)
+        msg = self.core.health(bed, wall, dropped, lag)
+        last = self._last_recv.get(bed)
+        msg["staleness"] = None if last is None else round(wall - last / 1e9, 6)
+        msg["lag_ms_max"] = self._lag_max.pop(bed, None)
+        msg["recording"] = self.recording
+        msg["unrecorded"] = self.stats.unrecorded
+        return msg
 
     def _tick(self) -> None:
         """Once a second: each bed's health message, and the recording flushed."""
         wall = time.time()
-        lag = sorted(self._lag[-LAG_KEPT:])
-        self._lag = self._lag[-LAG_KEPT:]
-        p50 = lag[len(lag) // 2] if lag else None
-        p99 = lag[int(0.99 * (len(lag) - 1))] if lag else None
         for bed, state in list(self.core.beds.items()):
             if state.latest_t is not None:  # a bed of malformed messages only has no sensor time
-                self._publish(health_key(bed), self.core.health(bed, wall, self.stats.overflow, (p50, p99)))
-        self.writer.flush()
+                self._publish(health_key(bed), self.health(bed, wall))
+        t0 = time.perf_counter()
+        self._flush()
+        self._spent["flush"] += time.perf_counter() - t0
 
     def stop(self) -> None:
-        """Stop receiving, drain the queue, finish the recording, close the session."""
+        """Stop receiving, drain the queue, finish the recording (unless it failed), close the session."""
         self._stop.set()
         try:
             self.sub.undeclare()
         except Exception:  # noqa: BLE001 - the session may be gone already
             pass
         self.thread.join()
-        self.writer.close()
+        self._withdraw()
+        if self.recording:
+            try:
+                self.writer.close()
+            except Exception as exc:  # noqa: BLE001
+                self._recording_failed(exc)
         self.session.close()
 
 
 def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, listen: list[str] | None,
              connect: list[str] | None, config_file: str | None, duration: float | None) -> LiveStats:
-    """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged."""
+    """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged.
+
+    Raises ``OrdervibError`` (one line) when the worker thread died (the watchdog stops
+    the node within ``WATCHDOG_S``) or when the recording failed.
+    """
     import signal
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    deadline = None if duration is None else time.monotonic() + duration
     with LiveNode(bundle, record, listen, connect, config_file) as node:
         where = listen or connect or f"the endpoints of {config_file}"
         log.info("ordervib node on %s; recording to %s; Ctrl-C stops", where, record)
-        stop.wait(duration)
+        while node.thread.is_alive():  # the watchdog
+            wait = WATCHDOG_S if deadline is None else min(WATCHDOG_S, deadline - time.monotonic())
+            if stop.wait(max(0.0, wait)) or (deadline is not None and time.monotonic() >= deadline):
+                break
+    s = node.stats
+    if s.worker_error is not None:
+        raise OrdervibError(f"the node's worker thread died ({s.worker_error}) after {s.received} "
+                            f"messages; liveliness token withdrawn")
     log.info("stopped: %d received, %d published, %d dropped; %s finished",
-             node.stats.received, node.stats.published, node.stats.overflow, record)
-    return node.stats
+             s.received, s.published, s.overflow, record)
+    if s.recording_error is not None:
+        raise OrdervibError(f"the recording {record} failed ({s.recording_error}): {s.unrecorded} "
+                            f"messages unrecorded; monitoring went on ({s.received} received, "
+                            f"{s.published} published)")
+    return s

@@ -111,6 +111,12 @@ class RotatingRecorder:
         if not self._closed:
             self._writer.flush()
 
+    def abandon(self) -> None:
+        """After a failure: leave the current file unfinished (``RecordingWriter.abandon``)."""
+        if not self._closed:
+            self._closed = True
+            self._writer.abandon()
+
     def close(self) -> None:
         if not self._closed:
             self._closed = True

@@ -311,6 +311,13 @@ class McapWriter:
         self._push()
         self._stream.flush()
 
+    def abandon(self) -> None:
+        """Stop without writing anything more (the stream is left as it is); never raises."""
+        self._finished = True
+        self._pending = bytearray()
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+
     def finish(self) -> None:
         """Close the data section, write the summary, footer and closing magic."""
         if self._finished:
@@ -498,6 +505,17 @@ class RecordingWriter:
         """Close the open chunk and push everything so far to the file (no fsync)."""
         if not self._closed:
             self._writer.flush()
+
+    def abandon(self) -> None:
+        """After a failed write or flush: close the file as it is, unfinished (no summary; what
+        reached the disk before the failure is readable, e.g. by ``ordervib recover``). Never raises."""
+        self._closed = True
+        self._writer.abandon()
+        if self._file is not None:
+            try:
+                self._file.close()
+            except OSError:  # the buffered bytes cannot be written either
+                pass
 
     def close(self) -> None:
         """Write indexes and summary, then close the file (if we opened it)."""

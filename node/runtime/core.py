@@ -134,7 +134,7 @@ class NodeCore:
                lag_ms: tuple[float | None, float | None] | None = None) -> HealthMessage:
         """The health message of ``bed``: its latest sensor time and its own counters.
 
-        wall: the node's clock, s; dropped: messages lost in the node's queue (node-wide);
+        wall: the node's clock, s; dropped: this bed's messages lost in the node's queue;
         lag_ms: receive-to-publish latency (median, 99th percentile), ms, if measured.
         """
         b = self.beds[bed]
