@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import orjson
 
-from node.contract import FS, RUN_GAP
+from node.contract import FS, RUN_GAP, sensor_key
 
 ROOT = Path(__file__).resolve().parents[1]
 WARMUP = 40  # slots (1 s) left out of the latency figures
@@ -109,7 +109,7 @@ class Bench:
         self._handler = on_reply or (lambda *reply: self.arrivals.append(reply))
         self.sub = self.session.declare_subscriber(reply_keys, self._on_reply)
         block = zenoh.CongestionControl.BLOCK
-        self.pubs = {(b, c): self.session.declare_publisher(f"testbed/{b}/sensor/{c}",
+        self.pubs = {(b, c): self.session.declare_publisher(sensor_key(b, c),
                                                             congestion_control=block)
                      for b in beds for c in channels}
 
