@@ -211,7 +211,7 @@ def start_run(model: Path, rec: str, port: int, *extra: str) -> subprocess.Popen
 def test_run_record_dev_full_keeps_monitoring_then_exits_non_zero(setup):
     """Failure 4 as found: ``ordervib run --record /dev/full``."""
     port = free_port()
-    proc = start_run(setup / "m", "/dev/full", port, "--quiet")
+    proc = start_run(setup / "m", "/dev/full", port, "--quiet", "--force")  # /dev/full exists
     client = Client(f"tcp/127.0.0.1:{port}")
     try:
         good = [(m.topic, bytes(m.payload)) for m in iter_messages(setup / "test.mcap")

@@ -339,9 +339,10 @@ def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, l
     if s.worker_error is not None:
         raise OrdervibError(f"the node's worker thread died ({s.worker_error}) after {s.received} "
                             f"messages; liveliness token withdrawn")
-    log.info("stopped: %d received, %d published, %d dropped; %s finished",
-             s.received, s.published, s.overflow, record)
-    if s.recording_error is not None:
+    if s.recording_error is None:
+        log.info("stopped: %d received, %d published, %d dropped; %s finished",
+                 s.received, s.published, s.overflow, record)
+    else:
         raise OrdervibError(f"the recording {record} failed ({s.recording_error}): {s.unrecorded} "
                             f"messages unrecorded; monitoring went on ({s.received} received, "
                             f"{s.published} published)")
