@@ -47,6 +47,8 @@ CURVE_CANDIDATES: list[dict] = [
     {"variant": Variant.RUN.value},
 ]
 
+CURVE_MARGIN = 0.0
+
 
 def grid_points(grid: dict[str, list]) -> list[dict]:
     keys = sorted(grid)
@@ -126,8 +128,9 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
              n_inputs: int) -> OCResult:
     """Leave-one-run-out CV over ``grid`` (inputs chosen inside each fold), then the final fit.
 
-    The OC's curve candidates (``d.curves``) are cross-validated on the same folds; one with a
-    lower CV eps than the grid's best is the OC's model instead (``CurveModel``).
+    The OC's curve candidates (``d.curves``) are cross-validated on the same folds; the best of
+    them is the OC's model instead (``CurveModel``) unless the grid's best has a CV eps below
+    (1 - ``CURVE_MARGIN``) x the curve's.
     """
     folds = sorted(set(d.runs))
     if len(folds) < 2:
@@ -149,14 +152,19 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     cv_eps, params, pairs = best
     all_rows = list(range(len(d.runs)))
     chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs)
-    for curve in d.curves:  # the characteristic curves: kept only when strictly better
+    best_curve: tuple[float, dict, list[tuple[np.ndarray, np.ndarray]], list[str]] | None = None
+    for curve in d.curves:  # the characteristic curves, on the same folds
         curve_inputs = _curve_inputs(d, curve)
         if curve_inputs is None:
             continue
         score, pairs_all = _cross_validate(d, folds, Method.CURVE, curve, dict.fromkeys(folds, curve_inputs))
         cv_scores.append(({"method": Method.CURVE.value, **curve}, score))
-        if score < cv_eps:
-            method, cv_eps, params, pairs, chosen = Method.CURVE, score, curve, pairs_all, curve_inputs
+        if best_curve is None or score < best_curve[0]:
+            best_curve = (score, curve, pairs_all, curve_inputs)
+    if best_curve is not None and np.isfinite(best_curve[0]) and \
+            not cv_eps < (1.0 - CURVE_MARGIN) * best_curve[0]:
+        method = Method.CURVE
+        cv_eps, params, pairs, chosen = best_curve
     trajs = _trajs(d, all_rows, chosen)
     model = fit_oc_model(method, params, trajs)
     train_eps = pooled_eps(_predict_pairs(model, trajs))
