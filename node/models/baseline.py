@@ -9,6 +9,20 @@ from __future__ import annotations
 import numpy as np
 
 
+def bin_sums(speed: np.ndarray, y: np.ndarray, bin_width: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Speed bins holding data (B,) (bin b spans [b, b + 1) x bin_width), the sum and count of y in each.
+
+    speed, y: (K,) finite.
+
+    >>> bin_sums(np.array([10.0, 20.0, 60.0]), np.array([1.0, 3.0, 5.0]), 25.0)
+    (array([0, 2]), array([4., 5.]), array([2, 1]))
+    """
+    idx = np.floor(np.asarray(speed, float) / bin_width).astype(np.int64)
+    uniq, inv = np.unique(idx, return_inverse=True)
+    return uniq, np.bincount(inv, weights=np.asarray(y, float)), np.bincount(inv)
+
+
 class CharacteristicCurve:
     """Mean target per speed bin, linearly interpolated (scikit-learn style).
 
@@ -26,11 +40,8 @@ class CharacteristicCurve:
         ok = np.isfinite(speed) & np.isfinite(y)
         if not ok.any():
             raise ValueError("no finite (speed, amplitude) pairs to fit a characteristic curve")
-        idx = np.floor(speed[ok] / self.bin_width).astype(np.int64)
-        uniq, inv = np.unique(idx, return_inverse=True)
-        sums = np.bincount(inv, weights=y[ok])
-        counts = np.bincount(inv)
-        self.centres_ = (uniq + 0.5) * self.bin_width
+        bins, sums, counts = bin_sums(speed[ok], y[ok], self.bin_width)
+        self.centres_ = (bins + 0.5) * self.bin_width
         self.means_ = sums / counts
         return self
 

@@ -1,10 +1,13 @@
 """One OC's model: the identified dynamics plus the input scaling.
 
-Two kinds, one class each, behind the small protocol :class:`OCModel`:
+Three kinds, one class each, behind the small protocol :class:`OCModel`:
 
 * :class:`StateSpaceModel` (``wdmd``, ``delay-dmd``): seeded from the measured
   past at the OC switch, then free-running across the OC;
-* :class:`RegressionModel` (``lasso``): a static regression, eq. 3.26-3.27.
+* :class:`RegressionModel` (``lasso``): a static regression, eq. 3.26-3.27;
+* :class:`CurveModel` (``curve``): the OC's characteristic curve (the training
+  runs' mean target per speed bin, rising, falling and steady speed apart), or
+  the derived ``run_curve`` input itself: the baseline every other kind must beat.
 
 Each is a frozen dataclass built complete by its ``fit`` (training) or its
 ``from_arrays`` (the bundle loader); ``KINDS`` maps a method to its class.
@@ -16,7 +19,10 @@ appended, so every model is affine.
 
 from __future__ import annotations
 
+import bisect
+import math
 import warnings
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -25,6 +31,7 @@ from typing import ClassVar, Protocol
 import numpy as np
 
 from node.contract import FS
+from node.models.baseline import bin_sums
 from node.sysid import WDMD, DelayDMD, LinearDMD, StateSpace
 
 RUN_CURVE = "run_curve"  # the derived input channel's name (node.runtime.runcurve computes it)
@@ -33,6 +40,7 @@ class Method(StrEnum):
     WDMD = "wdmd"
     DELAY_DMD = "delay-dmd"
     LASSO = "lasso"
+    CURVE = "curve"
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -405,8 +413,189 @@ class RegressionRuntime:
         return float(self._w @ z)
 
 
+# -- characteristic curve --------------------------------------------------------------------
+class Variant(StrEnum):
+    FLEET = "fleet"  # the training runs' characteristic curve of this OC; input: the switch speed
+    RUN = "run"  # the derived run_curve input itself (node.runtime.runcurve); input: run_curve
+
+
+STEADY, RISING, FALLING = 0, 1, 2  # the speed's recent change: the rows of CurveModel.means
+
+
+def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: float) -> np.ndarray:
+    """Each sample's direction code (K,) as :class:`CurveRuntime` finds it, vectorised (for fitting).
+
+    The change is speed[k] - speed[k - window] (the oldest of the last ``window`` finite samples,
+    ``hist`` (K1,) before ``speed`` (K,) included); beyond +deadband RISING, below -deadband
+    FALLING, else STEADY (also without any past, or with window 0). NaN speeds are skipped.
+
+    >>> direction_codes(np.array([100.0]), np.array([150.0, 140.0, 110.0, 110.0]), 2, 20.0)
+    array([1, 1, 2, 2])
+    """
+    full = np.concatenate([np.asarray(hist, float), np.asarray(speed, float)])
+    keep = np.isfinite(full)
+    out = np.zeros(len(speed), dtype=np.int64)
+    if window <= 0:
+        return out
+    n_hist = int(keep[:len(hist)].sum())
+    vals = full[keep]
+    pos = np.arange(n_hist, vals.size)  # the finite samples of ``speed`` in ``vals``
+    ref = vals[np.maximum(pos - window, 0)]
+    change = np.where(pos > 0, vals[pos] - ref, 0.0)
+    codes = np.where(change > deadband, RISING, np.where(change < -deadband, FALLING, STEADY))
+    out[keep[len(hist):]] = codes
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class CurveModel:
+    """A characteristic-curve OC model (``curve``): no dynamics, a lookup of the speed.
+
+    Attributes:
+        params: variant ("fleet" or "run"), and for fleet: bin (rpm), window (samples the
+            speed's change is taken over; 0: one curve) and deadband (rpm over the window).
+        centres: (B,) the speed bins' centres, rpm (fleet; empty for run).
+        means: (3, B) the mean target per bin when the speed is steady, rising, falling
+            (rows STEADY, RISING, FALLING); a bin without samples of a direction holds the
+            mean of every sample in it.
+
+    A law that differs on the way up and down is recovered exactly:
+
+    >>> up = np.arange(1002.5, 2000.0, 5.0)  # the bins' centres
+    >>> speed = np.concatenate([up, up[::-1]])
+    >>> law = np.where(np.diff(speed, prepend=speed[0]) >= 0, speed / 1000.0, 3.0)
+    >>> traj = Trajectory(law, speed[:, None], start=0)
+    >>> m = CurveModel.fit(Method.CURVE, {"variant": "fleet", "bin": 5.0, "window": 1,
+    ...                                   "deadband": 1.0}, [traj])
+    >>> rt = m.runtime()
+    >>> rt.start(np.array([1.0]), np.array([[1497.5]]))
+    >>> rt.step([1502.5]), rt.step([1497.5])
+    (1.5025, 3.0)
+    """
+
+    params: dict
+    centres: np.ndarray
+    means: np.ndarray
+    method: ClassVar[Method] = Method.CURVE
+    repaired: ClassVar[int] = 0
+    n_states: ClassVar[int] = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "centres", _readonly(self.centres))
+        object.__setattr__(self, "means", _readonly(np.reshape(self.means, (3, -1))))
+
+    @property
+    def variant(self) -> Variant:
+        return Variant(self.params.get("variant", Variant.FLEET))
+
+    @classmethod
+    def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> CurveModel:
+        """The binned mean of the OC samples' target against their one input (the speed)."""
+        if any(t.U.shape[1] != 1 for t in trajs):
+            raise ValueError("a curve model takes exactly one input")
+        if Variant(params.get("variant", Variant.FLEET)) is Variant.RUN:
+            return cls(dict(params), np.zeros(0), np.zeros((3, 0)))
+        width, window = float(params.get("bin", 25.0)), int(params.get("window", 0))
+        deadband = float(params.get("deadband", 0.0))
+        speed = np.concatenate([t.seg_U[:, 0] for t in trajs])
+        y = np.concatenate([t.seg_y for t in trajs])
+        code = np.concatenate([direction_codes(t.U[:t.start, 0][-window:] if window else t.U[:0, 0],
+                                               t.seg_U[:, 0], window, deadband) for t in trajs])
+        ok = np.isfinite(speed) & np.isfinite(y)
+        if not ok.any():
+            raise ValueError("no finite (speed, target) pairs to fit a curve")
+        bins, sums, counts = bin_sums(speed[ok], y[ok], width)
+        means = np.tile(sums / counts, (3, 1))
+        for c in (STEADY, RISING, FALLING):
+            mine = ok & (code == c)
+            if mine.any():
+                b, s, n = bin_sums(speed[mine], y[mine], width)
+                means[c, np.searchsorted(bins, b)] = s / n
+        return cls(dict(params), (bins + 0.5) * width, means)
+
+    def predict(self, traj: Trajectory) -> np.ndarray:
+        """Prediction over the OC samples of ``traj``, by the node's very stepper: (K_seg,)."""
+        if self.variant is Variant.RUN:
+            return np.array(traj.seg_U[:, 0], dtype=float)
+        rt = self.runtime()
+        rt.start(traj.y[:traj.start], traj.U[:traj.start])
+        step = rt.step_speed
+        return np.array([step(x) for x in traj.seg_U[:, 0].tolist()], dtype=float)
+
+    def runtime(self) -> CurveRuntime:
+        return CurveRuntime(self)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"centres": self.centres, "means": self.means}
+
+    @classmethod
+    def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
+                    repaired: int = 0) -> CurveModel:
+        return cls(dict(params), arrays["centres"], arrays["means"])
+
+
+class CurveRuntime:
+    """Online stepper of a :class:`CurveModel`: a bin lookup per sample.
+
+    Memory: the last ``window`` speeds (the direction of the speed's recent change).
+
+    >>> m = CurveModel({"variant": "fleet", "window": 0}, np.array([0.0, 100.0]),
+    ...                np.tile([0.0, 10.0], (3, 1)))
+    >>> rt = m.runtime()
+    >>> rt.start(np.zeros(0), np.zeros((0, 1)))
+    >>> rt.step([25.0]), rt.step([500.0])
+    (2.5, 10.0)
+    """
+
+    def __init__(self, model: CurveModel) -> None:
+        self._run = model.variant is Variant.RUN
+        self._xs = [float(x) for x in model.centres]
+        self._rows = [[float(v) for v in row] for row in model.means]
+        self._slopes = [[(r[i + 1] - r[i]) / (self._xs[i + 1] - self._xs[i]) for i in range(len(r) - 1)]
+                        for r in self._rows]
+        window = int(model.params.get("window", 0))
+        self._deadband = float(model.params.get("deadband", 0.0))
+        self._past: deque[float] | None = deque(maxlen=window) if window > 0 else None
+
+    def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
+        """Seed the recent speeds from the measured past U_hist (K1, 1) (K1 may be 0)."""
+        if self._past is None:
+            return
+        self._past.clear()
+        n = self._past.maxlen or 0
+        for x in np.asarray(U_hist, float)[:, 0][-n:].tolist() if len(U_hist) else []:
+            if x == x:
+                self._past.append(x)
+
+    def step(self, u: Sequence[float] | np.ndarray) -> float:
+        """Prediction for this sample from its raw input u (1,): the speed, or run_curve itself."""
+        if self._run:
+            return float(u[0])
+        return self.step_speed(float(u[0]))
+
+    def step_speed(self, x: float) -> float:
+        """Prediction at speed x (rpm) (NaN: NaN, and the recent speeds are kept)."""
+        if x != x:
+            return math.nan
+        code = STEADY
+        past = self._past
+        if past is not None:
+            if past:
+                change = x - past[0]
+                code = RISING if change > self._deadband else FALLING if change < -self._deadband else STEADY
+            past.append(x)
+        xs, ys = self._xs, self._rows[code]
+        i = bisect.bisect_right(xs, x)
+        if i == 0:
+            return ys[0]
+        if i == len(xs):
+            return ys[-1]
+        return ys[i - 1] + self._slopes[code][i - 1] * (x - xs[i - 1])
+
+
 KINDS: dict[Method, OCModelKind] = {
     Method.WDMD: StateSpaceModel, Method.DELAY_DMD: StateSpaceModel, Method.LASSO: RegressionModel,
+    Method.CURVE: CurveModel,
 }
 
 

@@ -171,4 +171,4 @@ class MonitorPipeline:
         c = res.calibration
         scale = 1.0 if self._runscale is None else self._runscale.factor
         check = ResidualCheck(c.sigma, c.threshold, c.ewma_alpha, c.persist, self._clear, scale)
-        self._active = _Active(rt, list(res.inputs), f"{self.bundle.method}:{res.name}", check)
+        self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check)

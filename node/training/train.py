@@ -23,7 +23,7 @@ from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import Method, OCModel, StateSpaceModel, Trajectory, fit_oc_model
+from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory, Variant, fit_oc_model
 from node.models.result import EWMA_ALPHA, Calibration, OCResult
 from node.runtime.runcurve import add_run_curve
 from node.sysid.metrics import pooled_eps
@@ -36,6 +36,24 @@ DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
     Method.DELAY_DMD: {"delays": [1, 2, 4, 8, 16], "rcond": [1e-8]},
     Method.LASSO: {"alpha": [1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0]},
 }
+
+
+# The characteristic-curve candidates of every OC's CV (CurveModel params): the OC's fleet
+# curve, one and with rising / falling / steady speed apart (the change over 1 s beyond 20 rpm:
+# the simulator's ramps run at 50-150 rpm/s, plateau noise stays within about 15 rpm per s), and
+# the run's own curve (run_curve) itself.
+CURVE_CANDIDATES: list[dict] = [
+    {"variant": Variant.FLEET.value, "bin": 25.0, "window": 0},
+    {"variant": Variant.FLEET.value, "bin": 25.0, "window": int(FS), "deadband": 20.0},
+    {"variant": Variant.RUN.value},
+]
+# A state-space or regression model keeps an OC only when its CV eps is below (1 - margin) x
+# the best curve's: on new runs a free-running model's error exceeds its leave-one-run-out CV
+# error more often than a curve's does. Chosen on development engines 11-12 (8 training, 10
+# held-out runs each, WDMD): held-out OCs worse than the curve by > 5 %: 5 of 24 without
+# curves, 3 with margin 0, 1 with 0.2 (0 with 0.5, at a mean held-out eps_td of 0.323 against
+# 0.309 with 0.2 and 0.296 without curves).
+CURVE_MARGIN = 0.2
 
 
 def grid_points(grid: dict[str, list]) -> list[dict]:
@@ -57,6 +75,8 @@ class OCData:
     X: list[np.ndarray]  # candidates, same rows
     start: list[int]  # index of the OC's first sample in y / X
     at: list[int] = field(default_factory=list)  # index of the OC's first sample in its run
+    switch: str = ""  # the schedule's switch channel
+    curves: list[dict] = field(default_factory=list)  # curve candidates (CurveModel params)
 
 
 def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int
@@ -87,9 +107,37 @@ def _predict_pairs(model: OCModel, trajs: list[Trajectory]) -> list[tuple[np.nda
     return out
 
 
+def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
+                    fold_inputs: dict[int, list[str]]) -> tuple[float, list[tuple[np.ndarray, np.ndarray]]]:
+    """Pooled eps of ``method`` with ``params`` over the leave-one-run-out folds, and the held-out
+    (measured, predicted) pairs in fold order (inf and no pairs when a fit fails)."""
+    pairs_all: list[tuple[np.ndarray, np.ndarray]] = []
+    for f in folds:
+        train_rows = [i for i, r in enumerate(d.runs) if r != f]
+        test_rows = [i for i, r in enumerate(d.runs) if r == f]
+        chosen = fold_inputs[f]
+        try:
+            m = fit_oc_model(method, params, _trajs(d, train_rows, chosen))
+        except (np.linalg.LinAlgError, ValueError):
+            return float("inf"), []
+        pairs_all += _predict_pairs(m, _trajs(d, test_rows, chosen))
+    return (pooled_eps(pairs_all) if pairs_all else float("inf")), pairs_all
+
+
+def _curve_inputs(d: OCData, curve: dict) -> list[str] | None:
+    """The one input of a curve candidate (the switch speed or run_curve); None: not a candidate."""
+    name = RUN_CURVE if curve.get("variant") == Variant.RUN else d.switch
+    return [name] if name in d.candidates else None
+
+
 def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | None,
              n_inputs: int) -> OCResult:
-    """Leave-one-run-out CV over ``grid`` (inputs chosen inside each fold), then the final fit."""
+    """Leave-one-run-out CV over ``grid`` (inputs chosen inside each fold), then the final fit.
+
+    The OC's curve candidates (``d.curves``) are cross-validated on the same folds; the best of
+    them is the OC's model instead (``CurveModel``) unless the grid's best has a CV eps below
+    (1 - ``CURVE_MARGIN``) x the curve's.
+    """
     folds = sorted(set(d.runs))
     if len(folds) < 2:
         return OCResult(d.name, None, [], {}, len(folds), float("nan"), float("nan"), None,
@@ -101,18 +149,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     cv_scores = []
     best: tuple[float, dict, list[tuple[np.ndarray, np.ndarray]]] | None = None
     for params in grid_points(grid):
-        pairs_all: list[tuple[np.ndarray, np.ndarray]] = []
-        for f in folds:
-            train_rows = [i for i, r in enumerate(d.runs) if r != f]
-            test_rows = [i for i, r in enumerate(d.runs) if r == f]
-            chosen = fold_inputs[f]
-            try:
-                m = fit_oc_model(method, params, _trajs(d, train_rows, chosen))
-            except (np.linalg.LinAlgError, ValueError):
-                pairs_all = []
-                break
-            pairs_all += _predict_pairs(m, _trajs(d, test_rows, chosen))
-        score = pooled_eps(pairs_all) if pairs_all else float("inf")
+        score, pairs_all = _cross_validate(d, folds, method, params, fold_inputs)
         cv_scores.append((params, score))
         if best is None or score < best[0]:
             best = (score, params, pairs_all)
@@ -121,6 +158,19 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     cv_eps, params, pairs = best
     all_rows = list(range(len(d.runs)))
     chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs)
+    best_curve: tuple[float, dict, list[tuple[np.ndarray, np.ndarray]], list[str]] | None = None
+    for curve in d.curves:  # the characteristic curves, on the same folds
+        curve_inputs = _curve_inputs(d, curve)
+        if curve_inputs is None:
+            continue
+        score, pairs_all = _cross_validate(d, folds, Method.CURVE, curve, dict.fromkeys(folds, curve_inputs))
+        cv_scores.append(({"method": Method.CURVE.value, **curve}, score))
+        if best_curve is None or score < best_curve[0]:
+            best_curve = (score, curve, pairs_all, curve_inputs)
+    if best_curve is not None and np.isfinite(best_curve[0]) and \
+            not cv_eps < (1.0 - CURVE_MARGIN) * best_curve[0]:
+        method = Method.CURVE
+        cv_eps, params, pairs, chosen = best_curve
     trajs = _trajs(d, all_rows, chosen)
     model = fit_oc_model(method, params, trajs)
     train_eps = pooled_eps(_predict_pairs(model, trajs))
@@ -143,14 +193,19 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
 
 def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: list[str],
                 segments: list[Segment] | None = None,
-                history_s: float = RuntimeConfig().history_s) -> list[OCData]:
-    """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it."""
+                history_s: float = RuntimeConfig().history_s,
+                curves: list[dict] | None = None) -> list[OCData]:
+    """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it.
+
+    curves: each OC's curve candidates (``CURVE_CANDIDATES``; None: none).
+    """
     segments = segment_runs(runs, schedule) if segments is None else segments
     arrays = [run_arrays(run, target, candidates) for run in runs]
     hist = int(history_s * FS)
     out = []
     for j, name in enumerate(schedule.names):
-        d = OCData(name, target, list(candidates), [], [], [], [])
+        d = OCData(name, target, list(candidates), [], [], [], [], switch=schedule.switch,
+                   curves=[dict(c) for c in curves or []])
         for s in segments:
             if s.oc != j:
                 continue
@@ -223,7 +278,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
           cv_undercoverage: float = CV_UNDERCOVERAGE,
           fleet: tuple[np.ndarray, np.ndarray] | None = None,
-          config: RuntimeConfig | None = None) -> list[OCResult]:
+          config: RuntimeConfig | None = None, curves: bool = False) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
@@ -231,6 +286,10 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
 
     fleet: the training runs' characteristic curve (speeds, means); given, every run gains
     the derived ``run_curve`` input (``node.runtime.runcurve``), a candidate like any channel.
+
+    curves: per OC, also cross-validate the characteristic curves (``CURVE_CANDIDATES``: the
+    OC's fleet curve on the switch speed, and run_curve itself, when among the candidates) and
+    keep one when its CV eps is lower (see ``train_oc``).
 
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
@@ -252,7 +311,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
         raise OrdervibError("no usable input channel in the recordings")
     grid = grid or DEFAULT_GRIDS[meth]
     datas = oc_datasets(runs, schedule, target, candidates,
-                        history_s=(config or RuntimeConfig()).history_s)
+                        history_s=(config or RuntimeConfig()).history_s,
+                        curves=CURVE_CANDIDATES if curves else None)
     workers = workers or min(2, os.cpu_count() or 1)
     jobs = [(d, method, grid, inputs, n_inputs) for d in datas]
     results: list[OCResult | None] = [None] * len(jobs)

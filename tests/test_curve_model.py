@@ -1,0 +1,140 @@
+"""The characteristic-curve OC model: exact recovery, its stepper, the CV's choice, bundles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from node.contract.schedule import OperatingCondition, Schedule
+from node.models.bundle import Bundle, load_bundle, save_bundle
+from node.models.ocmodel import (
+    RUN_CURVE,
+    CurveModel,
+    Method,
+    StateSpaceModel,
+    Trajectory,
+    fit_oc_model,
+    model_from_arrays,
+)
+from node.training.train import CURVE_CANDIDATES, OCData, train_oc
+
+FLEET = {"variant": "fleet", "bin": 25.0, "window": 40, "deadband": 20.0}
+
+
+def _profile(rng: np.random.Generator, lo: float, hi: float, n_hist: int = 200) -> np.ndarray:
+    """A speed history at ``lo``, a ramp to ``hi`` at a random rate, a plateau, a ramp back."""
+    rate = rng.uniform(2.0, 4.0)  # rpm per sample
+    up = np.arange(lo, hi, rate)
+    return np.concatenate([np.full(n_hist, lo), up, np.full(300, hi), up[::-1]]) + rng.normal(0, 2.0, 1)
+
+
+def _law(speed: np.ndarray, code: np.ndarray) -> np.ndarray:
+    """A speed-amplitude law, another one on the way down, another on the plateau."""
+    up = 1.0 + np.sin(speed / 300.0)
+    return np.choose(code, [0.5 + 0.0 * speed, up, 2.0 * up])
+
+
+def _codes(speed: np.ndarray, window: int = 40, deadband: float = 20.0) -> np.ndarray:
+    from node.models.ocmodel import direction_codes
+    return direction_codes(np.zeros(0), speed, window, deadband)
+
+
+def test_recovers_a_speed_amplitude_law_rising_and_falling_apart():
+    """Bins of the law's own speeds: a bin per sample speed, its means are the law's values."""
+    speed = np.concatenate([np.full(100, 1000.0), np.arange(1000.0, 3000.0, 25.0),
+                            np.full(100, 3000.0), np.arange(3000.0, 1000.0, -25.0)]) + 12.5
+    code = _codes(speed)
+    y = _law(speed, code)
+    traj = Trajectory(y, speed[:, None], start=0)
+    m = CurveModel.fit(Method.CURVE, FLEET, [traj])
+    pred = m.predict(traj)
+    np.testing.assert_allclose(pred, y, rtol=0, atol=1e-12)  # rising and falling apart
+    assert set(np.unique(code)) == {0, 1, 2}
+    one = CurveModel.fit(Method.CURVE, {**FLEET, "window": 0}, [traj])  # one curve: the mean
+    assert np.max(np.abs(one.predict(traj) - y)) > 0.5
+
+
+def test_stepper_equals_batch_predict_bit_for_bit():
+    rng = np.random.default_rng(3)
+    trajs = []
+    for _ in range(4):
+        speed = _profile(rng, 2000.0, 4000.0) + rng.normal(0, 3.0, 1)
+        speed = speed + rng.normal(0, 4.0, speed.size)
+        y = _law(speed, _codes(speed)) + rng.normal(0, 0.05, speed.size)
+        trajs.append(Trajectory(y, speed[:, None], start=150))
+    for params in CURVE_CANDIDATES[:2]:
+        m = CurveModel.fit(Method.CURVE, params, trajs[:3])
+        for t in trajs:
+            rt = m.runtime()
+            rt.start(t.y[:t.start], t.U[:t.start])
+            node = [rt.step([u]) for u in t.seg_U[:, 0].tolist()]  # as the pipeline calls it
+            np.testing.assert_array_equal(np.array(node), m.predict(t))
+    run = fit_oc_model("curve", {"variant": "run"}, trajs)
+    rt = run.runtime()
+    rt.start(np.zeros(0), np.zeros((0, 1)))
+    np.testing.assert_array_equal([rt.step([u]) for u in trajs[0].seg_U[:, 0].tolist()],
+                                  run.predict(trajs[0]))
+
+
+def _ocdata(y_of, rng: np.random.Generator, n_runs: int = 5) -> OCData:
+    d = OCData("OC1", "yB", ["nB", "u1", RUN_CURVE], [], [], [], [], switch="nB",
+               curves=[dict(c) for c in CURVE_CANDIDATES])
+    for r in range(n_runs):
+        speed = _profile(rng, 2000.0, 3500.0, n_hist=100)
+        speed = speed + rng.normal(0, 2.0, speed.size)
+        u1 = np.cumsum(rng.normal(0, 1.0, speed.size)) * 0.05
+        y = y_of(speed, u1, r)
+        X = np.column_stack([speed, u1, np.full(speed.size, y.mean())])
+        d.runs.append(r)
+        d.y.append(y)
+        d.X.append(X)
+        d.start.append(100)
+        d.at.append(1000)
+    return d
+
+
+def test_training_picks_the_curve_for_a_function_of_speed_and_a_dmd_for_dynamics():
+    rng = np.random.default_rng(7)
+    static = _ocdata(lambda s, u, r: _law(s, _codes(s)) + rng.normal(0, 0.02, s.size), rng)
+    res = train_oc(static, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, None, 2)
+    assert isinstance(res.model, CurveModel) and res.params["variant"] == "fleet"
+    assert res.inputs == ["nB"] and res.calibration is not None
+
+    def dynamic(s, u, r):
+        y = np.zeros(s.size)
+        for k in range(1, s.size):
+            y[k] = 0.95 * y[k - 1] + 0.5 * u[k - 1]
+        return y
+    dyn = _ocdata(dynamic, rng)
+    res = train_oc(dyn, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, ["u1"], 2)
+    assert isinstance(res.model, StateSpaceModel)
+    curve_scores = [s for p, s in res.cv_scores if p.get("method") == "curve"]
+    assert curve_scores and min(curve_scores) > res.cv_eps
+    # without curve candidates the grid's numbers are those of the plain CV
+    dyn.curves = []
+    plain = train_oc(dyn, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, ["u1"], 2)
+    assert plain.cv_eps == res.cv_eps and plain.params == res.params
+
+
+@pytest.mark.parametrize("variant", ["fleet", "run"])
+def test_bundle_with_a_curve_model_saves_and_loads(tmp_path, variant):
+    rng = np.random.default_rng(1)
+    speed = _profile(rng, 2000.0, 3000.0)
+    y = _law(speed, _codes(speed))
+    col = speed if variant == "fleet" else y + 0.1
+    traj = Trajectory(y, col[:, None], start=100)
+    params = FLEET if variant == "fleet" else {"variant": "run"}
+    m = fit_oc_model("curve", params, [traj])
+    again = model_from_arrays("curve", params, m.arrays())
+    np.testing.assert_array_equal(again.predict(traj), m.predict(traj))
+    from node.models.result import Calibration, OCResult
+    schedule = Schedule((OperatingCondition("OC1", 3000.0),))
+    res = OCResult("OC1", m, ["nB" if variant == "fleet" else RUN_CURVE], dict(params), 2, 0.1, 0.2,
+                   Calibration(0.3, 4.0))
+    curve = (np.array([2000.0, 3000.0]), np.array([1.0, 2.0]))
+    save_bundle(Bundle("wdmd", "yB", schedule, [res], curve=curve), tmp_path / "m")
+    loaded = load_bundle(tmp_path / "m")
+    q = loaded.ocs[0]
+    assert isinstance(q.model, CurveModel) and q.model.method is Method.CURVE
+    assert q.params == res.params and q.inputs == res.inputs
+    np.testing.assert_array_equal(q.model.predict(traj), m.predict(traj))
