@@ -16,6 +16,7 @@ import orjson
 import pytest
 from conftest import small_campaign
 
+from harness.live import wait_for
 from node.cli import main
 from node.contract import health_key, monitor_key, parse_sensor_key, sensor_key
 from node.mcap import RecordingWriter, iter_messages
@@ -44,15 +45,6 @@ def free_port() -> int:
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     return small_campaign(tmp_path_factory.mktemp("faults"), 5)
-
-
-def wait_for(cond, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.05)
-    return True
 
 
 class Client:
