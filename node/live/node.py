@@ -101,7 +101,7 @@ class LiveNode:
         self._lag_max: dict[str, float] = {}  # bed -> the largest latency since its last health, ms
         self._last_recv: dict[str, int] = {}  # bed -> receive time of its newest message, ns
         self._overflow: dict[str, int] = {}  # key -> messages lost in the queue
-        self._name = record if isinstance(record, str) else getattr(record, "path", None) or "the recording"
+        self._name = str(record)  # a path, or a recorder that names its file(s)
         self._written = 0  # messages the recorder took
         self._flushed = 0  # of them, those taken before its last successful flush
         self._spent = dict.fromkeys(("core", "put", "flush", "gc"), 0.0)  # s, this pass
