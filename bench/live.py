@@ -50,7 +50,7 @@ from harness.live import (
     stop_peer,
     wait_for,
 )
-from node.contract import FS
+from node.contract import FS, MONITOR_SUBSCRIPTION
 
 LATENCY_P99_MS = 20.0
 
@@ -78,7 +78,7 @@ def run_latency(args, stream: Stream, channels: list[str], needed: set[str], tar
     # the node
     port = free_port()
     node = start_node(args.model, str(tmp / "latency.mcap"), port)
-    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "testbed/*/monitor/**")
+    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, MONITOR_SUBSCRIPTION)
     try:
         b.wait_matched()
         r = b.publish(stream)
@@ -112,7 +112,7 @@ def run_throughput(args, stream: Stream, channels: list[str], target: str, tmp: 
     # the node
     port = free_port()
     node = start_node(args.model, str(tmp / "throughput.mcap"), port)
-    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, "testbed/*/monitor/**")
+    b = Bench(f"tcp/127.0.0.1:{port}", beds, channels, MONITOR_SUBSCRIPTION)
     suffix = f"/monitor/{target}"
     try:
         b.wait_matched()

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import orjson
 
-from node.contract import FS, RUN_GAP, sensor_key
+from node.contract import FS, MONITOR_SUBSCRIPTION, RUN_GAP, sensor_key
 
 ROOT = Path(__file__).resolve().parents[1]
 WARMUP = 40  # slots (1 s) left out of the latency figures
@@ -338,7 +338,7 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
         if sent is not None:
             lat.append((arrival - sent) / 1e6)
 
-    bench = Bench(f"tcp/127.0.0.1:{port}", [], [], "testbed/*/monitor/**", on_reply)
+    bench = Bench(f"tcp/127.0.0.1:{port}", [], [], MONITOR_SUBSCRIPTION, on_reply)
     import zenoh
     pubs = {topic: bench.session.declare_publisher(topic, congestion_control=zenoh.CongestionControl.BLOCK)
             for topic in {k for k, _, _ in msgs}}

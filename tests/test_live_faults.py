@@ -18,7 +18,7 @@ from conftest import small_campaign
 
 from harness.live import wait_for
 from node.cli import main
-from node.contract import health_key, monitor_key, parse_sensor_key, sensor_key
+from node.contract import MONITOR_SUBSCRIPTION, health_key, monitor_key, parse_sensor_key, sensor_key
 from node.mcap import RecordingWriter, iter_messages
 
 zenoh = pytest.importorskip("zenoh")
@@ -55,7 +55,7 @@ class Client:
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.out: list[tuple[str, bytes]] = []
         self.sub = self.session.declare_subscriber(
-            "testbed/*/monitor/**", lambda s: self.out.append((str(s.key_expr), s.payload.to_bytes())))
+            MONITOR_SUBSCRIPTION, lambda s: self.out.append((str(s.key_expr), s.payload.to_bytes())))
         self.pubs: dict[str, object] = {}
 
     def put(self, key: str, payload: bytes) -> None:
@@ -347,7 +347,7 @@ def test_a_hung_subscriber_never_stalls_the_node(setup, tmp_path):
     node.start()
     gate = threading.Event()
     hung = open_session(zenoh_config(None, [endpoint], str(conf)))
-    hung.declare_subscriber("testbed/*/monitor/**", lambda s: gate.wait(60))
+    hung.declare_subscriber(MONITOR_SUBSCRIPTION, lambda s: gate.wait(60))
     client = Client(endpoint)
     good = [(m.topic, bytes(m.payload)) for m in iter_messages(setup / "test.mcap")
             if parse_sensor_key(m.topic)][:12000]

@@ -21,6 +21,7 @@ import pytest
 from conftest import small_campaign
 
 from node.cli import main
+from node.contract import MONITOR_SUBSCRIPTION
 from node.mcap import iter_messages
 
 pytest.importorskip("zenoh")
@@ -117,7 +118,7 @@ def test_tls_node_serves_a_tls_test_bed_and_nobody_else(setup, tmp_path):
                     got["monitor"] += 1
         watcher = open_session(zenoh_config(None, None, str(bed_conf)))
         sessions.append(watcher)
-        watcher.declare_subscriber("testbed/*/monitor/**", on_monitor)
+        watcher.declare_subscriber(MONITOR_SUBSCRIPTION, on_monitor)
 
         time.sleep(0.5)  # the intruders have had time to try
         for pub in intruder_pubs:

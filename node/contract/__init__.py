@@ -9,6 +9,7 @@ every command ends with (``errors``).
 from node.contract.errors import OrdervibError
 from node.contract.keys import (
     FS,
+    MONITOR_SUBSCRIPTION,
     OFF_FRACTION,
     ORDER_CHANNELS,
     PHASE_CHANNELS,
@@ -42,7 +43,8 @@ from node.contract.payload import check_sample, decode_sample, decode_samples, l
 from node.contract.schedule import OperatingCondition, Schedule, load_schedule
 
 __all__ = [
-    "FS", "OFF_FRACTION", "ORDER_CHANNELS", "PHASE_CHANNELS", "RUN_GAP", "SENSOR_CHANNELS",
+    "FS", "MONITOR_SUBSCRIPTION", "OFF_FRACTION", "ORDER_CHANNELS", "PHASE_CHANNELS", "RUN_GAP",
+    "SENSOR_CHANNELS",
     "SENSOR_SUBSCRIPTION", "SPEED_CHANNELS", "TopicKind", "bed_of", "health_key", "is_monitor_key",
     "liveliness_key", "monitor_key", "oc_key", "parse_monitor_key", "parse_sensor_key", "sensor_key",
     "topic_kind", "Flag", "HealthMessage", "MonitorMessage", "OCMessage", "Phase", "Reason",

@@ -36,7 +36,6 @@ MONITOR_SUBSCRIPTION = f"{PREFIX}/*/monitor/**"  # every test bed's node outputs
 LIVELINESS_PREFIX = "ordervib/node"
 OC_TOPIC = "oc"  # monitor/<OC_TOPIC>: OC switches
 HEALTH_TOPIC = "health"  # monitor/<HEALTH_TOPIC>: the bed's health
-RESERVED_TARGETS = frozenset((OC_TOPIC, HEALTH_TOPIC))  # monitor topics that are not targets
 
 _SENSOR_RE = re.compile(rf"^{PREFIX}/([^/]+)/sensor/([^/]+)$")
 _MONITOR_RE = re.compile(rf"^{PREFIX}/([^/]+)/monitor/([^/]+)$")

@@ -264,12 +264,11 @@ def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 2.0) -> None:
     # Let the pool's manager thread see its dead workers and close its wake-up pipe now:
     # otherwise the interpreter's exit hook may write to that pipe while the thread closes
     # it ("OSError: Bad file descriptor" after the one-line message).
-    # (CPython 3.11 races there); the pool is stopped, so its exit-time wake-up is not needed.
+    # (CPython 3.11 races there; the ``ordervib`` entry also leaves an interrupted command
+    # without exit hooks).
     manager = getattr(pool, "_executor_manager_thread", None)
     if manager is not None:
         manager.join(grace_s)
-        from concurrent.futures import process as futures_process
-        futures_process._threads_wakeups.pop(manager, None)
 
 
 def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str = "wdmd",
