@@ -100,7 +100,8 @@ class NodeCore:
         else:
             bed_of = list(map(bed_of_key.get, keys))
             order = [name for name in dict.fromkeys(bed_of) if name is not None]  # by first message
-            codes = np.array([-1 if name is None else order.index(name) for name in bed_of], dtype=np.int64)
+            code_of = {name: j for j, name in enumerate(order)}
+            codes = np.array([-1 if name is None else code_of[name] for name in bed_of], dtype=np.int64)
             self.foreign += int((codes < 0).sum())
             parts = [(name, np.flatnonzero(codes == j)) for j, name in enumerate(order)]
         done: list[tuple[int, str, list[AlignedSample]]] = []
