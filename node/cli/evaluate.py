@@ -47,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
     check_output(str(png), "--png", suffix=".png", inputs=[args.model, *args.recordings])
     runs = load_runs(args.recordings, args.quiet)
-    evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve)
+    evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve,
+                            bundle.config)
     curve = None
     if bundle.curve is not None:
         curve = CharacteristicCurve()

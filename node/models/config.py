@@ -49,6 +49,9 @@ class RuntimeConfig:
         step_long_s: its reference window, just before the recent one.
         step_noise_s: EWMA span of its noise estimate.
         step_persist_s: how long its statistic must stay beyond the threshold.
+        history_cooling: energy the engine-history input ``hist_energy`` loses per hour of
+            shutdown, rpm min per h (``node.runtime.history``); training estimates it from
+            its runs, the default is the dissertation's one-engine value 4.5e5 / 12.
     """
 
     align_wait_s: float = 0.25
@@ -66,6 +69,7 @@ class RuntimeConfig:
     step_long_s: float = 4.0
     step_noise_s: float = 10.0
     step_persist_s: float = 0.25
+    history_cooling: float = 4.5e5 / 12.0
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -15,6 +15,12 @@ Each is a frozen dataclass built complete by its ``fit`` (training) or its
 ``start`` once at the switch, then one ``step`` per sample, with bounded memory
 and no I/O. Inputs are standardised per OC and a constant input (1) is
 appended, so every model is affine.
+
+A state-space model takes its inputs in one of two forms (``params["form"]``,
+:class:`InputForm`): as measured (``abs``), or as increments from their value
+at the OC switch (``inc``: the last sample before the OC, or the OC's first
+sample when there is no past), so that the level the run's past set is carried
+by the seeded state and not pulled towards the training runs' mean.
 """
 
 from __future__ import annotations
@@ -35,6 +41,15 @@ from node.models.baseline import bin_sums
 from node.sysid import WDMD, DelayDMD, LinearDMD, StateSpace
 
 RUN_CURVE = "run_curve"  # the derived input channel's name (node.runtime.runcurve computes it)
+
+class InputForm(StrEnum):
+    ABSOLUTE = "abs"  # the inputs as measured
+    INCREMENT = "inc"  # the inputs minus their value at the OC switch
+
+
+def input_form(params: Mapping) -> InputForm:
+    return InputForm(params.get("form", InputForm.ABSOLUTE))
+
 
 class Method(StrEnum):
     WDMD = "wdmd"
@@ -64,6 +79,16 @@ class Trajectory:
     @property
     def seg_U(self) -> np.ndarray:
         return self.U[self.start:]
+
+    def reference(self) -> np.ndarray:
+        """The inputs at the OC switch (m,): the last sample before the OC, else its first."""
+        return self.U[self.start - 1] if self.start > 0 else self.U[0]
+
+    def in_form(self, form: InputForm) -> Trajectory:
+        """This trajectory with its inputs in ``form`` (itself for ``abs``)."""
+        if form is InputForm.ABSOLUTE:
+            return self
+        return Trajectory(self.y, self.U - self.reference(), self.start)
 
 
 @dataclass(frozen=True, eq=False)
@@ -165,7 +190,8 @@ def _dmd(method: Method, params: dict) -> LinearDMD:
     # seed_window 0: at a switch the state is the lifted measured past itself; fitting this
     # OC's model to a window of the previous OC's data (the observer) seeds worse (measured)
     common = {"rcond": params.get("rcond", 1e-8), "estimator": params.get("estimator", "oe"),
-              "dt": 1.0 / FS, "seed_window": params.get("seed_window", 0)}
+              "dt": 1.0 / FS, "seed_window": params.get("seed_window", 0),
+              "ridge": float(params.get("ridge", 0.0))}
     if method is Method.WDMD:
         return WDMD(levels=int(params["levels"]), wavelet=params.get("wavelet", "haar"), **common)
     if method is Method.DELAY_DMD:
@@ -189,8 +215,9 @@ class StateSpaceModel:
     """A state-space OC model (``wdmd`` or ``delay-dmd``) on standardised inputs.
 
     Attributes:
-        method, params: how it was made (levels/wavelet or delays/lag, rcond, estimator).
-        scaling: the input standardisation.
+        method, params: how it was made (levels/wavelet or delays/lag, rcond, ridge,
+            estimator, form: the :class:`InputForm`).
+        scaling: the input standardisation (of the inputs in their form).
         ss: the identified model; inputs are the m standardised inputs and the constant 1.
         repaired: number of unstable poles moved inside the unit circle.
 
@@ -230,6 +257,8 @@ class StateSpaceModel:
     @classmethod
     def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> StateSpaceModel:
         """Fit on the OC's trajectories (the past before each segment warms the lifting)."""
+        form = input_form(params)
+        trajs = [t.in_form(form) for t in trajs]
         scaling = InputScaling.fit(np.vstack([t.seg_U for t in trajs]))
         dmd = _dmd(method, params)
         need = dmd.memory()
@@ -256,6 +285,7 @@ class StateSpaceModel:
 
     def predict(self, traj: Trajectory) -> np.ndarray:
         """Free-run prediction over the OC samples of ``traj``, seeded from its past: (K_seg,)."""
+        traj = traj.in_form(input_form(self.params))
         U = self.scaling.apply(traj.U)
         if traj.start == 0:
             return self.dmd.simulate(U, history=None)[:, 0]
@@ -304,13 +334,21 @@ class StateSpaceRuntime:
         self._z = np.zeros(n + k + 1)
         self._z[-1] = 1.0
         self._n = n
+        self._inc = input_form(model.params) is InputForm.INCREMENT
+        self._ref: np.ndarray | None = None  # the inputs at the switch (increment form)
 
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
         """Seed from the measured past: y_hist (K1,), U_hist (K1, m) (K1 may be 0: from rest)."""
+        self._ref = None
         if len(y_hist) == 0:
             self._z[: self._n] = 0.0
             return
         m = self._model
+        U_hist = np.asarray(U_hist, float)
+        if self._inc and np.isfinite(U_hist[-1]).all():
+            self._ref = U_hist[-1].copy()
+        if self._inc:
+            U_hist = U_hist - (U_hist[-1] if self._ref is None else self._ref)
         Un = m.scaling.apply(U_hist)
         self._z[: self._n] = m.dmd.initial_state((np.asarray(y_hist, float)[:, None], Un))
 
@@ -318,6 +356,10 @@ class StateSpaceRuntime:
         """Prediction for this sample from its raw inputs u (m,); advances the state."""
         z, n = self._z, self._n
         z[n:-1] = u
+        if self._inc:
+            if self._ref is None:  # no past: the OC's first sample is the reference
+                self._ref = z[n:-1].copy()
+            z[n:-1] -= self._ref
         out = self._G @ z
         z[:n] = out[1:]
         return float(out[0])

@@ -12,7 +12,7 @@ replay both drive this class, through ``handle_batch``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -22,6 +22,7 @@ from node.contract import Flag, HealthMessage, decode_samples, monitor_key, oc_k
 from node.models.bundle import Bundle
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import AlignedSample, Aligner
+from node.runtime.history import EngineState
 from node.runtime.pipeline import MonitorPipeline
 
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
@@ -68,8 +69,10 @@ class NodeCore:
     {'nB': 0.0, 'yB': 11.0}
     """
 
-    def __init__(self, bundle: Bundle) -> None:
+    def __init__(self, bundle: Bundle, engines: Mapping[str, EngineState] | None = None) -> None:
+        """engines: each bed's engine history before (a state file's); others start unknown."""
         self.bundle = bundle
+        self._engines = dict(engines or {})
         self.beds: dict[str, Bed] = {}
         self.foreign = 0  # messages on keys that are no sensor keys (node-wide)
         self.published = 0  # outputs returned
@@ -150,6 +153,12 @@ class NodeCore:
             msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
         return msg
 
+    def engine_states(self) -> dict[str, EngineState]:
+        """Each bed's engine history now (beds not seen yet keep the one given), for a state file."""
+        out = dict(self._engines)
+        out.update({name: b.pipeline.history.state for name, b in self.beds.items()})
+        return out
+
     def _route(self, key: str) -> tuple[str, str] | tuple[()]:
         """(bed, channel) of a sensor key, () for any other key (cached)."""
         route = self._routes.get(key)
@@ -160,7 +169,7 @@ class NodeCore:
     def _bed(self, name: str) -> Bed:
         bed = self.beds.get(name)
         if bed is None:
-            pipe = MonitorPipeline(self.bundle)
+            pipe = MonitorPipeline(self.bundle, self._engines.get(name))
             aligner = Aligner(pipe.sensor_channels, max_wait=self.bundle.config.align_wait_s)
             bed = self.beds[name] = Bed(aligner, pipe)
         return bed

@@ -24,10 +24,12 @@ from node.models.bundle import Bundle
 from node.models.ocmodel import OCRuntime
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
+from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
 from node.runtime.ocdetect import OCDetector, OCState
 from node.runtime.runcurve import RUN_CURVE, RunCurve
 
 _NAN = float("nan")
+_NO_SLOW = (_NAN, _NAN, _NAN)
 
 
 @dataclass
@@ -48,19 +50,26 @@ class MonitorPipeline:
     """Stateful per-bed pipeline (bounded memory: ``config.history_s`` of samples).
 
     ``step(sample)`` returns ``(monitor_message, oc_message_or_None)`` as dicts
-    ready for JSON (contract section 2).
+    ready for JSON (contract section 2). ``engine``: the bed's engine history before
+    (``node.runtime.history``; default: unknown, a cold engine); ``history.state`` keeps it
+    up to date across runs (a new run does not reset it).
     """
 
-    def __init__(self, bundle: Bundle) -> None:
+    def __init__(self, bundle: Bundle, engine: EngineState | None = None) -> None:
         cfg = bundle.config
         self.bundle = bundle
         self.target = bundle.target
         self.switch = bundle.schedule.switch
         self.detector = OCDetector(bundle.schedule, cfg, FS)
         self._names = bundle.schedule.names  # a tuple built on each access: keep one
-        self.channels = sorted({self.switch, self.target, *bundle.inputs})
-        # what the test bed publishes: the derived run_curve is computed here, never awaited
-        self.sensor_channels = [c for c in self.channels if c != RUN_CURVE]
+        self._uses_history = any(c in HISTORY_CHANNELS for c in bundle.inputs)
+        slow = SLOW_TEMPERATURES if self._uses_history else ()
+        self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow})
+        # what the test bed publishes: the derived inputs are computed here, never awaited
+        derived = {RUN_CURVE, *HISTORY_CHANNELS}
+        self.sensor_channels = [c for c in self.channels if c not in derived]
+        self.history = HistoryTracker(self.detector.off_level, cfg.history_cooling, engine)
+        self._slow = slow
         self._hist: deque[tuple[float, ...]] = deque(maxlen=int(cfg.history_s * FS))
         self._last: dict[str, float] = dict.fromkeys(self.channels, _NAN)  # in channel order
         self._state: tuple[int | None, Phase] = (None, Phase.OFF)
@@ -84,6 +93,11 @@ class MonitorPipeline:
         oc_changed = st.oc != self._state[0]
         if self._curve is not None:
             vals[RUN_CURVE] = self._curve.step(vals[self.switch], vals[self.target], oc_changed)
+        if self._uses_history:
+            vals.update(zip(HISTORY_CHANNELS, self.history.step(
+                sample.t, vals[self.switch], tuple(vals[c] for c in self._slow))))
+        else:  # kept all the same: the bed's engine history stays known for the next model
+            self.history.step(sample.t, vals[self.switch], _NO_SLOW)
         oc_msg = None
         if oc_changed or st.phase != self._state[1]:
             oc_msg = self._switch(sample.t, st, oc_changed)

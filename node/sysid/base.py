@@ -33,6 +33,9 @@ class LinearDMD:
 
     Args:
         rcond: relative singular-value tolerance of the pseudo-inverse (beta).
+        ridge: Tikhonov weight of the operator fit relative to the largest squared singular
+            value of the (column-scaled) regressors; 0: none. Shrinks the weakly excited
+            directions that make free runs drift.
         rank: optional POD truncation of the (pseudo-)state, None keeps all.
         estimator: ``"ls"`` or ``"oe"`` (see :class:`Estimator`).
         dt: sample time in seconds (for frequency responses).
@@ -56,8 +59,9 @@ class LinearDMD:
 
     def __init__(self, rcond: float = 1e-10, rank: int | None = None,
                  estimator: str = "oe", dt: float = 1.0, warmup: int = 0,
-                 seed_window: int | None = None) -> None:
+                 seed_window: int | None = None, ridge: float = 0.0) -> None:
         self.rcond = rcond
+        self.ridge = ridge
         self.rank = rank
         self.estimator = estimator
         self.dt = dt
@@ -80,6 +84,8 @@ class LinearDMD:
     def _check_params(self) -> Estimator:
         if not (isinstance(self.rcond, (int, float)) and self.rcond > 0):
             raise ValueError(f"rcond must be a positive number, got {self.rcond!r}")
+        if not (isinstance(self.ridge, (int, float)) and self.ridge >= 0):
+            raise ValueError(f"ridge must be a number >= 0, got {self.ridge!r}")
         if self.rank is not None and (int(self.rank) != self.rank or self.rank < 1):
             raise ValueError(f"rank must be a positive integer or None, got {self.rank!r}")
         if not self.dt > 0:
@@ -112,7 +118,7 @@ class LinearDMD:
         else:
             R = np.vstack([np.hstack([x[:-1], u[:-1]]) for x, u in zip(Xs, Us)])
             T = np.vstack([np.hstack([x[1:], y[:-1]]) for x, y in zip(Xs, Ys)])
-            W, self.rank_ = truncated_lstsq(R, T, self.rcond)
+            W, self.rank_ = truncated_lstsq(R, T, self.rcond, ridge=float(self.ridge))
         n = Xs[0].shape[1]
         G = W.T  # [[A, B], [C, D]]
         A, B, C, D = G[:n, :n], G[:n, n:], G[n:, :n], G[n:, n:]

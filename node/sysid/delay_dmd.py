@@ -47,9 +47,10 @@ class DelayDMD(LinearDMD):
 
     def __init__(self, delays: int = 10, lag: int = 1, input_delays: int = 0,
                  rcond: float = 1e-10, rank: int | None = None, estimator: str = "oe",
-                 dt: float = 1.0, warmup: int = 0, seed_window: int | None = None) -> None:
+                 dt: float = 1.0, warmup: int = 0, seed_window: int | None = None,
+                 ridge: float = 0.0) -> None:
         super().__init__(rcond=rcond, rank=rank, estimator=estimator, dt=dt, warmup=warmup,
-                         seed_window=seed_window)
+                         seed_window=seed_window, ridge=ridge)
         self.delays = delays
         self.lag = lag
         self.input_delays = input_delays

@@ -45,9 +45,10 @@ class WDMD(LinearDMD):
 
     def __init__(self, levels: int = 4, wavelet: str = "haar", components: str = "causal",
                  rcond: float = 1e-10, rank: int | None = None, estimator: str = "oe",
-                 dt: float = 1.0, warmup: int = 0, seed_window: int | None = None) -> None:
+                 dt: float = 1.0, warmup: int = 0, seed_window: int | None = None,
+                 ridge: float = 0.0) -> None:
         super().__init__(rcond=rcond, rank=rank, estimator=estimator, dt=dt, warmup=warmup,
-                         seed_window=seed_window)
+                         seed_window=seed_window, ridge=ridge)
         self.levels = levels
         self.wavelet = wavelet
         self.components = components

@@ -16,6 +16,8 @@ from node.contract import Phase
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.mcap import Run
+from node.models.config import RuntimeConfig
+from node.runtime.history import add_history
 from node.runtime.ocdetect import OCDetector
 
 
@@ -93,3 +95,16 @@ def run_arrays(run: Run, target: str, inputs: list[str]) -> RunArrays:
     valid = np.all(np.isfinite(raw), axis=1)
     filled = fill_gaps(raw)
     return RunArrays(filled[:, 0], filled[:, 1:], valid)
+
+
+def with_history(runs: list[Run], schedule: Schedule, config: RuntimeConfig) -> list[Run]:
+    """``runs`` with the engine-history channels (``node.runtime.history``) appended, derived
+    through them in time order as the node derives them (one engine; the first run's past
+    unknown: a cold engine). Returned in the order given."""
+    order = sorted(range(len(runs)), key=lambda i: float(runs[i].t[0]) if len(runs[i].t) else 0.0)
+    on_speed = OCDetector(schedule, config).off_level
+    done = add_history([runs[i] for i in order], schedule.switch, on_speed, config.history_cooling)
+    out: list[Run] = list(runs)
+    for i, r in zip(order, done):
+        out[i] = r
+    return out

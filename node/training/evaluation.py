@@ -15,10 +15,11 @@ from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
 from node.models.ocmodel import Trajectory
 from node.models.result import OCResult
+from node.runtime.history import HISTORY_CHANNELS
 from node.runtime.runcurve import RUN_CURVE, add_run_curve
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import alarm_mask
-from node.training.dataset import run_arrays, segment_runs
+from node.training.dataset import run_arrays, segment_runs, with_history
 
 
 @dataclass
@@ -41,20 +42,25 @@ class OCEvaluation:
 
 def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedule,
                      target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
-                     history_s: float = RuntimeConfig().history_s) -> list[SegmentPrediction]:
+                     config: RuntimeConfig | None = None) -> list[SegmentPrediction]:
     """Free-run predictions of every OC segment found in ``runs`` that has a model.
 
     fleet: the bundle's characteristic curve, needed when a model takes ``run_curve``.
-    history_s: measured past seeding each segment (the bundle's ``config.history_s``).
+    config: the bundle's settings (the measured past seeding each segment, ``history_s``;
+    the engine history's cooling, when a model takes its channels: ``runs`` are then one
+    engine's, in time order, its history derived from them as the node derives it).
     """
+    config = config or RuntimeConfig()
     by_oc = {schedule.index(r.name): r for r in results if r.model is not None}
     out = []
-    hist = int(history_s * FS)
+    hist = int(config.history_s * FS)
     inputs_needed = sorted({c for r in by_oc.values() for c in r.inputs})
     if RUN_CURVE in inputs_needed:
         if fleet is None:
             raise OrdervibError("the model takes run_curve but has no characteristic curve")
         runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
+    if any(c in HISTORY_CHANNELS for c in inputs_needed):
+        runs = with_history(runs, schedule, config)
     arrays = [run_arrays(run, target, inputs_needed) for run in runs]
     for s in segment_runs(runs, schedule):
         res = by_oc.get(s.oc)
@@ -72,10 +78,10 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
 
 def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
              target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
-             history_s: float = RuntimeConfig().history_s
+             config: RuntimeConfig | None = None
              ) -> tuple[list[OCEvaluation], list[SegmentPrediction]]:
     """Per-OC held-out eps and alarm samples, and the predictions (see ``predict_segments``)."""
-    preds = predict_segments(results, runs, schedule, target, fleet, history_s)
+    preds = predict_segments(results, runs, schedule, target, fleet, config)
     by_name = {r.name: r for r in results}
     out = []
     for j, name in enumerate(schedule.names):

@@ -8,6 +8,7 @@ samples before the OC switch, then free-running across the OC.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 import signal
@@ -25,10 +26,12 @@ from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
 from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory, Variant, fit_oc_model
 from node.models.result import EWMA_ALPHA, Calibration, OCResult
+from node.runtime.history import estimate_cooling
+from node.runtime.ocdetect import OCDetector
 from node.runtime.runcurve import add_run_curve
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, peak_score, set_thresholds
-from node.training.dataset import Segment, run_arrays, segment_runs
+from node.training.dataset import Segment, run_arrays, segment_runs, with_history
 from node.training.features import rank_inputs
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
@@ -244,6 +247,16 @@ def fleet_curve(runs: list[Run], switch: str, target: str) -> tuple[np.ndarray, 
     return c.centres_, c.means_
 
 
+def history_config(runs: list[Run], schedule: Schedule, config: RuntimeConfig | None = None
+                   ) -> RuntimeConfig:
+    """``config`` with the engine history's cooling rate estimated from ``runs`` (one engine's,
+    see ``node.runtime.history.estimate_cooling``); unchanged when the runs cannot tell."""
+    config = config or RuntimeConfig()
+    order = sorted(runs, key=lambda r: float(r.t[0]) if len(r.t) else 0.0)
+    rate = estimate_cooling(order, schedule.switch, OCDetector(schedule, config).off_level)
+    return config if rate is None else dataclasses.replace(config, history_cooling=rate)
+
+
 def _worker_init() -> None:
     """A training worker leaves Ctrl-C to its parent, which stops it; SIGTERM ends it at once."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -277,7 +290,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           false_alarms_per_hour: float = FALSE_ALARMS_PER_HOUR,
           cv_undercoverage: float = CV_UNDERCOVERAGE,
           fleet: tuple[np.ndarray, np.ndarray] | None = None,
-          config: RuntimeConfig | None = None, curves: bool = False) -> list[OCResult]:
+          config: RuntimeConfig | None = None, curves: bool = False,
+          history: bool = False) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
@@ -285,6 +299,10 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
 
     fleet: the training runs' characteristic curve (speeds, means); given, every run gains
     the derived ``run_curve`` input (``node.runtime.runcurve``), a candidate like any channel.
+
+    history: every run gains the engine-history channels (``node.runtime.history``, with
+    ``config.history_cooling``: see ``history_config``), candidates like any channel; ``runs``
+    are then one engine's.
 
     curves: per OC, also cross-validate the characteristic curves (``CURVE_CANDIDATES``: the
     OC's fleet curve on the switch speed, and run_curve itself, when among the candidates) and
@@ -300,6 +318,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
         raise OrdervibError(f"target channel {target!r} is missing from some run")
     if fleet is not None:
         runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
+    if history:
+        runs = with_history(runs, schedule, config or RuntimeConfig())
     candidates = candidate_channels(runs, target, schedule.switch)
     if inputs is not None:
         missing = [c for c in inputs if c not in candidates]
