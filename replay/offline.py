@@ -62,8 +62,8 @@ class ReplayReport:
 class _Logic:
     """NodeCore plus what replay needs around it: encoded outputs and the report."""
 
-    def __init__(self, bundle: Bundle, encode: bool) -> None:
-        self.core = NodeCore(bundle)
+    def __init__(self, bundle: Bundle, encode: bool, engines: dict | None = None) -> None:
+        self.core = NodeCore(bundle, engines)
         self.encode = encode
 
     def _outputs(self, outs) -> list[Encoded]:
@@ -90,8 +90,8 @@ class _Logic:
 class _InProcess:
     workers = 0
 
-    def __init__(self, bundle: Bundle, encode: bool) -> None:
-        self.logic = _Logic(bundle, encode)
+    def __init__(self, bundle: Bundle, encode: bool, engines: dict | None = None) -> None:
+        self.logic = _Logic(bundle, encode, engines)
         self.done: deque = deque()
 
     def submit(self, keys, payloads) -> None:
@@ -107,11 +107,11 @@ class _InProcess:
         pass
 
 
-def _serve(bundle: Bundle, encode: bool, tasks, results) -> None:
+def _serve(bundle: Bundle, encode: bool, engines: dict | None, tasks, results) -> None:
     """The worker process: batches in, encoded outputs out, in order; None ends."""
     gc.disable()
     try:
-        logic = _Logic(bundle, encode)
+        logic = _Logic(bundle, encode, engines)
         while (task := tasks.get()) is not None:
             results.put(("batch", logic.batch(*task)))
         results.put(("finish", logic.finish()))
@@ -124,11 +124,11 @@ class _Forked:
 
     workers = 1
 
-    def __init__(self, bundle: Bundle, encode: bool) -> None:
+    def __init__(self, bundle: Bundle, encode: bool, engines: dict | None = None) -> None:
         self.finished = False
         ctx = multiprocessing.get_context("fork")
         self.tasks, self.results = ctx.Queue(), ctx.Queue()
-        self.proc = ctx.Process(target=_serve, args=(bundle, encode, self.tasks, self.results),
+        self.proc = ctx.Process(target=_serve, args=(bundle, encode, engines, self.tasks, self.results),
                                 name="ordervib-replay", daemon=True)
         self.proc.start()
 
@@ -209,14 +209,18 @@ def _u64(values: Iterable[int], n: int) -> np.ndarray:
     return np.fromiter(values, dtype=np.uint64, count=n)
 
 
-def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None = None) -> ReplayReport:
-    """Run the node over every sensor message of ``recording``; write ``out`` if given."""
+def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None = None,
+           engines: dict | None = None) -> ReplayReport:
+    """Run the node over every sensor message of ``recording``; write ``out`` if given.
+
+    engines: each bed's engine history before the recording (``node.runtime.history``;
+    default: derived from the recording alone, its first run taken as a cold start)."""
     workers = default_workers() if workers is None else workers
     stats = ReadStats()
     gc_was_on = gc.isenabled()
     gc.disable()  # no reference cycles are made here; collections would only cost time
     t0 = time.perf_counter()
-    engine = (_Forked if workers > 0 else _InProcess)(bundle, encode=out is not None)
+    engine = (_Forked if workers > 0 else _InProcess)(bundle, out is not None, engines)
     writer = None
     n_in = 0
     try:

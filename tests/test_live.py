@@ -53,7 +53,9 @@ def test_live_node_equals_offline_replay_and_records_every_input(setup):
     from node.models.bundle import load_bundle
     from replay.publish import publish_recording
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    node = LiveNode(load_bundle(setup / "m"), str(setup / "node.mcap"), listen=[endpoint])
+    engine_file = setup / "engine.json"
+    node = LiveNode(load_bundle(setup / "m"), str(setup / "node.mcap"), listen=[endpoint],
+                    engine_file=str(engine_file))
     node.start()
     try:
         sent = publish_recording(str(setup / "test.mcap"), endpoint, speed=0.0, quiet=True)
@@ -72,6 +74,15 @@ def test_live_node_equals_offline_replay_and_records_every_input(setup):
     live, offline = monitor(setup / "node.mcap"), monitor(setup / "offline.mcap")
     assert len(live) > 1000
     assert live == offline  # predicted values equal to the last bit
+    # the engine history it kept is the one the node's logic derives from the same messages
+    from node.live.engine_file import load_engine_states
+    from node.runtime.core import NodeCore
+    core = NodeCore(load_bundle(setup / "m"))
+    for m in iter_messages(setup / "test.mcap"):
+        core.handle(m.topic, bytes(m.payload))
+    core.finish()
+    kept = load_engine_states(engine_file)
+    assert kept == core.engine_states() and all(s.last_on_t is not None for s in kept.values())
 
 
 def test_sigterm_finishes_the_recording(setup, tmp_path):

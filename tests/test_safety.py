@@ -281,3 +281,50 @@ def test_readers_say_a_recording_is_unfinished(command: str, sim: Path, model: P
     err = capsys.readouterr().err
     line = next(x for x in err.splitlines() if "unfinished" in x)
     assert str(unfinished) in line and "read " in line and "messages" in line
+
+
+# -- the engine-history state file (issue 13): checked before any output, replaced atomically
+def test_a_malformed_engine_state_stops_run_and_replay_before_any_output(
+        model: Path, sim: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "engine.json"
+    for text, words in (("{", "not valid JSON"), ('{"format": "x"}', "not an ordervib"),
+                        ('{"format": "ordervib-engine-history", "version": 1, "beds": {"b": {"energy": -1}}}',
+                         "energy")):
+        bad.write_text(text)
+        rec = tmp_path / "node.mcap"
+        assert main(["run", "--model", str(model), "--record", str(rec), "--engine-state", str(bad),
+                     "--duration", "1"]) == 2
+        _one_line_error(capsys, str(bad), *words.split(" "))
+        assert not rec.exists() and bad.read_text() == text
+        out = tmp_path / "out.mcap"
+        assert main(["replay", str(sim), "--model", str(model), "--out", str(out),
+                     "--engine-state", str(bad)]) == 2
+        _one_line_error(capsys, str(bad))
+        assert not out.exists()
+    assert main(["replay", str(sim), "--model", str(model), "--engine-state", str(tmp_path / "none.json")]) == 2
+    _one_line_error(capsys, "no such file")
+    assert main(["replay", str(sim), "--publish", "--engine-state", str(bad)]) == 2
+    _one_line_error(capsys, "--model")
+
+
+def test_the_engine_state_file_is_replaced_whole(tmp_path: Path) -> None:
+    from node.live.engine_file import load_engine_states, save_engine_states
+    from node.runtime.history import EngineState
+    path = tmp_path / "engine.json"
+    assert load_engine_states(path) == {}  # absent: nothing known
+    states = {"b1": EngineState(1.7e9, 5e4, 0.5, 90.0, 1.9e4), "b2": EngineState()}
+    save_engine_states(path, states)
+    assert load_engine_states(path) == states
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["engine.json"]  # no temporary left
+    (tmp_path / "ro").mkdir()
+    target = tmp_path / "ro" / "engine.json"
+    save_engine_states(target, states)
+    os.chmod(tmp_path / "ro", 0o500)
+    try:
+        if os.access(tmp_path / "ro", os.W_OK):  # running as root: permissions do not bind
+            pytest.skip("the folder stays writable (root)")
+        with pytest.raises(OSError):
+            save_engine_states(target, {"b1": EngineState()})
+        assert load_engine_states(target) == states  # the old file is intact
+    finally:
+        os.chmod(tmp_path / "ro", 0o700)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 from typing import Any
 
 from node.cli.outputs import check_output, replacing, warn_unfinished
@@ -34,11 +35,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, choices=(0, 1), default=None,
                    help="with --model: 1 runs the node's logic in a second process while this one "
                         "reads and writes, 0 keeps it in one (default: 1 on 2+ cores)")
+    p.add_argument("--engine-state", metavar="FILE.json",
+                   help="with --model: each bed's engine history before the recording (a live "
+                        "node's state file; read only). Default: the recording's first run is a cold start")
     p.add_argument("--quiet", action="store_true", help="no summary on stderr")
 
 
 def replay_offline(recording: str, model: str, out: str | None, quiet: bool = False,
-                   workers: int | None = None) -> dict[str, Any]:
+                   workers: int | None = None, engine_state: str | None = None) -> dict[str, Any]:
     """Feed every sensor message, in file order, through the node's logic; returns a summary.
 
     workers: 1 runs the logic in a worker process, 0 in this one; None picks (see replay.offline).
@@ -47,11 +51,17 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
     from replay.offline import replay
 
     bundle = load_bundle(model)
+    engines = None
+    if engine_state is not None:
+        from node.live.engine_file import load_engine_states
+        if not os.path.isfile(engine_state):
+            raise OrdervibError(f"--engine-state {engine_state}: no such file")
+        engines = load_engine_states(engine_state)
     if out is None:
-        r = replay(recording, bundle, None, workers)
+        r = replay(recording, bundle, None, workers, engines)
     else:
         with replacing(out) as tmp:  # an existing output is replaced only by a complete one
-            r = replay(recording, bundle, tmp, workers)
+            r = replay(recording, bundle, tmp, workers, engines)
     if r.truncated:
         warn_unfinished(log, recording, f"{r.inputs} sensor messages")
     summary = {"inputs": r.inputs, "published": r.published, "malformed": r.malformed,
@@ -83,10 +93,12 @@ def run(args: argparse.Namespace) -> int:
     if args.model:
         if args.out:
             check_output(args.out, "--out", suffix=".mcap", inputs=[args.recording, args.model])
-        replay_offline(args.recording, args.model, args.out, args.quiet, args.workers)
+        replay_offline(args.recording, args.model, args.out, args.quiet, args.workers, args.engine_state)
         return 0
     if args.out:
         raise OrdervibError("--out goes with --model (the node offline), not with --publish")
+    if args.engine_state:
+        raise OrdervibError("--engine-state goes with --model (the node offline), not with --publish")
     if not args.speed >= 0:
         raise OrdervibError("--speed must be >= 0")
     if not args.wait >= 0:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+from pathlib import Path
 
 from node.cli.outputs import check_new_files, check_output
 from node.contract.errors import OrdervibError
@@ -30,6 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-config", metavar="FILE.json5",
                    help="Zenoh configuration file (TLS, access control; see docs/zenoh/); "
                         "--listen replaces its listen endpoints, --connect its connect endpoints")
+    p.add_argument("--engine-state", metavar="FILE.json",
+                   help="each bed's engine history (last run end, energy, thermal state), loaded at "
+                        "start and kept up to date (default: engine-state.json beside --record)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing recording (or rotated files of that name); without it "
@@ -39,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from node.live.engine_file import check_engine_file
     from node.live.node import run_node
     from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints
     from node.mcap import RecordingWriter, RotatingRecorder
@@ -57,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
     if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):
         listen = [DEFAULT_ENDPOINT]
     bundle = load_bundle(args.model)
+    engine_file = args.engine_state or str(Path(args.record).parent / "engine-state.json")
+    check_engine_file(engine_file)  # a malformed one stops here, before any output is opened
     # the file is created at the first flush, after the session is up: a failed start leaves
     # no file, and an existing one is only ever opened with --force
     record: RecordingWriter | RotatingRecorder
@@ -65,5 +72,5 @@ def run(args: argparse.Namespace) -> int:
                                   deferred=True, exclusive=not args.force)
     else:
         record = RecordingWriter(args.record, deferred=True, exclusive=not args.force)
-    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration)
+    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file)
     return 0

@@ -49,6 +49,7 @@ from node.contract import (
     liveliness_key,
     parse_sensor_key,
 )
+from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
 from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
@@ -70,6 +71,7 @@ class LiveStats:
     published: int = 0
     unrecorded: int = 0  # messages not in the recording because it failed
     recording_error: str | None = None  # why the recording stopped, if it did
+    engine_file_error: str | None = None  # why the engine state was last not saved, if so
     worker_error: str | None = None  # why the worker thread died, if it did
 
 
@@ -87,8 +89,11 @@ class LiveNode:
     def __init__(self, bundle: Bundle, record: str | RecordingWriter | RotatingRecorder,
                  listen: list[str] | None = None,
                  connect: list[str] | None = None, config_file: str | None = None,
-                 queue_size: int = 1_000_000) -> None:
-        self.core = NodeCore(bundle)
+                 queue_size: int = 1_000_000, engine_file: str | None = None) -> None:
+        self.engine_file = engine_file  # each bed's engine history (node.live.engine_file)
+        self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None)
+        self._engine_saved: dict = {}  # what the file holds now
+        self._engine_next = 0.0  # monotonic time of the next save
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
         self.conf = zenoh_config(listen, connect, config_file)
         self.queue: queue.Queue[tuple[str, bytes, int]] = queue.Queue(maxsize=queue_size)
@@ -297,7 +302,27 @@ class LiveNode:
                 self._publish(health_key(bed), self.health(bed, wall))
         t0 = time.perf_counter()
         self._flush()
+        if time.monotonic() >= self._engine_next:
+            self._engine_next = time.monotonic() + SAVE_EVERY_S
+            self._save_engines()
         self._spent["flush"] += time.perf_counter() - t0
+
+    def _save_engines(self) -> None:
+        """Each bed's engine history to its file, when it changed; a failure is logged, never fatal."""
+        if self.engine_file is None:
+            return
+        states = self.core.engine_states()
+        doc = engine_document(states)
+        if doc == self._engine_saved:
+            return
+        try:
+            save_engine_states(self.engine_file, states)
+            self._engine_saved = doc
+            self.stats.engine_file_error = None
+        except OSError as exc:
+            if self.stats.engine_file_error is None:
+                log.error("engine state %s not saved (%s); monitoring goes on", self.engine_file, exc)
+            self.stats.engine_file_error = f"{type(exc).__name__}: {exc}"
 
     def stop(self) -> None:
         """Stop receiving, drain the queue, finish the recording (unless it failed), close the session."""
@@ -308,6 +333,7 @@ class LiveNode:
             pass
         self.thread.join()
         self._withdraw()
+        self._save_engines()
         if self.recording:
             try:
                 self.writer.close()
@@ -317,7 +343,8 @@ class LiveNode:
 
 
 def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, listen: list[str] | None,
-             connect: list[str] | None, config_file: str | None, duration: float | None) -> LiveStats:
+             connect: list[str] | None, config_file: str | None, duration: float | None,
+             engine_file: str | None = None) -> LiveStats:
     """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged.
 
     Raises ``OrdervibError`` (one line) when the worker thread died (the watchdog stops
@@ -328,7 +355,7 @@ def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, l
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     deadline = None if duration is None else time.monotonic() + duration
-    with LiveNode(bundle, record, listen, connect, config_file) as node:
+    with LiveNode(bundle, record, listen, connect, config_file, engine_file=engine_file) as node:
         where = listen or connect or f"the endpoints of {config_file}"
         log.info("ordervib node on %s; recording to %s; Ctrl-C stops", where, record)
         while node.thread.is_alive():  # the watchdog
