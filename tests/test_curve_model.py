@@ -62,7 +62,9 @@ def test_stepper_equals_batch_predict_bit_for_bit():
         speed = speed + rng.normal(0, 4.0, speed.size)
         y = _law(speed, _codes(speed)) + rng.normal(0, 0.05, speed.size)
         trajs.append(Trajectory(y, speed[:, None], start=150))
-    for params in CURVE_CANDIDATES[:2]:
+    lookups = [c for c in CURVE_CANDIDATES if c["variant"] != "run"]
+    assert any(c["variant"] == "anchored" for c in lookups)
+    for params in lookups:
         m = CurveModel.fit(Method.CURVE, params, trajs[:3])
         for t in trajs:
             rt = m.runtime()
@@ -97,8 +99,15 @@ def test_training_picks_the_curve_for_a_function_of_speed_and_a_dmd_for_dynamics
     rng = np.random.default_rng(7)
     static = _ocdata(lambda s, u, r: _law(s, _codes(s)) + rng.normal(0, 0.02, s.size), rng)
     res = train_oc(static, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, None, 2)
-    assert isinstance(res.model, CurveModel) and res.params["variant"] == "fleet"
+    assert isinstance(res.model, CurveModel) and res.params["variant"] in ("fleet", "anchored")
     assert res.inputs == ["nB"] and res.calibration is not None
+    # each run's level scaled by its own factor (its imbalance): the curve anchored at the switch
+    factors = rng.uniform(0.5, 2.0, 5)
+    scaled = _ocdata(lambda s, u, r: factors[r] * _law(s, _codes(s)) + rng.normal(0, 0.02, s.size), rng)
+    res = train_oc(scaled, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, None, 2)
+    assert isinstance(res.model, CurveModel) and res.params["variant"] == "anchored"
+    fleet_scores = [s for p, s in res.cv_scores if p.get("variant") == "fleet"]
+    assert res.cv_eps < 0.5 * min(fleet_scores)
 
     def dynamic(s, u, r):
         y = np.zeros(s.size)
@@ -116,20 +125,20 @@ def test_training_picks_the_curve_for_a_function_of_speed_and_a_dmd_for_dynamics
     assert plain.cv_eps == res.cv_eps and plain.params == res.params
 
 
-@pytest.mark.parametrize("variant", ["fleet", "run"])
+@pytest.mark.parametrize("variant", ["fleet", "run", "anchored"])
 def test_bundle_with_a_curve_model_saves_and_loads(tmp_path, variant):
     rng = np.random.default_rng(1)
     speed = _profile(rng, 2000.0, 3000.0)
     y = _law(speed, _codes(speed))
-    col = speed if variant == "fleet" else y + 0.1
+    col = y + 0.1 if variant == "run" else speed
     traj = Trajectory(y, col[:, None], start=100)
-    params = FLEET if variant == "fleet" else {"variant": "run"}
+    params = {"fleet": FLEET, "run": {"variant": "run"}, "anchored": {**FLEET, "variant": "anchored", "anchor": 40}}[variant]
     m = fit_oc_model("curve", params, [traj])
     again = model_from_arrays("curve", params, m.arrays())
     np.testing.assert_array_equal(again.predict(traj), m.predict(traj))
     from node.models.result import Calibration, OCResult
     schedule = Schedule((OperatingCondition("OC1", 3000.0),))
-    res = OCResult("OC1", m, ["nB" if variant == "fleet" else RUN_CURVE], dict(params), 2, 0.1, 0.2,
+    res = OCResult("OC1", m, [RUN_CURVE if variant == "run" else "nB"], dict(params), 2, 0.1, 0.2,
                    Calibration(0.3, 4.0))
     curve = (np.array([2000.0, 3000.0]), np.array([1.0, 2.0]))
     save_bundle(Bundle("wdmd", "yB", schedule, [res], curve=curve), tmp_path / "m")

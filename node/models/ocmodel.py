@@ -459,6 +459,7 @@ class RegressionRuntime:
 class Variant(StrEnum):
     FLEET = "fleet"  # the training runs' characteristic curve of this OC; input: the switch speed
     RUN = "run"  # the derived run_curve input itself (node.runtime.runcurve); input: run_curve
+    ANCHORED = "anchored"  # the fleet curve moved to the level this run had at the switch
 
 
 STEADY, RISING, FALLING = 0, 1, 2  # the speed's recent change: the rows of CurveModel.means
@@ -489,17 +490,42 @@ def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: 
     return out
 
 
+def _binned_means(speed: np.ndarray, y: np.ndarray, code: np.ndarray, width: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Bin centres (B,) and the mean target per bin and direction (3, B) (every sample's mean
+    where a direction has none)."""
+    ok = np.isfinite(speed) & np.isfinite(y)
+    if not ok.any():
+        raise ValueError("no finite (speed, target) pairs to fit a curve")
+    bins, sums, counts = bin_sums(speed[ok], y[ok], width)
+    means = np.tile(sums / counts, (3, 1))
+    for c in (STEADY, RISING, FALLING):
+        mine = ok & (code == c)
+        if mine.any():
+            b, sm, n = bin_sums(speed[mine], y[mine], width)
+            means[c, np.searchsorted(bins, b)] = sm / n
+    return (bins + 0.5) * width, means
+
+
 @dataclass(frozen=True, eq=False)
 class CurveModel:
     """A characteristic-curve OC model (``curve``): no dynamics, a lookup of the speed.
 
     Attributes:
-        params: variant ("fleet" or "run"), and for fleet: bin (rpm), window (samples the
-            speed's change is taken over; 0: one curve) and deadband (rpm over the window).
-        centres: (B,) the speed bins' centres, rpm (fleet; empty for run).
+        params: variant ("fleet", "run" or "anchored"), and for fleet and anchored: bin (rpm),
+            window (samples the speed's change is taken over; 0: one curve), deadband (rpm
+            over the window), and for anchored: anchor (samples before the switch whose mean
+            level anchors the curve).
+        centres: (B,) the speed bins' centres, rpm (empty for run).
         means: (3, B) the mean target per bin when the speed is steady, rising, falling
             (rows STEADY, RISING, FALLING); a bin without samples of a direction holds the
             mean of every sample in it.
+        weights: anchored only, (2,): (w_mul, w_add). With c the curve at the speed, y_sw and
+            c_sw the measured mean and the steady curve's mean over the ``anchor`` samples
+            before the switch, the prediction is
+            c + w_mul c (y_sw / c_sw - 1) + w_add (y_sw - c_sw): the curve scaled and shifted
+            towards this run's level (a new run's imbalance and bow move its level, its
+            curve keeps its shape). The weights are least squares over the training runs.
 
     A law that differs on the way up and down is recovered exactly:
 
@@ -513,11 +539,23 @@ class CurveModel:
     >>> rt.start(np.array([1.0]), np.array([[1497.5]]))
     >>> rt.step([1502.5]), rt.step([1497.5])
     (1.5025, 3.0)
+
+    Runs whose level is the curve's times a run factor are followed from their switch:
+
+    >>> speed = np.concatenate([np.full(50, 1010.0), np.arange(1010.0, 3000.0, 20.0)])  # bin centres
+    >>> trajs = [Trajectory(f * speed / 1000.0, speed[:, None], start=50) for f in (1.0, 2.0, 3.0)]
+    >>> m = CurveModel.fit(Method.CURVE, {"variant": "anchored", "bin": 20.0, "anchor": 10}, trajs)
+    >>> np.round(m.weights, 6) + 0.0
+    array([1., 0.])
+    >>> new = Trajectory(2.5 * speed / 1000.0, speed[:, None], start=50)
+    >>> round(float(m.predict(new)[-1]), 6)  # the fleet curve says 2 x 2.99 at 2990 rpm
+    7.475
     """
 
     params: dict
     centres: np.ndarray
     means: np.ndarray
+    weights: np.ndarray = field(default_factory=lambda: np.zeros(2))
     method: ClassVar[Method] = Method.CURVE
     repaired: ClassVar[int] = 0
     n_states: ClassVar[int] = 0
@@ -525,6 +563,7 @@ class CurveModel:
     def __post_init__(self) -> None:
         object.__setattr__(self, "centres", _readonly(self.centres))
         object.__setattr__(self, "means", _readonly(np.reshape(self.means, (3, -1))))
+        object.__setattr__(self, "weights", _readonly(np.reshape(self.weights, (2,))))
 
     @property
     def variant(self) -> Variant:
@@ -532,28 +571,46 @@ class CurveModel:
 
     @classmethod
     def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> CurveModel:
-        """The binned mean of the OC samples' target against their one input (the speed)."""
+        """The binned mean of the OC samples' target against their one input (the speed);
+        anchored: of every sample with its past (so the curve knows the speed at the switch),
+        then the anchoring weights by least squares over the OC samples."""
         if any(t.U.shape[1] != 1 for t in trajs):
             raise ValueError("a curve model takes exactly one input")
-        if Variant(params.get("variant", Variant.FLEET)) is Variant.RUN:
+        variant = Variant(params.get("variant", Variant.FLEET))
+        if variant is Variant.RUN:
             return cls(dict(params), np.zeros(0), np.zeros((3, 0)))
         width, window = float(params.get("bin", 25.0)), int(params.get("window", 0))
         deadband = float(params.get("deadband", 0.0))
-        speed = np.concatenate([t.seg_U[:, 0] for t in trajs])
-        y = np.concatenate([t.seg_y for t in trajs])
-        code = np.concatenate([direction_codes(t.U[:t.start, 0][-window:] if window else t.U[:0, 0],
-                                               t.seg_U[:, 0], window, deadband) for t in trajs])
-        ok = np.isfinite(speed) & np.isfinite(y)
-        if not ok.any():
-            raise ValueError("no finite (speed, target) pairs to fit a curve")
-        bins, sums, counts = bin_sums(speed[ok], y[ok], width)
-        means = np.tile(sums / counts, (3, 1))
-        for c in (STEADY, RISING, FALLING):
-            mine = ok & (code == c)
-            if mine.any():
-                b, s, n = bin_sums(speed[mine], y[mine], width)
-                means[c, np.searchsorted(bins, b)] = s / n
-        return cls(dict(params), (bins + 0.5) * width, means)
+        if variant is Variant.ANCHORED:  # the whole trajectories: the switch speed is in the past
+            speed = np.concatenate([t.U[:, 0] for t in trajs])
+            y = np.concatenate([t.y for t in trajs])
+            code = np.concatenate([direction_codes(t.U[:0, 0], t.U[:, 0], window, deadband) for t in trajs])
+        else:
+            speed = np.concatenate([t.seg_U[:, 0] for t in trajs])
+            y = np.concatenate([t.seg_y for t in trajs])
+            code = np.concatenate([direction_codes(t.U[:t.start, 0][-window:] if window else t.U[:0, 0],
+                                                   t.seg_U[:, 0], window, deadband) for t in trajs])
+        centres, means = _binned_means(speed, y, code, width)
+        plain = cls(dict(params), centres, means)
+        if variant is not Variant.ANCHORED:
+            return plain
+        rows, targets = [], []
+        for t in trajs:
+            rt = plain.runtime()
+            rt.start(t.y[:t.start], t.U[:t.start])
+            c = np.array([rt.step_speed(x) for x in t.seg_U[:, 0].tolist()], dtype=float)
+            if rt.anchor is None:
+                continue
+            y_sw, c_sw = rt.anchor
+            rows.append(np.column_stack([c * (y_sw / c_sw - 1.0), np.full(c.size, y_sw - c_sw)]))
+            targets.append(t.seg_y - c)
+        weights = np.zeros(2)
+        if rows:
+            X, r = np.vstack(rows), np.concatenate(targets)
+            ok = np.isfinite(r) & np.isfinite(X).all(axis=1)
+            if ok.sum() > 2:
+                weights = np.linalg.lstsq(X[ok], r[ok], rcond=None)[0]
+        return cls(dict(params), centres, means, weights)
 
     def predict(self, traj: Trajectory) -> np.ndarray:
         """Prediction over the OC samples of ``traj``, by the node's very stepper: (K_seg,)."""
@@ -568,18 +625,23 @@ class CurveModel:
         return CurveRuntime(self)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {"centres": self.centres, "means": self.means}
+        out = {"centres": self.centres, "means": self.means}
+        if self.variant is Variant.ANCHORED:
+            out["weights"] = self.weights
+        return out
 
     @classmethod
     def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
                     repaired: int = 0) -> CurveModel:
-        return cls(dict(params), arrays["centres"], arrays["means"])
+        return cls(dict(params), arrays["centres"], arrays["means"],
+                   arrays["weights"] if "weights" in arrays else np.zeros(2))
 
 
 class CurveRuntime:
     """Online stepper of a :class:`CurveModel`: a bin lookup per sample.
 
-    Memory: the last ``window`` speeds (the direction of the speed's recent change).
+    Memory: the last ``window`` speeds (the direction of the speed's recent change), and
+    for an anchored curve the run's level at the switch (``anchor``: (y_sw, c_sw) or None).
 
     >>> m = CurveModel({"variant": "fleet", "window": 0}, np.array([0.0, 100.0]),
     ...                np.tile([0.0, 10.0], (3, 1)))
@@ -591,6 +653,11 @@ class CurveRuntime:
 
     def __init__(self, model: CurveModel) -> None:
         self._run = model.variant is Variant.RUN
+        self._anchored = model.variant is Variant.ANCHORED
+        self._anchor_n = int(model.params.get("anchor", FS))
+        self._w_mul, self._w_add = (float(w) for w in model.weights)
+        self.anchor: tuple[float, float] | None = None
+        self._shift = self._gain = 0.0
         self._xs = [float(x) for x in model.centres]
         self._rows = [[float(v) for v in row] for row in model.means]
         self._slopes = [[(r[i + 1] - r[i]) / (self._xs[i + 1] - self._xs[i]) for i in range(len(r) - 1)]
@@ -600,7 +667,10 @@ class CurveRuntime:
         self._past: deque[float] | None = deque(maxlen=window) if window > 0 else None
 
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
-        """Seed the recent speeds from the measured past U_hist (K1, 1) (K1 may be 0)."""
+        """Seed the recent speeds (and the anchor) from the measured past y_hist (K1,),
+        U_hist (K1, 1) (K1 may be 0)."""
+        if self._anchored:
+            self._set_anchor(np.asarray(y_hist, float), np.asarray(U_hist, float))
         if self._past is None:
             return
         self._past.clear()
@@ -609,11 +679,38 @@ class CurveRuntime:
             if x == x:
                 self._past.append(x)
 
+    def _set_anchor(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
+        """The run's level just before the switch against the steady curve's there."""
+        self.anchor, self._shift, self._gain = None, 0.0, 0.0
+        n = self._anchor_n
+        if n <= 0 or len(y_hist) < n:
+            return
+        y, x = y_hist[-n:], U_hist[-n:, 0]
+        ok = np.isfinite(y) & np.isfinite(x)
+        if not ok.any():
+            return
+        y_sw = math.fsum(y[ok].tolist()) / int(ok.sum())
+        c_sw = math.fsum(self._lookup(v, STEADY) for v in x[ok].tolist()) / int(ok.sum())
+        if not (math.isfinite(y_sw) and math.isfinite(c_sw)) or c_sw == 0.0:
+            return
+        self.anchor = (y_sw, c_sw)
+        self._gain = self._w_mul * (y_sw / c_sw - 1.0)
+        self._shift = self._w_add * (y_sw - c_sw)
+
     def step(self, u: Sequence[float] | np.ndarray) -> float:
         """Prediction for this sample from its raw input u (1,): the speed, or run_curve itself."""
         if self._run:
             return float(u[0])
         return self.step_speed(float(u[0]))
+
+    def _lookup(self, x: float, code: int) -> float:
+        xs, ys = self._xs, self._rows[code]
+        i = bisect.bisect_right(xs, x)
+        if i == 0:
+            return ys[0]
+        if i == len(xs):
+            return ys[-1]
+        return ys[i - 1] + self._slopes[code][i - 1] * (x - xs[i - 1])
 
     def step_speed(self, x: float) -> float:
         """Prediction at speed x (rpm) (NaN: NaN, and the recent speeds are kept)."""
@@ -626,13 +723,10 @@ class CurveRuntime:
                 change = x - past[0]
                 code = RISING if change > self._deadband else FALLING if change < -self._deadband else STEADY
             past.append(x)
-        xs, ys = self._xs, self._rows[code]
-        i = bisect.bisect_right(xs, x)
-        if i == 0:
-            return ys[0]
-        if i == len(xs):
-            return ys[-1]
-        return ys[i - 1] + self._slopes[code][i - 1] * (x - xs[i - 1])
+        c = self._lookup(x, code)
+        if self.anchor is None:
+            return c
+        return c + self._gain * c + self._shift
 
 
 KINDS: dict[Method, OCModelKind] = {

@@ -44,11 +44,14 @@ DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
 # The characteristic-curve candidates of every OC's CV (CurveModel params): the OC's fleet
 # curve, one and with rising / falling / steady speed apart (the change over 1 s beyond 20 rpm:
 # the simulator's ramps run at 50-150 rpm/s, plateau noise stays within about 15 rpm per s), and
-# the run's own curve (run_curve) itself.
+# the run's own curve (run_curve) itself, and the fleet curve anchored to the level the run had
+# in the last second before the switch (``Variant.ANCHORED``).
 CURVE_CANDIDATES: list[dict] = [
     {"variant": Variant.FLEET.value, "bin": 25.0, "window": 0},
     {"variant": Variant.FLEET.value, "bin": 25.0, "window": int(FS), "deadband": 20.0},
     {"variant": Variant.RUN.value},
+    {"variant": Variant.ANCHORED.value, "bin": 25.0, "window": 0, "anchor": int(FS)},
+    {"variant": Variant.ANCHORED.value, "bin": 25.0, "window": int(FS), "deadband": 20.0, "anchor": int(FS)},
 ]
 # A state-space or regression model keeps an OC only when its CV eps is below (1 - margin) x
 # the best curve's: on new runs a free-running model's error exceeds its leave-one-run-out CV
