@@ -8,6 +8,7 @@ import sys
 BENCHMARKS = {
     "beam": "bench.beam",
     "faults": "bench.faults",
+    "generalise": "bench.generalise",
     "read-speed": "bench.read_speed",
     "train-speed": "bench.train_speed",
     "replay-speed": "bench.replay_speed",

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         curve.centres_, curve.means_ = bundle.curve
     sw = bundle.schedule.switch
     arrays = [run_arrays(r, bundle.target, [sw]) for r in runs]
-    header = ["OC", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td"]
+    header = ["OC", "model", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td"]
     rows = []
     hold, base = [], []
     for e in evals:
@@ -66,8 +66,8 @@ def run(args: argparse.Namespace) -> int:
             num = sum(float(np.sum((p.measured - curve.predict(_speed(arrays, runs, p))) ** 2)) for p in mine)
             den = sum(float(np.sum(p.measured ** 2)) for p in mine)
             b = float(np.sqrt(num / den)) if den else float("nan")
-        rows.append([e.name, str(e.n_segments), _f(e.eps), _f(res.cv_eps if res else float("nan")),
-                     _f(b)])
+        rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps),
+                     _f(res.cv_eps if res else float("nan")), _f(b)])
         if np.isfinite(e.eps):
             hold.append(e.eps)
             base.append(b)

@@ -49,12 +49,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="how many times more often new runs exceed a cross-validated residual level "
                         "than the CV runs do (default 4, measured with 8 training runs; "
                         "1 trusts the cross-validation as it is)")
-    p.add_argument("--curve-candidates", dest="curves", action="store_true",
-                   help="each OC's fleet curve (rising, falling and steady speed apart, or not) and "
-                        "run_curve compete in the cross-validation (a grid model must beat the best "
-                        "curve's CV error by 20 %%); off by default: on unseen engines it cut the OCs "
-                        "worse than the characteristic curve (5 -> 2 of 36) but raised the mean "
-                        "held-out eps_td (0.293 -> 0.308)")
+    p.add_argument("--curve-candidates", dest="curves", action=argparse.BooleanOptionalAction,
+                   default=True,
+                   help="each OC's characteristic curves compete in the cross-validation: the fleet "
+                        "curve (rising, falling and steady speed apart, or not), run_curve, and the "
+                        "curve anchored to the run's level before the switch; a grid model must beat "
+                        "the best curve's CV error by the curve margin (default: on)")
+    p.add_argument("--history", action=argparse.BooleanOptionalAction, default=False,
+                   help="the engine-history inputs (hist_energy, hist_rate, hist_shutdown, "
+                        "hist_thermal; appendix A.2.5) are candidates like any channel; the "
+                        "recordings are then one engine's, in time order (default: off)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
     p.add_argument("--allow-empty", action="store_true",
@@ -99,7 +103,7 @@ def print_results(results: list[OCResult], file: TextIO | None = None) -> None:
         rows.append([r.name, ",".join(r.inputs), states, hp, f"{r.train_eps:.3f}", f"{r.cv_eps:.3f}",
                      f"{r.calibration.sigma:.3g}" if r.calibration else "-",
                      f"{r.calibration.threshold:.2f} sigma" if r.calibration else "-", r.note])
-    kinds = [r.model.method.value if r.model is not None else "-" for r in results]
+    kinds = [r.kind for r in results]
     if len({k for k in kinds if k != "-"}) > 1:
         header.insert(1, "model")
         for row, kind in zip(rows, kinds):
@@ -126,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     from node.models.bundle import Bundle, save_bundle, sha256_file
     from node.models.config import RuntimeConfig
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
-    from node.training.train import DEFAULT_GRIDS, Method, fleet_curve, train
+    from node.training.train import DEFAULT_GRIDS, Method, fleet_curve, history_config, train
 
     check_output_dir(args.out, "--out", inputs=[*args.recordings, args.schedule])
     if args.workers is not None and args.workers < 1:
@@ -163,10 +167,16 @@ def run(args: argparse.Namespace) -> int:
         log.info("  [%d/%d] %s: %s (%.0f s)", done, total, r.name, cv, time.perf_counter() - t0)
 
     curve = fleet_curve(runs, schedule.switch, args.target)
+    config = RuntimeConfig()
+    if args.history:
+        config = history_config(runs, schedule, config)
+        log.info("engine history: cooling %.3g rpm min per hour of shutdown%s", config.history_cooling,
+                 "" if config.history_cooling != RuntimeConfig().history_cooling
+                 else " (the text's value: too few runs after a known one to estimate it)")
     results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
                     n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
                     false_alarms_per_hour=per_rule, cv_undercoverage=under,
-                    fleet=curve, curves=args.curves)
+                    fleet=curve, curves=args.curves, config=config, history=args.history)
     trained = sum(r.model is not None for r in results)
     if not trained and not args.allow_empty:
         notes = sorted({r.note for r in results if r.note})
@@ -176,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
     checks = calibrate_checks(runs, schedule, args.target, per_rule)
     checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
-    bundle = Bundle(args.method, args.target, schedule, results, RuntimeConfig(), training,
+    bundle = Bundle(args.method, args.target, schedule, results, config, training,
                     curve, checks)
     with replacing_dir(args.out) as tmp:  # an existing model is replaced only by a complete one
         save_bundle(bundle, tmp)

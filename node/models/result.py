@@ -57,3 +57,12 @@ class OCResult:
     ranking: list[tuple[str, float]] = field(default_factory=list)
     cv_scores: list[tuple[dict, float]] = field(default_factory=list)
     note: str = ""
+
+    @property
+    def kind(self) -> str:
+        """The model's kind for tables: its method, a curve with its variant ("curve:anchored");
+        "-" without a model."""
+        if self.model is None:
+            return "-"
+        variant = self.params.get("variant")
+        return f"{self.model.method.value}:{variant}" if variant else self.model.method.value
