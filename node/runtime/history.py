@@ -42,6 +42,7 @@ import numpy as np
 
 from node.contract import FS
 from node.models.config import RuntimeConfig
+from node.runtime.runcurve import hold_last
 
 HISTORY_CHANNELS = ("hist_energy", "hist_rate", "hist_shutdown", "hist_thermal")
 SLOW_TEMPERATURES = ("tF", "tI", "tH")  # the slow gas-path temperatures of the thermal state
@@ -202,21 +203,11 @@ def history_columns(t: np.ndarray, speed: np.ndarray, slow: np.ndarray, tracker:
     return out
 
 
-def _held(x: np.ndarray) -> np.ndarray:
-    """Each NaN replaced by the last finite value before it (NaN before the first), (K,)."""
-    ok = np.isfinite(x)
-    idx = np.where(ok, np.arange(x.size), 0)
-    np.maximum.accumulate(idx, out=idx)
-    out = x[idx]
-    out[: int(np.argmax(ok)) if ok.any() else x.size] = np.nan
-    return out
-
-
 def _run_inputs(run, switch: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t, speed, slow (K, 3)) of a run, held over dropouts as the node holds them."""
     k = len(run.t)
-    speed = _held(np.asarray(run.column(switch), float))
-    slow = np.column_stack([_held(np.asarray(run.column(c), float)) if c in run.channels
+    speed = hold_last(np.asarray(run.column(switch), float))
+    slow = np.column_stack([hold_last(np.asarray(run.column(c), float)) if c in run.channels
                             else np.full(k, np.nan) for c in SLOW_TEMPERATURES])
     return np.asarray(run.t, float), speed, slow
 

@@ -94,7 +94,7 @@ class RunCurve:
         return out
 
 
-def _hold_last(x: np.ndarray) -> np.ndarray:
+def hold_last(x: np.ndarray) -> np.ndarray:
     """Each NaN replaced by the last finite value before it (NaN before the first), (K,)."""
     ok = np.isfinite(x)
     idx = np.where(ok, np.arange(x.size), 0)
@@ -112,7 +112,7 @@ def run_curve_column(speed: np.ndarray, y: np.ndarray, oc_codes: np.ndarray,
     the OC detector's labels (-1 outside every OC).
     """
     rc = RunCurve(*fleet)
-    sp, yy = _hold_last(np.asarray(speed, float)), _hold_last(np.asarray(y, float))
+    sp, yy = hold_last(np.asarray(speed, float)), hold_last(np.asarray(y, float))
     out = np.empty(sp.size)
     prev = None
     for k, (s, v, c) in enumerate(zip(sp.tolist(), yy.tolist(), np.asarray(oc_codes).tolist())):
