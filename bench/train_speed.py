@@ -50,16 +50,18 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     fleet = fleet_curve(train_runs, schedule.switch, "yB")
     for method in args.methods.split(","):
-        for curve in (fleet, None):  # as ordervib train does, and without the derived run_curve
+        # as ordervib train does; without the curve candidates (the defaults before issue 13);
+        # and without the derived run_curve either
+        for curve, curves, label in ((fleet, True, method), (fleet, False, f"{method}, no curve candidates"),
+                                     (None, False, f"{method}, neither")):
             t1 = time.perf_counter()
-            results = train(train_runs, schedule, method=method, fleet=curve)
+            results = train(train_runs, schedule, method=method, fleet=curve, curves=curves)
             t_train = time.perf_counter() - t1
             evals, _ = evaluate(results, test_runs, schedule, "yB", curve)
             held = np.nanmean([e.eps for e in evals])
             cv = np.nanmean([r.cv_eps for r in results])
             alarms = sum(e.alarm_samples for e in evals) / FS
-            name = method if curve is not None else f"{method}, no run_curve"
-            rows.append((name, t_read + t_train, cv, held, alarms))
+            rows.append((label, t_read + t_train, cv, held, alarms))
     print(f"\n{len(train_runs)} training runs, {len(test_runs)} held-out runs; reading took {t_read:.1f} s")
     print("| method | train wall s (read + CV + fit) | mean CV eps_td | mean held-out eps_td | "
           "alarm s on normal runs |")
