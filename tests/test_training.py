@@ -137,3 +137,31 @@ def test_command_errors_are_one_line(argv, message, capsys, tmp_path, monkeypatc
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and "\n" not in err and "Traceback" not in err
+
+
+def test_train_with_history_stores_the_cooling_and_the_node_replays_it(tmp_path, capsys):
+    """--history: the bundle carries the estimated cooling; replay (the node) runs models on
+    the history channels, and its predictions equal training's evaluation of the same runs."""
+    from mcap.reader import make_reader
+    rec = ROOT / "recordings" / "engine1_runs.mcap"
+    sched = ROOT / "recordings" / "engine1_runs.schedule.toml"
+    out = tmp_path / "model"
+    assert main(["train", str(rec), "--schedule", str(sched), "--out", str(out), "--method", "lasso",
+                 "--inputs", "nB,hist_energy,hist_thermal", "--no-curve-candidates", "--history",
+                 "--quiet", "--workers", "1"]) == 0
+    capsys.readouterr()
+    bundle = load_bundle(out)
+    assert {"hist_energy", "hist_thermal"} <= set(bundle.inputs)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["runtime"]["history_cooling"] == bundle.config.history_cooling > 0
+    node_out = tmp_path / "node.mcap"
+    assert main(["replay", str(rec), "--model", str(out), "--out", str(node_out), "--quiet"]) == 0
+    with open(node_out, "rb") as f:
+        node = {round(json.loads(m.data)["t"], 6): json.loads(m.data)["predicted"]
+                for _, ch, m in make_reader(f).iter_messages(topics=["testbed/bed1/monitor/yB"])}
+    from node.cli.train import load_runs
+    preds = predict_segments(bundle.ocs, load_runs([str(rec)], quiet=True), bundle.schedule, "yB",
+                             bundle.curve, bundle.config)
+    pairs = [(node.get(round(float(t), 6)), p) for s in preds for t, p in zip(s.t, s.predicted)]
+    assert pairs and all(a is not None for a, _ in pairs)  # the node predicted every sample
+    np.testing.assert_allclose([a for a, _ in pairs], [b for _, b in pairs], rtol=1e-9, atol=1e-9)

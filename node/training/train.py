@@ -309,8 +309,9 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     are then one engine's.
 
     curves: per OC, also cross-validate the characteristic curves (``CURVE_CANDIDATES``: the
-    OC's fleet curve on the switch speed, and run_curve itself, when among the candidates) and
-    keep one when its CV eps is lower (see ``train_oc``).
+    OC's fleet curve on the switch speed, the curve anchored to the run's level at the
+    switch, and run_curve itself, when among the candidates) and keep the best of them unless
+    the grid's best beats it by ``CURVE_MARGIN`` (see ``train_oc``).
 
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
