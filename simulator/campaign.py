@@ -8,6 +8,9 @@ fault run equals the same run without the fault before the onset (its twin).
 The schedule and the noise scale change what is drawn from those streams, never
 which stream draws what: the same seed with the built-in schedule and noise
 scale 1 gives the very same numbers as before either option existed.
+The optional order phases (``PHASE_CHANNELS``) draw their noise and dropouts from a
+further stream, child 0 of run r's, so every other channel is the same with or
+without them.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.contract import SENSOR_CHANNELS
+from node.contract import ORDER_CHANNELS, PHASE_CHANNELS, SENSOR_CHANNELS, phase_channel
 from simulator import gaspath, rotor, thermal
 from simulator.engine import SHAFTS, Engine, build_engine
 from simulator.schedule import (
@@ -46,6 +49,13 @@ NOISE: dict[str, tuple[float, float, int]] = {
     "M1": (0.005, 0.0, 3),
     "M2": (0.05, 0.0, 1),
 }
+# Order phases (degrees): a vibration unit's phase comes from the same complex order as its
+# amplitude, so its noise is the amplitude's noise over the amplitude, in radians:
+# sigma = noise scale x (absolute + relative x A) / A for the "y" noise above, capped; below
+# PHASE_MIN_AMPLITUDE (of the clean tracked amplitude) the unit gives no phase (null).
+PHASE_MIN_AMPLITUDE = 0.1  # mm/s
+PHASE_SIGMA_CAP = 45.0  # degrees
+PHASE_DECIMALS = 1  # resolution 0.1 degree
 DROPOUT_RATE = 2e-4  # isolated dropouts per sample and channel
 BURSTS_PER_RUN = 0.5  # mean number of dropout bursts (5-60 samples) per channel and run
 STIFFNESS_FAULT = 0.90  # stiffness factor of the 0.95 mode after a stiffness fault
@@ -63,6 +73,9 @@ class SimRun:
     t: np.ndarray  # (K,) epoch seconds, on the grid (no jitter)
     data: np.ndarray  # (K, len(SENSOR_CHANNELS)) measured values, NaN at dropouts
     truth: dict = field(default_factory=dict)
+    # (K, len(PHASE_CHANNELS)) measured order phases, degrees in [-180, 180), NaN at dropouts
+    # and below PHASE_MIN_AMPLITUDE; None when the campaign has no phases
+    phase: np.ndarray | None = None
 
 
 @dataclass
@@ -77,6 +90,11 @@ class Campaign:
     @property
     def ocs(self) -> tuple[OC, ...]:
         return self.schedule.ocs
+
+    @property
+    def published(self) -> tuple[str, ...]:
+        """Every channel the campaign holds: ``channels`` then, if simulated, the phases."""
+        return self.channels + (PHASE_CHANNELS if self.runs[0].phase is not None else ())
 
 
 def _noise_spec(channel: str) -> tuple[float, float, int]:
@@ -112,12 +130,54 @@ def _measure(
         if name[0] in "ny":
             noisy = np.clip(noisy, 0.0, None)
         data[:, j] = np.round(noisy, decimals)
+    _dropouts(rng, data)
+    return data
+
+
+def _dropouts(rng: np.random.Generator, data: np.ndarray) -> None:
+    """Set isolated dropouts and dropout bursts to NaN in ``data`` (K, C), in place."""
+    k = len(data)
     drop = rng.random(data.shape) < DROPOUT_RATE
-    for j in range(len(channels)):
+    for j in range(data.shape[1]):
         for _ in range(rng.poisson(BURSTS_PER_RUN)):
             start = rng.integers(0, k)
             drop[start : start + rng.integers(5, 61), j] = True
     data[drop] = np.nan
+
+
+def phase_sigma(amplitude: np.ndarray, noise_scale: float = 1.0) -> np.ndarray:
+    """Phase noise sigma (degrees) at a clean tracked amplitude (mm/s), any shape.
+
+    The amplitude's noise sigma over the amplitude (radians), times ``noise_scale``,
+    capped at PHASE_SIGMA_CAP; amplitudes below PHASE_MIN_AMPLITUDE count as it.
+
+    >>> phase_sigma(np.array([0.1, 1.0, 10.0])).round(2)
+    array([18.33,  2.86,  1.32])
+    """
+    absolute, relative, _ = _noise_spec(ORDER_CHANNELS[0])
+    a = np.maximum(amplitude, PHASE_MIN_AMPLITUDE)
+    return np.minimum(noise_scale * np.degrees((absolute + relative * a) / a), PHASE_SIGMA_CAP)
+
+
+def _measure_phase(
+    rng: np.random.Generator, clean: dict[str, np.ndarray], noise_scale: float = 1.0
+) -> np.ndarray:
+    """Measured order phases (K, len(PHASE_CHANNELS)), degrees in [-180, 180), NaN for none.
+
+    clean: the tracked amplitudes (mm/s) under ORDER_CHANNELS and their phases (degrees)
+    under PHASE_CHANNELS. Noise ``phase_sigma``, rounded to PHASE_DECIMALS, null where
+    the clean amplitude is below PHASE_MIN_AMPLITUDE, then dropouts as every channel's.
+    """
+    k = len(clean[ORDER_CHANNELS[0]])
+    data = np.empty((k, len(PHASE_CHANNELS)))
+    for j, name in enumerate(ORDER_CHANNELS):
+        amp = clean[name]
+        noisy = clean[phase_channel(name)] + rng.standard_normal(k) * phase_sigma(amp, noise_scale)
+        col = np.round(rotor.wrap_degrees(noisy), PHASE_DECIMALS)
+        col[col >= 180.0] = -180.0  # rounded up to the bound: the same angle
+        col[amp < PHASE_MIN_AMPLITUDE] = np.nan
+        data[:, j] = col
+    _dropouts(rng, data)
     return data
 
 
@@ -205,9 +265,9 @@ def simulate_run(
         if fault == "stiffness" and shaft.out == "yB":
             ramp = np.clip((profile.t - onset) / STIFFNESS_RAMP, 0.0, 1.0)
             stiffness = {2: 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size * ramp}
-        sig[shaft.out] = rotor.amplitude(
-            shaft, sig[shaft.speed], metal, unbalance, bow, stiffness
-        )
+        total = rotor.order(shaft, sig[shaft.speed], metal, unbalance, bow, stiffness)
+        sig[shaft.out] = rotor.tracked_amplitude(total)
+        sig[phase_channel(shaft.out)] = rotor.tracked_phase(total)
         truth_run["imbalance"][shaft.out] = [
             [round(abs(u), 7), round(float(np.degrees(np.angle(u))), 2)] for u in u_run
         ]
@@ -250,6 +310,7 @@ def simulate_campaign(
     fault_size: float = 1.0,
     schedule: SimSchedule | None = None,
     noise_scale: float = 1.0,
+    phase: bool = True,
 ) -> Campaign:
     """Simulate ``runs`` consecutive pass-off runs of one engine; the fault hits the last run.
 
@@ -262,6 +323,8 @@ def simulate_campaign(
     schedule: the OCs each run goes through (default the built-in 12, ``BUILT_IN_SCHEDULE``;
     ``schedule.load_sim_schedule`` reads a file). noise_scale: multiplies every sensor noise
     sigma (> 0, default 1); same draws for every scale.
+    phase: also measure the order phases (``SimRun.phase``, ``PHASE_CHANNELS``), from their
+    own stream: every other number is the same with or without them.
     """
     schedule = BUILT_IN_SCHEDULE if schedule is None else schedule
     if not (np.isfinite(noise_scale) and noise_scale > 0):
@@ -308,6 +371,10 @@ def simulate_campaign(
         start = clock if last_stop is None else last_stop + gap - on_first * DT
         t = start + profile.t
         data = _measure(rng, sig, SENSOR_CHANNELS, noise_scale)
+        phases = None
+        if phase:
+            phase_rng = np.random.default_rng(run_ss[r].spawn(1)[0])
+            phases = _measure_phase(phase_rng, sig, noise_scale)
         onset = truth_run.get("fault", {}).get("onset_s")
         _sensor_fault(data, profile.t, fault if is_faulty else None, onset, fault_size)
         truth_run.update(
@@ -332,6 +399,6 @@ def simulate_campaign(
         )
         if "fault" in truth_run:
             truth_run["fault"]["onset"] = float(start + truth_run["fault"]["onset_s"])
-        out.append(SimRun(t=t, data=data, truth=truth_run))
+        out.append(SimRun(t=t, data=data, truth=truth_run, phase=phases))
         last_stop = float(t[on_last] + DT)
     return Campaign(runs=out, schedule=schedule, noise_scale=float(noise_scale))

@@ -3,6 +3,8 @@
 The MCAP layout is ``node.mcap``'s; this module only adds what a test bed
 adds: acquisition jitter on t (< 2 ms, 0.1 ms resolution), a receive latency
 (publish_time) and the arrival order (messages written in publish-time order).
+The order phases, when written, take their jitter and latency from a stream of
+their own, so every other message is the very same with or without them.
 """
 
 from __future__ import annotations
@@ -14,9 +16,16 @@ from collections.abc import Callable
 import numpy as np
 import orjson
 
-from node.contract import FS, sensor_key
+from node.contract import FS, PHASE_CHANNELS, is_phase_channel, sensor_key
 from node.mcap import RecordingWriter
-from simulator.campaign import Campaign, SimRun
+from simulator.campaign import (
+    NOISE,
+    PHASE_DECIMALS,
+    PHASE_MIN_AMPLITUDE,
+    PHASE_SIGMA_CAP,
+    Campaign,
+)
+from simulator.rotor import TAU_TRACKER
 
 JITTER_SIGMA = 0.4e-3  # acquisition jitter, s
 JITTER_MAX = 1.5e-3  # never more (a slot is 25 ms wide)
@@ -24,24 +33,55 @@ LATENCY_BASE = 0.8e-3  # receive latency: base + per-channel scan offset + expon
 LATENCY_SCAN = 0.05e-3
 LATENCY_TAIL = 0.3e-3
 LATENCY_RESOLUTION_NS = 100_000  # receive clock resolution, 0.1 ms
+Messages = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # channel, t, value, publish
+
+
+PHASE_TRUTH = {
+    "unit": "degrees",
+    "convention": (
+        "lag from the once-per-rev mark of the order smoothed by the tracker (a first-order "
+        "lag of tracker_s on the complex order), wrapped into [-180, 180)"
+    ),
+    "tracker_s": TAU_TRACKER,
+    "min_amplitude_mm_s": PHASE_MIN_AMPLITUDE,
+    "sigma_deg": (
+        f"noise_scale x degrees(({NOISE['y'][0]:g} + {NOISE['y'][1]:g} A) / A), A the clean "
+        f"amplitude in mm/s (at least min_amplitude_mm_s), at most sigma_cap_deg"
+    ),
+    "sigma_cap_deg": PHASE_SIGMA_CAP,
+    "resolution_deg": 10.0**-PHASE_DECIMALS,
+}
 
 
 def run_messages(
-    run: SimRun, rng: np.random.Generator, channels: tuple[str, ...]
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The run's messages in arrival order: (channel index, t s, value, publish_time ns).
+    grid: np.ndarray, data: np.ndarray, rng: np.random.Generator, first: int = 0
+) -> Messages:
+    """One run's messages in arrival order: (channel index, t s, value, publish_time ns).
 
-    All (K * C,); value NaN for a dropout.
+    grid: (K,) s, the run's 40 Hz grid; data: (K, C) values, NaN for a dropout; first:
+    the index of data's first column among the written channels (its latency's scan
+    offset). All outputs (K * C,); channel index from ``first``.
     """
-    k, c = run.data.shape
+    k, c = data.shape
     jitter = np.clip(rng.normal(0.0, JITTER_SIGMA, (k, c)), -JITTER_MAX, JITTER_MAX)
-    t = np.round(run.t[:, None] + jitter, 4)
-    latency = LATENCY_BASE + LATENCY_SCAN * np.arange(c) + rng.exponential(LATENCY_TAIL, (k, c))
+    t = np.round(grid[:, None] + jitter, 4)
+    scan = first + np.arange(c)
+    latency = LATENCY_BASE + LATENCY_SCAN * scan + rng.exponential(LATENCY_TAIL, (k, c))
     res = LATENCY_RESOLUTION_NS
     publish = np.rint(t * 1e9).astype(np.int64) + np.rint(latency * 1e9 / res).astype(np.int64) * res
     order = np.argsort(publish, axis=None, kind="stable")
-    col = np.broadcast_to(np.arange(c), (k, c)).ravel()[order]
-    return col, t.ravel()[order], run.data.ravel()[order], publish.ravel()[order]
+    col = np.broadcast_to(scan, (k, c)).ravel()[order]
+    return col, t.ravel()[order], data.ravel()[order], publish.ravel()[order]
+
+
+def _merged(a: Messages, b: Messages) -> Messages:
+    """Two message sets (as ``run_messages`` returns) as one, in publish-time order.
+
+    A stable sort: ``a``'s messages keep their order among themselves, and go first on a tie.
+    """
+    order = np.argsort(np.concatenate([a[3], b[3]]), kind="stable")
+    col, t, value, publish = (np.concatenate([x, y])[order] for x, y in zip(a, b, strict=True))
+    return col, t, value, publish
 
 
 def write_recording(
@@ -56,21 +96,35 @@ def write_recording(
 ) -> int:
     """Write the runs from ``first_run`` on to an MCAP file; returns the message count.
 
+    channels: the channels to write (default ``campaign.published``: all, with the order
+    phases if simulated); the phases are registered and numbered after the others.
     Without message indexes by default: they would double the file (16 bytes per
     message); readers seek by the chunk index and sort inside a chunk.
     """
-    channels = campaign.channels if channels is None else channels
-    cols = [campaign.channels.index(ch) for ch in channels]
-    keys = [sensor_key(bed, ch) for ch in channels]
-    runs = [SimRun(r.t, r.data[:, cols], r.truth) for r in campaign.runs[first_run:]]
-    total = sum(r.data.size for r in runs)
+    channels = campaign.published if channels is None else channels
+    missing = [ch for ch in channels if ch not in campaign.published]
+    if missing:
+        raise ValueError(f"the campaign has no channel {', '.join(missing)}")
+    plain = [ch for ch in channels if not is_phase_channel(ch)]
+    phases = [ch for ch in channels if is_phase_channel(ch)]
+    cols = [campaign.channels.index(ch) for ch in plain]
+    phase_cols = [PHASE_CHANNELS.index(ch) for ch in phases]
+    keys = [sensor_key(bed, ch) for ch in (*plain, *phases)]
+    runs = campaign.runs[first_run:]
+    total = sum(len(r.t) for r in runs) * len(keys)
     done = 0
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7E57BED]))
+    phase_rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7E57BED, 1]))
     with RecordingWriter(path, message_index=message_index) as writer:
         for key in keys:  # register every channel up front, in table order
             writer.channel_id(key)
         for run in runs:
-            col, t, value, publish = run_messages(run, rng, channels)
+            msgs = run_messages(run.t, run.data[:, cols], rng)
+            if phase_cols:
+                assert run.phase is not None
+                msgs = _merged(msgs, run_messages(run.t, run.phase[:, phase_cols], phase_rng,
+                                                  first=len(cols)))
+            col, t, value, publish = msgs
             ts = t.tolist()
             vs = [None if x != x else x for x in value.tolist()]
             ps = publish.tolist()
@@ -93,12 +147,17 @@ def truth_document(
     first_run: int = 0,
     channels: tuple[str, ...] | None = None,
 ) -> dict:
-    """The ground truth of the written runs, as a JSON-ready dict."""
+    """The ground truth of the written runs, as a JSON-ready dict.
+
+    ``phase``: how the order phases were measured, null when none is written.
+    """
+    channels = campaign.published if channels is None else channels
     return {
         "generator": "ordervib simulate",
         "seed": seed,
         "bed": bed,
-        "channels": list(campaign.channels if channels is None else channels),
+        "channels": list(channels),
+        "phase": PHASE_TRUTH if any(is_phase_channel(ch) for ch in channels) else None,
         "sample_rate_hz": FS,
         "noise_scale": campaign.noise_scale,
         "schedule": campaign.schedule.truth(),

@@ -11,7 +11,9 @@ shaft speed W (rad/s) is
 mode lags q_m with a first-order lag tau_m (slow-time envelope dynamics plus
 the order tracker's bandwidth), so sweeping through a resonance depends on the
 sweep rate. The tracked amplitude is |sum_m q_m + residual| passed through the
-order tracker's smoothing lag.
+order tracker's smoothing lag; the tracked phase is the phase lag (degrees, from the
+once-per-rev mark) of the same complex order passed through a lag of the same time
+constant (a tracking filter of that bandwidth smooths the complex order).
 """
 
 from __future__ import annotations
@@ -67,7 +69,7 @@ def steady_modal(
     return w_shaft * force / (w_mode**2 - w_shaft**2 + 2j * mode.zeta * w_mode * w_shaft)
 
 
-def amplitude(
+def order(
     shaft: Shaft,
     speed_rpm: np.ndarray,
     metal: np.ndarray,
@@ -75,10 +77,11 @@ def amplitude(
     bow: np.ndarray,
     stiffness: dict[int, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Tracked order-1 amplitude (mm/s peak), shape (K,).
+    """Complex order-1 velocity (mm/s) before the order tracker, shape (K,).
 
-    speed_rpm, metal (°C), bow (complex mm): (K,); unbalance: (K, 2) complex mm;
-    stiffness: optional per-mode stiffness factor (K,) (faults).
+    The sum of the lagged modal envelopes and the mass-line residual. speed_rpm,
+    metal (°C), bow (complex mm): (K,); unbalance: (K, 2) complex mm; stiffness:
+    optional per-mode stiffness factor (K,) (faults).
     """
     w = rad_s(np.clip(speed_rpm, 0.0, None))
     total: np.ndarray = np.zeros(len(w), dtype=complex)
@@ -87,4 +90,35 @@ def amplitude(
         q_ss = steady_modal(mode, w, mode_frequency(mode, metal, k), unbalance, bow)
         total += lag(q_ss, mode.tau, 0.0)
     total += shaft.residual * w**3 * unbalance.sum(axis=1)
+    return total
+
+
+def tracked_amplitude(total: np.ndarray) -> np.ndarray:
+    """Tracked order-1 amplitude (mm/s peak), (K,), of the complex order ``total`` (K,)."""
     return lag(np.abs(total), TAU_TRACKER, 0.0)
+
+
+def tracked_phase(total: np.ndarray) -> np.ndarray:
+    """Tracked order-1 phase lag (degrees, in [-180, 180)), (K,), of the complex order (K,).
+
+    The order smoothed by the tracker (complex lag of TAU_TRACKER, the amplitude's
+    smoothing) and its angle negated: a response ``A cos(W t - phi)`` with the
+    once-per-rev mark at ``W t = 0`` has the complex order ``A exp(-1j phi)`` and the
+    phase ``phi``, which grows by about 180 degrees through a resonance. 0 where the
+    order is 0 (shaft at rest; a unit gives no phase there).
+
+    >>> tracked_phase(np.full(400, 2.0 * np.exp(-1j * np.pi / 3)))[-1].round(6)
+    np.float64(60.0)
+    """
+    return wrap_degrees(-np.degrees(np.angle(lag(total, TAU_TRACKER, 0.0))))
+
+
+def wrap_degrees(x: np.ndarray) -> np.ndarray:
+    """Angles (degrees) wrapped into [-180, 180), any shape.
+
+    >>> wrap_degrees(np.array([180.0, -180.0, 190.0, -190.5, 359.0]))
+    array([-180. , -180. , -170. ,  169.5,   -1. ])
+    """
+    out = np.mod(np.asarray(x, dtype=float) + 180.0, 360.0) - 180.0
+    return np.where(out >= 180.0, out - 360.0, out)  # np.mod gives 360 for tiny negative inputs
+

@@ -4,7 +4,9 @@ Writes REC.mcap (contract sections 1 and 3), REC.schedule.toml (section 4) and
 REC.truth.json (run times, shutdown times, OC intervals, fault onset, schedule
 origin, noise scale). The same seed gives byte-identical files. ``--schedule``
 runs the OCs of a contract schedule file instead of the built-in 12;
-``--noise-scale`` scales every sensor's noise.
+``--noise-scale`` scales every sensor's noise. The optional order phases
+(``yA_ph``, ``yB_ph``, ``yC_ph``, degrees) are written unless ``--no-phase``; every
+other channel is the same either way.
 """
 
 from __future__ import annotations
@@ -91,21 +93,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--channels",
         default=None,
         metavar="LIST",
-        help="publish only these channels, comma-separated (default: all 21 of the contract)",
+        help="publish only these channels, comma-separated (default: all 21 of the contract "
+        "and the 3 order phases yA_ph, yB_ph, yC_ph)",
+    )
+    p.add_argument(
+        "--no-phase",
+        action="store_true",
+        help="leave out the order phases yA_ph, yB_ph, yC_ph (a test bed without once-per-rev "
+        "reference); the other channels are the same either way",
     )
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def _channels(arg: str | None) -> tuple[str, ...] | None:
-    from node.contract import SENSOR_CHANNELS
+def _channels(arg: str | None, phase: bool) -> tuple[str, ...] | None:
+    from node.contract import PHASE_CHANNELS, SENSOR_CHANNELS
 
     if arg is None:
         return None
+    known = SENSOR_CHANNELS + (PHASE_CHANNELS if phase else ())
     names = tuple(c.strip() for c in arg.split(",") if c.strip())
-    unknown = [c for c in names if c not in SENSOR_CHANNELS]
+    unknown = [c for c in names if c not in known]
     if unknown or not names or len(set(names)) != len(names):
+        without = " (--no-phase leaves out the phases)" if not phase else ""
         raise OrdervibError(
-            f"--channels must be distinct names among {','.join(SENSOR_CHANNELS)}, got {arg!r}"
+            f"--channels must be distinct names among {','.join(known)}{without}, got {arg!r}"
         )
     return names
 
@@ -140,7 +151,7 @@ def _check(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     _check(args)
-    channels = _channels(args.channels)
+    channels = _channels(args.channels, not args.no_phase)
     from simulator.campaign import simulate_campaign
     from simulator.export import write_recording, write_sidecars
     from simulator.schedule import load_sim_schedule
@@ -157,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
         fault_size=1.0 if args.fault_size is None else args.fault_size,
         schedule=schedule,
         noise_scale=args.noise_scale,
+        phase=not args.no_phase,
     )
     progress = Progress(NAME, log)
     with replacing(args.out) as part:

@@ -22,6 +22,7 @@ OFF_FRACTION = 0.05  # the engine is off when every shaft speed is below this fr
 # Section 1, in table order.
 SPEED_CHANNELS: tuple[str, ...] = ("nA", "nB", "nC")
 ORDER_CHANNELS: tuple[str, ...] = ("yA", "yB", "yC")  # tracked order-1 amplitudes, mm/s
+PHASE_SUFFIX = "_ph"  # an order's phase channel: the amplitude channel's name + this suffix
 PHASE_CHANNELS: tuple[str, ...] = ("yA_ph", "yB_ph", "yC_ph")  # optional order phases, degrees
 SENSOR_CHANNELS: tuple[str, ...] = (
     *SPEED_CHANNELS, *ORDER_CHANNELS,
@@ -73,6 +74,24 @@ def oc_key(bed: str) -> str:
 def health_key(bed: str) -> str:
     """Key of a bed's health messages."""
     return monitor_key(bed, HEALTH_TOPIC)
+
+
+def phase_channel(order: str) -> str:
+    """The phase channel (degrees) of a tracked order's amplitude channel.
+
+    >>> phase_channel("yB")
+    'yB_ph'
+    """
+    return order + PHASE_SUFFIX
+
+
+def is_phase_channel(channel: str) -> bool:
+    """Whether a channel is a tracked order's phase (degrees), not an amplitude or a signal.
+
+    >>> is_phase_channel("yB_ph"), is_phase_channel("yB")
+    (True, False)
+    """
+    return channel.endswith(PHASE_SUFFIX)
 
 
 def liveliness_key(node_id: str) -> str:
