@@ -13,13 +13,14 @@ import pytest
 from mcap.reader import NonSeekingReader, make_reader
 
 from node.cli import main
-from node.contract import SENSOR_CHANNELS
+from node.contract import ORDER_CHANNELS, PHASE_CHANNELS, SENSOR_CHANNELS
 from node.mcap import read_runs
 from simulator.campaign import simulate_campaign
 
 KEY = re.compile(r"^testbed/([^/]+)/sensor/([^/]+)$")
 # Shorter plateaus keep the suite fast; the layout does not depend on them.
 FAST = ["--plateau-scale", "0.05", "--quiet"]
+PUBLISHED = (*SENSOR_CHANNELS, *PHASE_CHANNELS)  # what simulate writes by default
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +36,7 @@ def test_file_opens_with_the_plain_mcap_reader(rec3: Path) -> None:
         summary = reader.get_summary()
         assert summary is not None and summary.statistics.message_count > 0
         assert {c.topic for c in summary.channels.values()} == {
-            f"testbed/bed1/sensor/{c}" for c in SENSOR_CHANNELS
+            f"testbed/bed1/sensor/{c}" for c in PUBLISHED
         }
         first = next(iter(reader.iter_messages()))
         assert first[1].message_encoding == "json"
@@ -52,11 +53,11 @@ def test_every_message_follows_the_contract(rec3: Path) -> None:
             rows.append((channel.id, msg.log_time, msg.publish_time, msg.data))
     for schema, channel in channels.values():
         m = KEY.match(channel.topic)
-        assert m and m.group(1) == "bed1" and m.group(2) in SENSOR_CHANNELS
+        assert m and m.group(1) == "bed1" and m.group(2) in PUBLISHED
         assert schema.encoding == "jsonschema"
         assert json.loads(schema.data)["type"] == "object"
         assert channel.message_encoding == "json"
-    assert {KEY.match(c.topic).group(2) for _, c in channels.values()} == set(SENSOR_CHANNELS)
+    assert {KEY.match(c.topic).group(2) for _, c in channels.values()} == set(PUBLISHED)
     payloads = orjson.loads(b"[" + b",".join(r[3] for r in rows) + b"]")
     times: dict[int, list[float]] = defaultdict(list)
     for (cid, log_time, publish_time, _), payload in zip(rows, payloads, strict=True):
@@ -95,8 +96,8 @@ def test_read_runs_matches_truth(rec3: Path) -> None:
     runs = read_runs(rec3)
     assert len(runs) == 3
     for run, tr in zip(runs, truth, strict=True):
-        assert run.data.shape == (len(run.t), len(SENSOR_CHANNELS))
-        assert run.channels == SENSOR_CHANNELS and run.bed == "bed1"
+        assert run.data.shape == (len(run.t), len(PUBLISHED))
+        assert run.channels == PUBLISHED and run.bed == "bed1"
         assert run.t[0] == pytest.approx(tr["engine_start"], abs=0.03)
         if tr["shutdown_before_s"] is None:
             assert run.shutdown_before is None
@@ -458,3 +459,176 @@ def test_bench_faults_compares_twinson_common_samples() -> None:
     other = Run(t + 0.0125, data, ("nB", "yB"), "b", None)
     a, b = on_common_samples(full, other)
     assert a is full and b is other
+
+
+# --- order phases (yA_ph, yB_ph, yC_ph) ------------------------------------------------------
+
+
+def test_phase_channels_are_wrapped_degrees_and_noisier_at_small_amplitude(rec3: Path) -> None:
+    from simulator.campaign import PHASE_MIN_AMPLITUDE
+
+    truth = json.loads(rec3.with_suffix(".truth.json").read_text())
+    assert truth["channels"] == list(PUBLISHED)
+    assert truth["phase"]["min_amplitude_mm_s"] == PHASE_MIN_AMPLITUDE
+    assert truth["phase"]["unit"] == "degrees"
+    for run in read_runs(rec3):
+        for amp_ch, ph_ch in zip(ORDER_CHANNELS, PHASE_CHANNELS, strict=True):
+            a, p = run.column(amp_ch), run.column(ph_ch)
+            ok = np.isfinite(p)
+            assert ok.mean() > 0.5  # most of a run has a phase
+            assert np.all((p[ok] >= -180.0) & (p[ok] < 180.0))
+            np.testing.assert_array_equal(p[ok], np.round(p[ok], 1))  # 0.1 degree resolution
+            # the engine at rest (amplitude rounded to 0.00): no phase
+            rest = a == 0.0
+            assert rest.sum() > 20 and np.isnan(p[rest]).mean() > 0.95
+            # sample-to-sample scatter of the phase shrinks as the amplitude grows
+            d = np.abs(np.mod(np.diff(p) + 180.0, 360.0) - 180.0)
+            low, high = (np.nanmedian(d[(a[1:] >= lo) & (a[1:] < hi)])
+                         for lo, hi in ((0.15, 0.4), (1.0, 3.0)))
+            assert low > 2.0 * high
+
+
+def test_measured_phase_noise_threshold_and_wrap() -> None:
+    from simulator.campaign import PHASE_MIN_AMPLITUDE, _measure_phase, phase_sigma
+
+    k = 40_000
+    levels = np.array([0.02, 0.099, 0.15, 0.5, 2.0, 10.0])  # clean amplitudes, mm/s
+    amp = np.repeat(levels, k // len(levels))
+    clean = {}
+    for name, ph in zip(ORDER_CHANNELS, PHASE_CHANNELS, strict=True):
+        clean[name] = amp
+        clean[ph] = np.full(len(amp), 179.0)  # next to the wrap: noise crosses it
+    for scale in (1.0, 2.0):
+        m = _measure_phase(np.random.default_rng(1), clean, scale)
+        assert m.shape == (len(amp), len(PHASE_CHANNELS))
+        below = amp < PHASE_MIN_AMPLITUDE
+        assert np.isnan(m[below]).all()  # no phase below the threshold
+        assert np.isfinite(m[~below]).mean() > 0.98  # elsewhere only the dropouts
+        ok = np.isfinite(m)
+        assert np.all((m[ok] >= -180.0) & (m[ok] < 180.0)) and (m[ok] < 0).any()
+        err = np.mod(m - 179.0 + 180.0, 360.0) - 180.0
+        stds = []
+        for level in levels[levels >= PHASE_MIN_AMPLITUDE]:
+            e = err[amp == level]
+            e = e[np.isfinite(e)]
+            want = float(phase_sigma(np.array(level), scale))
+            assert abs(np.mean(e)) < 0.1 * want + 0.05
+            assert np.std(e) == pytest.approx(np.sqrt(want**2 + 0.1**2 / 12), rel=0.06), level
+            stds.append(np.std(e))
+        assert stds == sorted(stds, reverse=True) and stds[0] > 5 * stds[-1]
+    assert phase_sigma(np.array([0.0, 0.1, 1e-3]), 10.0).max() <= 45.0  # capped
+
+
+def test_tracked_phase_is_the_phase_lag_through_a_resonance() -> None:
+    """One mode at a steady speed: the tracked phase is the lag of the analytic response,
+    -angle(U) + atan2(2 zeta w W, w^2 - W^2), which grows by 180 degrees through the
+    resonance; its magnitude is the tracked amplitude."""
+    from simulator import rotor
+
+    mode = rotor.Mode(rpm=6000.0, zeta=0.05, g=(1.0, 0.0), h=0.0, kappa=0.0, tau=1.0)
+    shaft = rotor.Shaft(speed="nB", out="yB", modes=(mode,), residual=0.0)
+    u = 1e-3 * np.exp(1j * np.radians(40.0))
+    k = 1200  # 30 s: settled
+    got = []
+    for rpm in (3000.0, 5700.0, 6000.0, 6300.0, 9000.0):
+        total = rotor.order(shaft, np.full(k, rpm), np.full(k, rotor.T_REF),
+                            np.full((k, 2), [u, 0.0]), np.zeros(k, dtype=complex))
+        big, w = rotor.rad_s(rpm), rotor.rad_s(mode.rpm)
+        want = -40.0 + np.degrees(np.arctan2(2 * mode.zeta * w * big, w**2 - big**2))
+        phase = rotor.tracked_phase(total)
+        assert phase[-1] == pytest.approx(want, abs=1e-6)
+        assert rotor.tracked_amplitude(total)[-1] == pytest.approx(abs(total[-1]), rel=1e-9)
+        got.append(phase[-1])
+    assert got == sorted(got) and got[2] == pytest.approx(50.0) and got[-1] - got[0] > 165.0
+
+
+def _first_run_clean(seed: int, plateau_scale: float) -> dict[str, np.ndarray]:
+    """The clean signals of run 0 of ``simulate_campaign(1, seed)``, drawn as it draws them."""
+    from simulator.campaign import simulate_run
+    from simulator.engine import build_engine
+
+    engine_ss, _fault_ss, run_ss = np.random.SeedSequence(seed).spawn(3)
+    engine = build_engine(np.random.default_rng(engine_ss))
+    rng = np.random.default_rng(run_ss)
+    rng.uniform()  # the shutdown time, unused for the first run
+    return simulate_run(engine, rng, np.inf, {}, plateau_scale=plateau_scale)[0]
+
+
+def test_phase_follows_the_true_complex_phase_at_high_amplitude() -> None:
+    from simulator.campaign import PHASE_MIN_AMPLITUDE, phase_sigma
+
+    run = simulate_campaign(1, 4, plateau_scale=0.25).runs[0]
+    clean = _first_run_clean(4, 0.25)
+    assert run.phase is not None
+    for j, (name, ph) in enumerate(zip(ORDER_CHANNELS, PHASE_CHANNELS, strict=True)):
+        measured = run.data[:, SENSOR_CHANNELS.index(name)]
+        ok = np.isfinite(measured)  # the replica is the campaign's run: same amplitude
+        assert np.max(np.abs(measured[ok] - clean[name][ok])) < 0.5 + 0.15 * clean[name].max()
+        amp, p = clean[name], run.phase[:, j]
+        np.testing.assert_array_equal(np.isnan(p[amp < PHASE_MIN_AMPLITUDE]), True)
+        err = np.mod(p - clean[ph] + 180.0, 360.0) - 180.0
+        high = (amp > 2.0) & np.isfinite(p)
+        assert high.sum() > 500, name
+        z = err[high] / phase_sigma(amp[high])
+        assert np.max(np.abs(err[high])) < 10.0 and np.max(np.abs(z)) < 6.0
+        assert np.std(z) == pytest.approx(1.0, abs=0.15) and abs(np.mean(z)) < 0.15
+        # the true phase moves (resonances): the channel follows it, not a constant
+        assert np.ptp(clean[ph][high]) > 30.0 or name != "yB"
+
+
+def test_no_phase_leaves_every_other_channel_as_it_was(tmp_path: Path) -> None:
+    with_phase = simulate_campaign(2, 6, plateau_scale=0.05, fault="imbalance")
+    without = simulate_campaign(2, 6, plateau_scale=0.05, fault="imbalance", phase=False)
+    assert without.published == SENSOR_CHANNELS and with_phase.published == PUBLISHED
+    for a, b in zip(with_phase.runs, without.runs, strict=True):
+        np.testing.assert_array_equal(a.t, b.t)
+        np.testing.assert_array_equal(a.data, b.data)
+        assert a.truth == b.truth and b.phase is None and a.phase is not None
+    # the fault twin holds for the phases too; an imbalance step moves yB's phase
+    twin = simulate_campaign(2, 6, plateau_scale=0.05).runs[1]
+    faulty = with_phase.runs[1]
+    before = faulty.t < faulty.truth["fault"]["onset"]
+    np.testing.assert_array_equal(twin.phase[before], faulty.phase[before])
+    j = PHASE_CHANNELS.index("yB_ph")
+    assert not np.array_equal(twin.phase[~before, j], faulty.phase[~before, j], equal_nan=True)
+    # the files: every non-phase message (payload, times, order) identical, no phase topics
+    paths = {}
+    for name, extra in (("with", []), ("without", ["--no-phase"])):
+        paths[name] = tmp_path / f"{name}.mcap"
+        argv = ["simulate", "--runs", "2", "--seed", "6", "--out", str(paths[name]), *extra]
+        assert main([*argv, *FAST]) == 0
+    messages = {}
+    for name, path in paths.items():
+        with open(path, "rb") as f:
+            messages[name] = [(c.topic, m.log_time, m.publish_time, m.data)
+                              for _, c, m in NonSeekingReader(f).iter_messages()]
+    phase_topics = {f"testbed/bed1/sensor/{c}" for c in PHASE_CHANNELS}
+    assert not {m[0] for m in messages["without"]} & phase_topics
+    assert {m[0] for m in messages["with"]} >= phase_topics
+    assert [m for m in messages["with"] if m[0] not in phase_topics] == messages["without"]
+    truth = json.loads(paths["without"].with_suffix(".truth.json").read_text())
+    assert truth["channels"] == list(SENSOR_CHANNELS) and truth["phase"] is None
+
+
+def test_channels_picks_phases_too(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "p.mcap"
+    assert main(["simulate", "--runs", "1", "--seed", "2", "--channels", "yB_ph,nB,yB",
+                 "--out", str(out), *FAST]) == 0
+    (run,) = read_runs(out)
+    assert run.channels == ("nB", "yB", "yB_ph")
+    both = np.isfinite(run.column("yB")) & np.isfinite(run.column("yB_ph"))
+    assert both.sum() > 100
+    truth = json.loads(out.with_suffix(".truth.json").read_text())
+    assert truth["channels"] == ["yB_ph", "nB", "yB"] and truth["phase"] is not None
+    # the amplitude channels are the very ones of a run without the phase
+    plain = tmp_path / "q.mcap"
+    assert main(["simulate", "--runs", "1", "--seed", "2", "--channels", "nB,yB",
+                 "--out", str(plain), *FAST]) == 0
+    (other,) = read_runs(plain)
+    np.testing.assert_array_equal(other.data, run.data[:, :2])
+    bad = tmp_path / "x.mcap"
+    code = main(["simulate", "--runs", "1", "--no-phase", "--channels", "nB,yB_ph",
+                 "--out", str(bad), *FAST])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "--no-phase" in err
+    assert not bad.exists()
