@@ -28,11 +28,13 @@ from node.contract import (
     decode_samples,
     health_key,
     is_monitor_key,
+    is_phase_channel,
     json_schema,
     monitor_key,
     oc_key,
     parse_monitor_key,
     parse_sensor_key,
+    phase_channel,
     sensor_key,
     topic_kind,
 )
@@ -145,6 +147,9 @@ def test_keys_round_trip_and_kinds() -> None:
     assert bed_of(oc_key("x7")) == "x7" and bed_of("other") is None
     assert FS == 40.0
     assert set(ORDER_CHANNELS) <= set(SENSOR_CHANNELS) and not set(PHASE_CHANNELS) & set(SENSOR_CHANNELS)
+    assert PHASE_CHANNELS == tuple(phase_channel(c) for c in ORDER_CHANNELS)
+    assert all(map(is_phase_channel, PHASE_CHANNELS))
+    assert not any(map(is_phase_channel, SENSOR_CHANNELS))
 
 
 def test_enums_hold_the_contract_strings() -> None:

@@ -102,6 +102,26 @@ def test_training_survives_dropouts_and_a_missing_optional_channel(sim):
     assert set(SENSOR_CHANNELS) >= set().union(*(r.inputs for r in fitted))
 
 
+def test_order_phases_are_never_input_candidates():
+    """The simulator's order phases (yA_ph, yB_ph, yC_ph) and any further *_ph channel are the
+    vibration itself, not its cause: never inputs of an amplitude model."""
+    from node.contract import PHASE_CHANNELS
+    from node.training.train import candidate_channels
+
+    camp = simulate_campaign(runs=2, seed=5, plateau_scale=0.05)
+    channels = (*camp.published, "M3_ph")  # a bed's further phase channel, not named y*
+    runs = []
+    for r in camp.runs:
+        assert r.phase is not None
+        data = np.column_stack([r.data, r.phase, r.phase[:, 1]])
+        runs.append(Run(r.t, data, channels, "bed1", None))
+    assert camp.published == (*SENSOR_CHANNELS, *PHASE_CHANNELS)
+    for target in ("yA", "yB", "yC"):
+        got = candidate_channels(runs, target, "nB")
+        assert got[0] == "nB" and not [c for c in got if c.endswith("_ph") or c.startswith("y")]
+        assert set(got) == {c for c in SENSOR_CHANNELS if not c.startswith("y")}
+
+
 def test_named_inputs_missing_from_recordings_is_one_line_error(sim):
     runs, schedule = sim
     with pytest.raises(OrdervibError, match="zZ"):

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.contract import FS
+from node.contract import FS, is_phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.mcap import Run
@@ -228,11 +228,12 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
 
 
 def candidate_channels(runs: list[Run], target: str, switch: str) -> list[str]:
-    """Channels usable as inputs: present and mostly finite in every run, not vibration outputs."""
+    """Channels usable as inputs: present and mostly finite in every run, not vibration outputs
+    (amplitudes ``y*``, order phases ``*_ph``: the target's own vibration, not its cause)."""
     common = [c for c in runs[0].channels if all(c in r.channels for r in runs)]
     out = []
     for c in common:
-        if c == target or c.startswith("y"):
+        if c == target or c.startswith("y") or is_phase_channel(c):
             continue
         finite = min(float(np.mean(np.isfinite(r.column(c)))) for r in runs)
         if finite >= 0.5:
