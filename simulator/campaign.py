@@ -2,7 +2,7 @@
 
 Pure numerics: returns arrays and a ground-truth dictionary; writing files is
 ``simulator.export``'s job. Randomness: engine from child 0 of the seed, run r
-from child r + 1 and faults from a separate child, so the first N runs of a
+from child r + 2 and faults from a separate child (1), so the first N runs of a
 longer campaign equal an N-run campaign with the same seed, fault or not, and a
 fault run equals the same run without the fault before the onset (its twin).
 The schedule and the noise scale change what is drawn from those streams, never
