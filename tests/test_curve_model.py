@@ -132,7 +132,8 @@ def test_bundle_with_a_curve_model_saves_and_loads(tmp_path, variant):
     y = _law(speed, _codes(speed))
     col = y + 0.1 if variant == "run" else speed
     traj = Trajectory(y, col[:, None], start=100)
-    params = {"fleet": FLEET, "run": {"variant": "run"}, "anchored": {**FLEET, "variant": "anchored", "anchor": 40}}[variant]
+    params = {"fleet": FLEET, "run": {"variant": "run"},
+              "anchored": {**FLEET, "variant": "anchored", "anchor": 40}}[variant]
     m = fit_oc_model("curve", params, [traj])
     again = model_from_arrays("curve", params, m.arrays())
     np.testing.assert_array_equal(again.predict(traj), m.predict(traj))

@@ -100,7 +100,8 @@ def _run(t0: float, seed: int) -> Run:
     rng = np.random.default_rng(seed)
     nb = nb + rng.normal(0.0, 5.0, t.size)
     yb = 2.0 + nb / 2000.0 + rng.normal(0.0, 0.05, t.size)
-    slow = np.column_stack([50.0 + seed + t / 10, 80.0 + t / 20, 20.0 + 0 * t]) + rng.normal(0, 0.3, (t.size, 3))
+    slow = np.column_stack([50.0 + seed + t / 10, 80.0 + t / 20, 20.0 + 0 * t])
+    slow = slow + rng.normal(0, 0.3, (t.size, 3))
     nb[[300, 301, 2000]] = np.nan
     slow[[0, 1, 500], 0] = np.nan
     data = np.column_stack([nb, yb, slow])

@@ -301,7 +301,8 @@ def test_a_malformed_engine_state_stops_run_and_replay_before_any_output(
                      "--engine-state", str(bad)]) == 2
         _one_line_error(capsys, str(bad))
         assert not out.exists()
-    assert main(["replay", str(sim), "--model", str(model), "--engine-state", str(tmp_path / "none.json")]) == 2
+    none = str(tmp_path / "none.json")
+    assert main(["replay", str(sim), "--model", str(model), "--engine-state", none]) == 2
     _one_line_error(capsys, "no such file")
     assert main(["replay", str(sim), "--publish", "--engine-state", str(bad)]) == 2
     _one_line_error(capsys, "--model")
