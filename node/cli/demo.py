@@ -75,13 +75,14 @@ def run(args: argparse.Namespace) -> int:
             if cli(["simulate", *argv, *SIM, "--out", str(path)]) != 0:
                 return 2
     model = out / "model"
-    if args.retrain or not (model / "manifest.json").exists():
+    if args.retrain or not _trained_on(model, rec_train):
         log.info("[2/5] training %s on %s (%d runs) ...", args.method, rec_train.name, TRAIN_RUNS)
         if cli(["train", str(rec_train), "--schedule", str(schedule), "--out", str(model),
                 "--method", args.method]) != 0:
             return 2
     else:
-        log.info("[2/5] reusing the model in %s (--retrain to train again)", model)
+        log.info("[2/5] reusing the model in %s, trained on %s (--retrain to train again)", model,
+                 rec_train.name)
     log.info("[3/5] held-out runs %s, against the characteristic curve:", rec_held.name)
     if cli(["evaluate", str(model), str(rec_held), "--png", str(out / "evaluation.png"), "--quiet"]) != 0:
         return 2
@@ -113,6 +114,18 @@ def run(args: argparse.Namespace) -> int:
     print(f"Rerun file:            {rrd.resolve()}   (open with: rerun {rrd})")
     print(f"model bundle:          {model.resolve()}")
     return 0
+
+
+def _trained_on(model: Path, recording: Path) -> bool:
+    """Whether ``model`` is a bundle trained on exactly ``recording`` (by its sha256)."""
+    import json
+
+    from node.models.bundle import sha256_file
+    try:
+        recs = json.loads((model / "manifest.json").read_text())["training"]["recordings"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return [r.get("sha256") for r in recs] == [sha256_file(recording)]
 
 
 def fault_summary(episodes: list[dict], truth_path: Path) -> str:
