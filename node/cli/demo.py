@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from node.cli.outputs import MODEL_MARKER, replacing
     from node.contract.errors import OrdervibError
     from node.live.node import LiveNode
-    from node.models.bundle import load_bundle
+    from node.models.bundle import load_model
     from replay.publish import publish_recording
 
     out = Path(args.out)
@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     node_rec = out / "node.mcap"
     log.info("[4/5] live node listening on %s, recording to %s", endpoint, node_rec)
     with replacing(str(node_rec)) as part:  # the last demo's recording stays until this one is whole
-        node = LiveNode(load_bundle(model), part, listen=[endpoint])
+        node = LiveNode(load_model(model), part, listen=[endpoint])
         node.start()
         try:
             log.info("      publishing %s (a run with an imbalance fault) through Zenoh ...",
