@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     if args.retrain or not (model / "manifest.json").exists():
         log.info("[2/5] training %s on %s (%d runs) ...", args.method, rec_train.name, TRAIN_RUNS)
         if cli(["train", str(rec_train), "--schedule", str(schedule), "--out", str(model),
-                "--method", args.method]) != 0:
+                "--method", args.method, "--target", "yB"]) != 0:
             return 2
     else:
         log.info("[2/5] reusing the model in %s (--retrain to train again)", model)
