@@ -164,7 +164,7 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
         print(f"[engine {seed}] training {method} on the training runs ...", flush=True)
         stamp.unlink(missing_ok=True)
         argv = ["train", str(train), "--schedule", str(work / "train.schedule.toml"), "--out",
-                str(model), "--method", method, "--quiet"]
+                str(model), "--method", method, "--target", "yB", "--quiet"]
         if cli(argv) != 0:
             raise SystemExit(f"train failed: {argv}")
         stamp.write_text(json.dumps({"train_truth_sha256": trained_on}) + "\n")

@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             model = work / f"{e.name}-{name}"
             with contextlib.redirect_stdout(io.StringIO()):
                 code = cli(["train", str(train), "--schedule", str(schedule), "--out", str(model),
-                            "--quiet", *extra])
+                            "--target", "yB", "--quiet", *extra])
             if code != 0:
                 print(f"{e.name}: training ({name}) failed")
                 return 2

@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         with contextlib.redirect_stdout(io.StringIO()):  # the training report is not the bench's
             cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
                  str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
-                 "--method", "lasso", "--quiet"])
+                 "--method", "lasso", "--target", "yB", "--quiet"])
     bundle = load_bundle(args.model)
     needed = set(MonitorPipeline(bundle).sensor_channels)  # what the test bed publishes
     stream = load_stream(args.recording, args.seconds, args.offset, needed)

@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
         args.model = str(tmp / "model")
         cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
              str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
-             "--method", "lasso", "--quiet"])
+             "--method", "lasso", "--target", "yB", "--quiet"])
 
     def read_decode() -> float:
         t0 = time.perf_counter()

@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
         with contextlib.redirect_stdout(io.StringIO()):
             cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
                  str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
-                 "--method", "lasso", "--quiet"])
+                 "--method", "lasso", "--target", "yB", "--quiet"])
     r = soak(args.model, args.recording, args.hours, args.speed, tmp)
     after_warmup = [m for s, m in r.rss_mb if s >= 60.0] or [m for _, m in r.rss_mb]
     growth = after_warmup[-1] - after_warmup[0]

@@ -34,7 +34,7 @@ import orjson
 
 from node.contract import OrdervibError, is_monitor_key
 from node.mcap import ReadStats, RecordingWriter, iter_messages_fast
-from node.models.bundle import Bundle
+from node.models.bundle import Bundle, Model
 from node.runtime.core import NodeCore
 
 BATCH = 4096  # messages per batch
@@ -62,7 +62,7 @@ class ReplayReport:
 class _Logic:
     """NodeCore plus what replay needs around it: encoded outputs and the report."""
 
-    def __init__(self, bundle: Bundle, encode: bool, engines: dict | None = None) -> None:
+    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None) -> None:
         self.core = NodeCore(bundle, engines)
         self.encode = encode
 
@@ -90,7 +90,7 @@ class _Logic:
 class _InProcess:
     workers = 0
 
-    def __init__(self, bundle: Bundle, encode: bool, engines: dict | None = None) -> None:
+    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None) -> None:
         self.logic = _Logic(bundle, encode, engines)
         self.done: deque = deque()
 
@@ -107,7 +107,7 @@ class _InProcess:
         pass
 
 
-def _serve(bundle: Bundle, encode: bool, engines: dict | None, tasks, results) -> None:
+def _serve(bundle: Bundle | Model, encode: bool, engines: dict | None, tasks, results) -> None:
     """The worker process: batches in, encoded outputs out, in order; None ends."""
     gc.disable()
     try:
@@ -124,7 +124,7 @@ class _Forked:
 
     workers = 1
 
-    def __init__(self, bundle: Bundle, encode: bool, engines: dict | None = None) -> None:
+    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None) -> None:
         self.finished = False
         ctx = multiprocessing.get_context("fork")
         self.tasks, self.results = ctx.Queue(), ctx.Queue()
@@ -209,7 +209,7 @@ def _u64(values: Iterable[int], n: int) -> np.ndarray:
     return np.fromiter(values, dtype=np.uint64, count=n)
 
 
-def replay(recording: str, bundle: Bundle, out: str | None, workers: int | None = None,
+def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int | None = None,
            engines: dict | None = None) -> ReplayReport:
     """Run the node over every sensor message of ``recording``; write ``out`` if given.
 

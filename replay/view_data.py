@@ -13,6 +13,7 @@ detector run over the speed.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,6 +37,8 @@ from node.contract import (
 from node.contract.schedule import Schedule
 from node.mcap import ReadStats, read_payloads
 from node.runtime.ocdetect import OCDetector
+
+log = logging.getLogger(__name__)
 
 # ----------------------------------------------------------------------------- data
 
@@ -270,7 +273,11 @@ def pick_bed(topics: list[str], bed: str | None) -> str:
 
 
 def pick_target(topics: list[str], bed: str, target: str | None) -> str:
-    """The target asked for, else yB when monitored or nothing is, else the first monitored channel."""
+    """The target asked for, else yB when monitored or nothing is, else the first monitored channel.
+
+    A node's recording of a model of several targets has a ``monitor/<target>`` each: the view
+    shows one of them and says so (``--target`` picks another).
+    """
     monitored = sorted(
         name
         for tp in topics
@@ -279,9 +286,11 @@ def pick_target(topics: list[str], bed: str, target: str | None) -> str:
     )
     if target is not None:
         return target
-    if "yB" in monitored or not monitored:
-        return "yB"
-    return monitored[0]
+    chosen = "yB" if "yB" in monitored or not monitored else monitored[0]
+    if len(monitored) > 1:
+        log.info("%d targets monitored (%s): showing %s (--target picks another)",
+                 len(monitored), ", ".join(monitored), chosen)
+    return chosen
 
 
 def load_view_data(recording: str, bed: str | None = None, target: str | None = None,

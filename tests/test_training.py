@@ -133,7 +133,7 @@ def test_train_and_evaluate_commands(tmp_path, capsys):
     sched = ROOT / "recordings" / "engine1_runs.schedule.toml"
     out = tmp_path / "model"
     assert main(["train", str(rec), "--schedule", str(sched), "--out", str(out), "--method", "lasso",
-                 "--quiet", "--workers", "1"]) == 0
+                 "--target", "yB", "--quiet", "--workers", "1"]) == 0
     text = capsys.readouterr().out
     assert "OC2a" in text and "CV eps_td" in text and (out / "manifest.json").exists()
     fault = ROOT / "recordings" / "engine1_fault.mcap"
@@ -168,7 +168,7 @@ def test_train_with_history_stores_the_cooling_and_the_node_replays_it(tmp_path,
     out = tmp_path / "model"
     assert main(["train", str(rec), "--schedule", str(sched), "--out", str(out), "--method", "lasso",
                  "--inputs", "nB,hist_energy,hist_thermal", "--no-curve-candidates", "--history",
-                 "--quiet", "--workers", "1"]) == 0
+                 "--target", "yB", "--quiet", "--workers", "1"]) == 0
     capsys.readouterr()
     bundle = load_bundle(out)
     assert {"hist_energy", "hist_thermal"} <= set(bundle.inputs)

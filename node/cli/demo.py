@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from node.cli.outputs import MODEL_MARKER, replacing
     from node.contract.errors import OrdervibError
     from node.live.node import LiveNode
-    from node.models.bundle import load_bundle
+    from node.models.bundle import load_model
     from replay.publish import publish_recording
 
     out = Path(args.out)
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     if args.retrain or not _trained_on(model, rec_train):
         log.info("[2/5] training %s on %s (%d runs) ...", args.method, rec_train.name, TRAIN_RUNS)
         if cli(["train", str(rec_train), "--schedule", str(schedule), "--out", str(model),
-                "--method", args.method]) != 0:
+                "--method", args.method, "--target", "yB"]) != 0:
             return 2
     else:
         log.info("[2/5] reusing the model in %s, trained on %s (--retrain to train again)", model,
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     node_rec = out / "node.mcap"
     log.info("[4/5] live node listening on %s, recording to %s", endpoint, node_rec)
     with replacing(str(node_rec)) as part:  # the last demo's recording stays until this one is whole
-        node = LiveNode(load_bundle(model), part, listen=[endpoint])
+        node = LiveNode(load_model(model), part, listen=[endpoint])
         node.start()
         try:
             log.info("      publishing %s (a run with an imbalance fault) through Zenoh ...",

@@ -36,17 +36,35 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from node.cli.train import load_runs
+    from node.models.bundle import load_model
+
+    model = load_model(args.model)
+    if not any(r.model is not None for b in model.bundles for r in b.ocs):
+        raise OrdervibError(f"{args.model} holds no trained OC: nothing to evaluate")
+    png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
+    several = len(model.bundles) > 1  # a plot per target: OUT-<target>.png
+    pngs = [png.with_name(f"{png.stem}-{t}{png.suffix}") if several else png for t in model.targets]
+    for path in pngs:
+        check_output(str(path), "--png", suffix=".png", inputs=[args.model, *args.recordings])
+    runs = load_runs(args.recordings, args.quiet)
+    preds = []
+    for bundle in model.bundles:
+        if several:
+            print(f"target {bundle.target}:")
+        preds.append(_table(bundle, runs))
+    print(node_alarms(args.model, args.recordings))
+    for bundle, mine, path in zip(model.bundles, preds, pngs):
+        if _plot(bundle, mine, path):
+            print(f"plot written to {path}")
+    return 0
+
+
+def _table(bundle: Bundle, runs: list[Run]) -> list[SegmentPrediction]:
+    """Print the per-OC held-out table of one target's bundle over ``runs``; its predictions."""
     from node.models.baseline import CharacteristicCurve
-    from node.models.bundle import load_bundle
     from node.training.dataset import run_arrays
     from node.training.evaluation import evaluate
 
-    bundle = load_bundle(args.model)
-    if not any(r.model is not None for r in bundle.ocs):
-        raise OrdervibError(f"{args.model} holds no trained OC: nothing to evaluate")
-    png = Path(args.png) if args.png else Path(args.model) / "evaluation.png"
-    check_output(str(png), "--png", suffix=".png", inputs=[args.model, *args.recordings])
-    runs = load_runs(args.recordings, args.quiet)
     evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve,
                             bundle.config)
     curve = None
@@ -75,10 +93,7 @@ def run(args: argparse.Namespace) -> int:
     if hold:
         print(f"mean held-out eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
               f"(characteristic-curve baseline {np.nanmean(base):.3f})")
-    print(node_alarms(args.model, args.recordings))
-    if _plot(bundle, preds, png):
-        print(f"plot written to {png}")
-    return 0
+    return preds
 
 
 def _speed(arrays: list[RunArrays], runs: list[Run], p: SegmentPrediction) -> np.ndarray:

@@ -47,10 +47,10 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
 
     workers: 1 runs the logic in a worker process, 0 in this one; None picks (see replay.offline).
     """
-    from node.models.bundle import load_bundle
+    from node.models.bundle import load_model
     from replay.offline import replay
 
-    bundle = load_bundle(model)
+    bundle = load_model(model)
     engines = None
     if engine_state is not None:
         from node.live.engine_file import load_engine_states

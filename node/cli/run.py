@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from node.live.node import run_node
     from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints
     from node.mcap import RecordingWriter, RotatingRecorder
-    from node.models.bundle import load_bundle
+    from node.models.bundle import load_model
 
     rotating = args.rotate_mb is not None or args.rotate_minutes is not None
     inputs = [args.zenoh_config] if args.zenoh_config else []
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     listen = args.listen
     if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):
         listen = [DEFAULT_ENDPOINT]
-    bundle = load_bundle(args.model)
+    bundle = load_model(args.model)
     engine_file = args.engine_state or str(Path(args.record).parent / "engine-state.json")
     check_engine_file(engine_file)  # a malformed one stops here, before any output is opened
     # the file is created at the first flush, after the session is up: a failed start leaves

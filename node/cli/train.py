@@ -29,7 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recordings", nargs="+", metavar="REC.mcap", help="training recordings")
     p.add_argument("--schedule", required=True, metavar="S.toml", help="pass-off schedule (TOML)")
     p.add_argument("--out", required=True, metavar="MODEL", help="model bundle directory to write")
-    p.add_argument("--target", default="yB", help="modelled channel (default yB)")
+    p.add_argument("--target", default=None, metavar="LIST",
+                   help="modelled channel(s), comma-separated: several targets in one model "
+                        "(default: every tracked order, yA, yB, yC, that all the recordings hold)")
     p.add_argument("--method", default="wdmd", choices=["wdmd", "delay-dmd", "lasso"],
                    help="per-OC model (default wdmd)")
     p.add_argument("--estimator", default=None, choices=["ls", "oe", "pem"],
@@ -85,6 +87,31 @@ def load_runs(paths: list[str], quiet: bool = False) -> list[Run]:
     return runs
 
 
+def resolve_targets(spec: str | None, runs: list[Run]) -> list[str]:
+    """The targets of ``--target`` (a comma list), each held by every run; default: every tracked
+    order (``ORDER_CHANNELS``) all the runs hold, else those some run holds."""
+    from node.contract import ORDER_CHANNELS
+    if spec is None:
+        targets = [c for c in ORDER_CHANNELS if all(c in r.channels for r in runs)]
+        targets = targets or [c for c in ORDER_CHANNELS if any(c in r.channels for r in runs)]
+        if not targets:
+            raise OrdervibError(f"the recordings hold no tracked order ({', '.join(ORDER_CHANNELS)}): "
+                                "name the modelled channel with --target")
+        return targets
+    targets = [c.strip() for c in spec.split(",") if c.strip()]
+    if not targets:
+        raise OrdervibError(f"--target names no channel: {spec!r}")
+    repeated = sorted({c for c in targets if targets.count(c) > 1})
+    if repeated:
+        raise OrdervibError(f"--target repeats {', '.join(repeated)}")
+    for c in targets:
+        if not all(c in r.channels for r in runs):
+            held = sum(c in r.channels for r in runs)
+            raise OrdervibError(f"--target {c}: the channel is missing from {len(runs) - held} of "
+                                f"{len(runs)} run(s) of the recordings")
+    return targets
+
+
 def print_results(results: list[OCResult], file: TextIO | None = None) -> None:
     """Per-OC table of the trained models, then the mean cross-validated eps_td.
 
@@ -127,7 +154,7 @@ def print_ranking(results: list[OCResult], top: int = 6, file: TextIO | None = N
 
 def run(args: argparse.Namespace) -> int:
     from node.contract.schedule import load_schedule
-    from node.models.bundle import Bundle, save_bundle, sha256_file
+    from node.models.bundle import Bundle, Model, save_model, sha256_file
     from node.models.config import RuntimeConfig
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.training.train import DEFAULT_GRIDS, Method, fleet_curve, history_config, train
@@ -159,40 +186,50 @@ def run(args: argparse.Namespace) -> int:
                                     f"got {args.rcond_grid!r}") from None
             if not all(0 < x < 1 for x in grid["rcond"]):
                 raise OrdervibError("--rcond-grid values must lie in (0, 1)")
-    log.info("training %s for %s on %d run(s), %d OCs, leave-one-run-out CV over %d candidates per OC",
-             args.method, args.target, len(runs), len(schedule.ocs), _count(grid))
-
-    def progress(r: OCResult, done: int, total: int) -> None:
-        cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
-        log.info("  [%d/%d] %s: %s (%.0f s)", done, total, r.name, cv, time.perf_counter() - t0)
-
-    curve = fleet_curve(runs, schedule.switch, args.target)
+    targets = resolve_targets(args.target, runs)
     config = RuntimeConfig()
     if args.history:
         config = history_config(runs, schedule, config)
         log.info("engine history: cooling %.3g rpm min per hour of shutdown%s", config.history_cooling,
                  "" if config.history_cooling != RuntimeConfig().history_cooling
                  else " (the text's value: too few runs after a known one to estimate it)")
-    results = train(runs, schedule, target=args.target, method=args.method, inputs=inputs,
-                    n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
-                    false_alarms_per_hour=per_rule, cv_undercoverage=under,
-                    fleet=curve, curves=args.curves, config=config, history=args.history)
-    trained = sum(r.model is not None for r in results)
-    if not trained and not args.allow_empty:
-        notes = sorted({r.note for r in results if r.note})
-        raise OrdervibError(f"no OC could be trained ({'; '.join(notes) or 'no segment'}): no model "
-                            f"written (--allow-empty writes one that flags every sample no-model)")
+    trained: list[tuple[str, list[OCResult], tuple[np.ndarray, np.ndarray], dict]] = []
+    for target in targets:
+        log.info("training %s for %s on %d run(s), %d OCs, leave-one-run-out CV over %d candidates "
+                 "per OC", args.method, target, len(runs), len(schedule.ocs), _count(grid))
+
+        def progress(r: OCResult, done: int, total: int) -> None:
+            cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
+            log.info("  [%d/%d] %s: %s (%.0f s)", done, total, r.name, cv, time.perf_counter() - t0)
+
+        curve = fleet_curve(runs, schedule.switch, target)
+        results = train(runs, schedule, target=target, method=args.method, inputs=inputs,
+                        n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
+                        false_alarms_per_hour=per_rule, cv_undercoverage=under,
+                        fleet=curve, curves=args.curves, config=config, history=args.history)
+        if not any(r.model is not None for r in results) and not args.allow_empty:
+            notes = sorted({r.note for r in results if r.note})
+            which = f"target {target}: " if len(targets) > 1 else ""
+            raise OrdervibError(f"{which}no OC could be trained ({'; '.join(notes) or 'no segment'}): "
+                                f"no model written (--allow-empty writes one that flags every sample "
+                                f"no-model)")
+        checks = calibrate_checks(runs, schedule, target, per_rule)
+        checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
+        trained.append((target, results, curve, checks))
     training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
                 "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
-    checks = calibrate_checks(runs, schedule, args.target, per_rule)
-    checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
-    bundle = Bundle(args.method, args.target, schedule, results, config, training,
-                    curve, checks)
+    model = Model(tuple(Bundle(args.method, target, schedule, results, config, training, curve, checks)
+                        for target, results, curve, checks in trained))
     with replacing_dir(args.out) as tmp:  # an existing model is replaced only by a complete one
-        save_bundle(bundle, tmp)
-    if inputs is None:
-        print_ranking(results)
-    print_results(results)
+        save_model(model, tmp)
+    for target, results, _, _ in trained:
+        if len(trained) > 1:
+            print(f"target {target}:")
+        if inputs is None:
+            print_ranking(results)
+        print_results(results)
+        if len(trained) > 1:
+            print()
     print(f"model written to {Path(args.out)} ({time.perf_counter() - t0:.1f} s)")
     return 0
 

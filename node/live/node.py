@@ -53,7 +53,7 @@ from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_sta
 from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
-from node.models.bundle import Bundle
+from node.models.bundle import Bundle, Model
 from node.runtime.core import NodeCore
 
 log = logging.getLogger(__name__)
@@ -86,7 +86,7 @@ class LiveNode:
     True
     """
 
-    def __init__(self, bundle: Bundle, record: str | RecordingWriter | RotatingRecorder,
+    def __init__(self, bundle: Bundle | Model, record: str | RecordingWriter | RotatingRecorder,
                  listen: list[str] | None = None,
                  connect: list[str] | None = None, config_file: str | None = None,
                  queue_size: int = 1_000_000, engine_file: str | None = None) -> None:
@@ -342,9 +342,9 @@ class LiveNode:
         self.session.close()
 
 
-def run_node(bundle: Bundle, record: str | RecordingWriter | RotatingRecorder, listen: list[str] | None,
-             connect: list[str] | None, config_file: str | None, duration: float | None,
-             engine_file: str | None = None) -> LiveStats:
+def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRecorder,
+             listen: list[str] | None, connect: list[str] | None, config_file: str | None,
+             duration: float | None, engine_file: str | None = None) -> LiveStats:
     """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged.
 
     Raises ``OrdervibError`` (one line) when the worker thread died (the watchdog stops

@@ -3,6 +3,11 @@
 Nothing in a bundle executes code on load: metadata is JSON, arrays are read
 with ``allow_pickle=False``. A bundle whose format, version or array hash does
 not match is refused with a one-line OrdervibError.
+
+A model folder holds one target or several (``Model``). One target is a bundle of
+format 2 (as before, readable by older versions); several are format 3: a
+``manifest.json`` naming the targets, and per target a sub-folder of that name holding
+its format-2 bundle. The targets share the schedule and the run-time settings.
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ import hashlib
 import io
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +33,8 @@ from node.models.result import Calibration, OCResult
 FORMAT = "ordervib-model"
 FORMAT_VERSION = 2  # 2: the run-time settings are stored ("runtime"); 1 is read with the defaults
 READABLE_VERSIONS = (1, 2)
+MULTI_VERSION = 3  # several targets: one format-2 bundle per target, in a sub-folder named by it
+_TARGET_NAME = re.compile(r"^[A-Za-z0-9_]+$")  # a target's sub-folder name: no path of its own
 MANIFEST = "manifest.json"
 ARRAYS = "arrays.npz"
 
@@ -115,9 +123,107 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike) -> Path:
     return out
 
 
-def load_bundle(path: str | os.PathLike) -> Bundle:
-    """Read and verify a bundle; anything wrong is one OrdervibError line."""
+@dataclass(frozen=True, eq=False)
+class Model:
+    """A model folder's targets: one ``Bundle`` per target, sharing schedule and run-time settings.
+
+    >>> from node.contract.schedule import OperatingCondition, Schedule
+    >>> s = Schedule((OperatingCondition("A", 4000.0),))
+    >>> m = Model((Bundle("lasso", "yA", s, []), Bundle("lasso", "yB", s, [])))
+    >>> m.targets, m["yB"].target, m.schedule == s
+    (['yA', 'yB'], 'yB', True)
+    >>> Model((Bundle("lasso", "yA", s, []), Bundle("lasso", "yA", s, [])))
+    Traceback (most recent call last):
+    ...
+    ValueError: target(s) repeated: yA
+    """
+
+    bundles: tuple[Bundle, ...]
+
+    def __post_init__(self) -> None:
+        if not self.bundles:
+            raise ValueError("a model holds at least one target")
+        targets = self.targets
+        repeated = sorted({t for t in targets if targets.count(t) > 1})
+        if repeated:
+            raise ValueError(f"target(s) repeated: {', '.join(repeated)}")
+        first = self.bundles[0]
+        for b in self.bundles[1:]:
+            if b.schedule != first.schedule or b.config != first.config:
+                raise ValueError(f"targets {first.target!r} and {b.target!r} differ in schedule "
+                                 "or run-time settings")
+
+    @property
+    def targets(self) -> list[str]:
+        """The modelled channels, in the model's order."""
+        return [b.target for b in self.bundles]
+
+    @property
+    def schedule(self) -> Schedule:
+        return self.bundles[0].schedule
+
+    @property
+    def config(self) -> RuntimeConfig:
+        return self.bundles[0].config
+
+    def __getitem__(self, target: str) -> Bundle:
+        for b in self.bundles:
+            if b.target == target:
+                return b
+        raise KeyError(target)
+
+
+def as_model(model: Bundle | Model) -> Model:
+    """A one-target ``Model`` of a bundle; a ``Model`` as it is."""
+    return model if isinstance(model, Model) else Model((model,))
+
+
+def save_model(model: Bundle | Model, path: str | os.PathLike) -> Path:
+    """Write a model folder: one target as a format-2 bundle, several as format 3."""
+    model = as_model(model)
+    if len(model.bundles) == 1:
+        return save_bundle(model.bundles[0], path)
+    out = Path(path)
+    out.mkdir(parents=True, exist_ok=True)
+    for b in model.bundles:
+        if not _TARGET_NAME.match(b.target):
+            raise ValueError(f"target {b.target!r} cannot name a sub-folder")
+        save_bundle(b, out / b.target)
+    manifest = {"format": FORMAT, "format_version": MULTI_VERSION,
+                "created_by": f"ordervib {__version__}", "targets": model.targets}
+    (out / MANIFEST).write_text(json.dumps(manifest, indent=1))
+    return out
+
+
+def load_model(path: str | os.PathLike) -> Model:
+    """Read and verify a model folder of any format (1 and 2: one target; 3: one or several);
+    anything wrong is one OrdervibError line."""
     root = Path(path)
+    manifest = _manifest(root)
+    if manifest.get("format_version") != MULTI_VERSION:
+        return Model((load_bundle(root),))
+    targets = manifest.get("targets")
+    if not (isinstance(targets, list) and targets
+            and all(isinstance(t, str) and _TARGET_NAME.match(t) for t in targets)):
+        raise OrdervibError(f"{root}: malformed model (targets must be a list of channel names, "
+                            f"got {targets!r})")
+    bundles = []
+    for t in targets:
+        sub = _manifest(root / t)
+        if sub["format_version"] == MULTI_VERSION:
+            raise OrdervibError(f"{root / t}: a target's bundle must not hold targets itself")
+        b = _load_one(root / t, sub)
+        if b.target != t:
+            raise OrdervibError(f"{root / t}: holds target {b.target!r}, the manifest says {t!r}")
+        bundles.append(b)
+    try:
+        return Model(tuple(bundles))
+    except ValueError as exc:
+        raise OrdervibError(f"{root}: malformed model ({exc})") from None
+
+
+def _manifest(root: Path) -> dict:
+    """The model folder's manifest, checked to be an ordervib model's of a readable format."""
     if not root.is_dir():
         raise OrdervibError(f"model bundle not found (expected a directory): {root}")
     try:
@@ -129,9 +235,30 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise OrdervibError(f"{root}: not an ordervib model bundle")
     version = manifest.get("format_version")
-    if version not in READABLE_VERSIONS:
+    if version not in (*READABLE_VERSIONS, MULTI_VERSION):
         raise OrdervibError(f"{root}: bundle format version {version!r} is not supported "
-                            f"(this ordervib reads versions {', '.join(map(str, READABLE_VERSIONS))})")
+                            f"(this ordervib reads versions "
+                            f"{', '.join(map(str, (*READABLE_VERSIONS, MULTI_VERSION)))})")
+    return manifest
+
+
+def load_bundle(path: str | os.PathLike) -> Bundle:
+    """Read and verify a one-target bundle (a format-3 folder: only if it holds one target);
+    anything wrong is one OrdervibError line."""
+    root = Path(path)
+    manifest = _manifest(root)
+    if manifest["format_version"] == MULTI_VERSION:
+        model = load_model(root)
+        if len(model.bundles) > 1:
+            raise OrdervibError(f"{root}: holds {len(model.bundles)} targets "
+                                f"({', '.join(model.targets)}); one is expected here")
+        return model.bundles[0]
+    return _load_one(root, manifest)
+
+
+def _load_one(root: Path, manifest: dict) -> Bundle:
+    """The bundle of format 1 or 2 at ``root``, of manifest ``manifest`` (read by ``_manifest``)."""
+    version = manifest["format_version"]
     try:
         data = (root / ARRAYS).read_bytes()
     except FileNotFoundError:

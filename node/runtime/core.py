@@ -3,10 +3,12 @@
 ``NodeCore.handle_batch(keys, payloads)`` takes sensor messages as they arrived (key
 expressions and raw JSON bytes), decodes them by the contract's payload rule
 (``node.contract.decode_samples``), aligns each bed's (``Aligner.push_columns``) and
-runs each bed's ``MonitorPipeline``; it returns each message's decoded time and the
-monitor messages each message completed. ``handle`` is a batch of one. Malformed
-payloads are counted (per bed) and skipped; keys that are no sensor keys are counted
-(node-wide) and ignored, so are channels no model needs. The live node and offline
+runs each bed's ``MonitorPipeline`` of each target of the model (one aligner per bed over
+the channels every target needs; the OC message once per bed, from the first target's
+pipeline: the targets share schedule and settings, so their detectors agree); it returns
+each message's decoded time and the monitor messages each message completed. ``handle`` is
+a batch of one. Malformed payloads are counted (per bed) and skipped; keys that are no
+sensor keys are counted (node-wide) and ignored, so are channels no model needs. The live node and offline
 replay both drive this class, through ``handle_batch``.
 """
 
@@ -19,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from node.contract import Flag, HealthMessage, decode_samples, monitor_key, oc_key, parse_sensor_key
-from node.models.bundle import Bundle
+from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import AlignedSample, Aligner
 from node.runtime.history import EngineState
@@ -37,19 +39,29 @@ class Batch(NamedTuple):
 
 @dataclass
 class Bed:
-    """One test bed: its aligner and pipeline, and its counters (``aligner.stats`` holds
-    samples, late, duplicates and missing per channel)."""
+    """One test bed: its aligner, a pipeline per target (in the model's order) and its monitor
+    keys, and its counters (``aligner.stats`` holds samples, late, duplicates and missing per
+    channel)."""
 
     aligner: Aligner
-    pipeline: MonitorPipeline
+    pipelines: list[MonitorPipeline]
+    keys: list[str]  # monitor key of each pipeline's target
     received: int = 0  # messages on its sensor keys
     malformed: int = 0  # of them, payloads that break the payload rule
-    alarm_samples: int = 0
+    alarm_samples: int = 0  # alarm messages, every target
     latest_t: float | None = None  # the newest sensor time of its well-formed messages, s
+
+    @property
+    def pipeline(self) -> MonitorPipeline:
+        """The first target's pipeline (its OC detector and engine history are the bed's)."""
+        return self.pipelines[0]
 
 
 class NodeCore:
     """The logic of the node over every bed, created on the bed's first message.
+
+    model: a one-target ``Bundle`` or a ``Model`` of several targets (``monitor/<target>``
+    each, every aligned sample in the model's target order, after the bed's OC message).
 
     >>> from node.contract.schedule import OperatingCondition, Schedule
     >>> core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []))
@@ -69,14 +81,14 @@ class NodeCore:
     {'nB': 0.0, 'yB': 11.0}
     """
 
-    def __init__(self, bundle: Bundle, engines: Mapping[str, EngineState] | None = None) -> None:
+    def __init__(self, model: Bundle | Model, engines: Mapping[str, EngineState] | None = None) -> None:
         """engines: each bed's engine history before (a state file's); others start unknown."""
-        self.bundle = bundle
+        self.model = as_model(model)
         self._engines = dict(engines or {})
         self.beds: dict[str, Bed] = {}
         self.foreign = 0  # messages on keys that are no sensor keys (node-wide)
         self.published = 0  # outputs returned
-        self.alarm_log = EpisodeLog(bundle.config.episode_gap_s)  # alarm episodes, every bed
+        self.alarm_log = EpisodeLog(self.model.config.episode_gap_s)  # alarm episodes, every bed
         self._routes: dict[str, tuple[str, str] | tuple[()]] = {}  # key -> (bed, channel), () if foreign
 
     @property
@@ -169,22 +181,26 @@ class NodeCore:
     def _bed(self, name: str) -> Bed:
         bed = self.beds.get(name)
         if bed is None:
-            pipe = MonitorPipeline(self.bundle, self._engines.get(name))
-            aligner = Aligner(pipe.sensor_channels, max_wait=self.bundle.config.align_wait_s)
-            bed = self.beds[name] = Bed(aligner, pipe)
+            engine = self._engines.get(name)
+            pipes = [MonitorPipeline(b, engine) for b in self.model.bundles]
+            channels = sorted({c for p in pipes for c in p.sensor_channels})
+            aligner = Aligner(channels, max_wait=self.model.config.align_wait_s)
+            keys = [monitor_key(name, p.target) for p in pipes]
+            bed = self.beds[name] = Bed(aligner, pipes, keys)
         return bed
 
     def _run(self, name: str, samples: list[AlignedSample]) -> list[Output]:
         bed = self.beds[name]
         out: list[Output] = []
-        key = monitor_key(name, self.bundle.target)
+        targets = list(zip(bed.keys, bed.pipelines))
         for s in samples:
-            msg, oc_msg = bed.pipeline.step(s)
-            if oc_msg is not None:
-                out.append((oc_key(name), oc_msg))
-            if msg["flag"] == Flag.ALARM:
-                bed.alarm_samples += 1
-                self.alarm_log.add(key, msg)
-            out.append((key, msg))
+            for j, (key, pipe) in enumerate(targets):
+                msg, oc_msg = pipe.step(s)
+                if oc_msg is not None and not j:
+                    out.append((oc_key(name), oc_msg))
+                if msg["flag"] == Flag.ALARM:
+                    bed.alarm_samples += 1
+                    self.alarm_log.add(key, msg)
+                out.append((key, msg))
         self.published += len(out)
         return out
