@@ -150,3 +150,44 @@ def test_three_beds_at_40_hz_every_sample_gets_its_monitor_message(setup, tmp_pa
         node.stop()
     assert node.stats.received == sent["count"] == 3 * 3 * n and node.stats.overflow == 0
     assert seen == {b: n for b in beds}, f"monitor messages per bed {seen}, {n} samples each"
+
+
+def test_three_targets_live_equal_replay_for_each_target(tmp_path):
+    """One model of yA, yB and yC: the live node's monitor messages of every target equal
+    offline replay's to the last bit."""
+    from node.live.node import LiveNode
+    from node.models.bundle import load_model
+    from replay.publish import publish_recording
+    chans = ["--channels", "nB,yA,yB,yC,tF", "--plateau-scale", "0.05", "--quiet"]
+    train, test = str(tmp_path / "train.mcap"), str(tmp_path / "test.mcap")
+    assert main(["simulate", "--runs", "2", "--seed", "7", "--out", train, *chans]) == 0
+    assert main(["simulate", "--runs", "3", "--skip", "2", "--seed", "7", "--out", test, *chans]) == 0
+    assert main(["train", train, "--schedule", str(tmp_path / "train.schedule.toml"),
+                 "--out", str(tmp_path / "m"), "--method", "lasso", "--inputs", "nB,tF", "--quiet",
+                 "--workers", "1"]) == 0
+    model = load_model(tmp_path / "m")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    node = LiveNode(model, str(tmp_path / "node.mcap"), listen=[endpoint])
+    node.start()
+    try:
+        sent = publish_recording(test, endpoint, speed=0.0, quiet=True)
+        deadline = time.monotonic() + 30
+        while node.stats.received < sent and time.monotonic() < deadline:
+            time.sleep(0.1)
+    finally:
+        node.stop()
+    assert node.stats.received == sent
+    assert main(["replay", test, "--model", str(tmp_path / "m"),
+                 "--out", str(tmp_path / "offline.mcap"), "--quiet"]) == 0
+
+    def by_target(path: Path) -> dict[str, list[bytes]]:
+        out: dict[str, list[bytes]] = {}
+        for m in iter_messages(path):
+            if "/monitor/y" in m.topic:
+                out.setdefault(m.topic, []).append(bytes(m.payload))
+        return out
+    live, offline = by_target(tmp_path / "node.mcap"), by_target(tmp_path / "offline.mcap")
+    assert sorted(live) == [f"testbed/bed1/monitor/{t}" for t in ("yA", "yB", "yC")]
+    for topic in live:
+        assert len(live[topic]) > 500
+        assert live[topic] == offline[topic], topic
