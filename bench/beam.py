@@ -256,11 +256,12 @@ def modes(spec: bm.BeamSpec, clean: Case) -> None:
 
 
 def make_peers(quick: bool):
-    try:
-        from harness import peers as pk
-    except ImportError as exc:  # optional extra not installed
-        print(f"(peers unavailable: {exc})")
+    import importlib.util
+    missing = [m for m in ("pandas", "nfoursid", "pykoop") if importlib.util.find_spec(m) is None]
+    if missing:  # the optional extra is not installed: the table without the peers
+        print(f"(peers left out: {', '.join(missing)} not installed; pip install -e '.[peers]')")
         return lambda case: []
+    from harness import peers as pk
 
     def peers(case: Case):
         out = [("N4SID order 6, 10 block rows (nfoursid)",
