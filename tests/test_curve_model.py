@@ -148,3 +148,16 @@ def test_bundle_with_a_curve_model_saves_and_loads(tmp_path, variant):
     assert isinstance(q.model, CurveModel) and q.model.method is Method.CURVE
     assert q.params == res.params and q.inputs == res.inputs
     np.testing.assert_array_equal(q.model.predict(traj), m.predict(traj))
+
+
+def test_a_direction_with_few_samples_in_a_bin_takes_the_bins_mean():
+    # bin [1000, 1025): 20 steady samples at 1.0 and one falling sample at 9.0
+    speed = np.concatenate([np.full(20, 1010.0), [1200.0, 1010.0]])
+    y = np.concatenate([np.full(20, 1.0), [5.0, 9.0]])
+    traj = Trajectory(y, speed[:, None], start=0)
+    params = {"variant": "fleet", "bin": 25.0, "window": 1, "deadband": 20.0}
+    alone = CurveModel.fit(Method.CURVE, params, [traj])
+    pooled = CurveModel.fit(Method.CURVE, {**params, "min_count": 2}, [traj])
+    falling = 2  # the row of a falling speed
+    assert alone.means[falling, 0] == 9.0  # one sample decides the falling curve there
+    assert pooled.means[falling, 0] == pytest.approx(29.0 / 21.0)  # the bin's mean instead

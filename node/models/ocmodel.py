@@ -490,10 +490,10 @@ def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: 
     return out
 
 
-def _binned_means(speed: np.ndarray, y: np.ndarray, code: np.ndarray, width: float
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _binned_means(speed: np.ndarray, y: np.ndarray, code: np.ndarray, width: float,
+                  min_count: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Bin centres (B,) and the mean target per bin and direction (3, B) (every sample's mean
-    where a direction has none)."""
+    where a direction has fewer than ``min_count`` samples)."""
     ok = np.isfinite(speed) & np.isfinite(y)
     if not ok.any():
         raise ValueError("no finite (speed, target) pairs to fit a curve")
@@ -503,7 +503,8 @@ def _binned_means(speed: np.ndarray, y: np.ndarray, code: np.ndarray, width: flo
         mine = ok & (code == c)
         if mine.any():
             b, sm, n = bin_sums(speed[mine], y[mine], width)
-            means[c, np.searchsorted(bins, b)] = sm / n
+            enough = n >= min_count
+            means[c, np.searchsorted(bins, b[enough])] = sm[enough] / n[enough]
     return (bins + 0.5) * width, means
 
 
@@ -514,8 +515,9 @@ class CurveModel:
     Attributes:
         params: variant ("fleet", "run" or "anchored"), and for fleet and anchored: bin (rpm),
             window (samples the speed's change is taken over; 0: one curve), deadband (rpm
-            over the window), and for anchored: anchor (samples before the switch whose mean
-            level anchors the curve).
+            over the window), min_count (a direction's own mean in a bin needs this many
+            samples, else the bin's mean of every sample; default 1), and for anchored: anchor
+            (samples before the switch whose mean level anchors the curve).
         centres: (B,) the speed bins' centres, rpm (empty for run).
         means: (3, B) the mean target per bin when the speed is steady, rising, falling
             (rows STEADY, RISING, FALLING); a bin without samples of a direction holds the
@@ -590,7 +592,7 @@ class CurveModel:
             y = np.concatenate([t.seg_y for t in trajs])
             code = np.concatenate([direction_codes(t.U[:t.start, 0][-window:] if window else t.U[:0, 0],
                                                    t.seg_U[:, 0], window, deadband) for t in trajs])
-        centres, means = _binned_means(speed, y, code, width)
+        centres, means = _binned_means(speed, y, code, width, int(params.get("min_count", 1)))
         plain = cls(dict(params), centres, means)
         if variant is not Variant.ANCHORED:
             return plain
