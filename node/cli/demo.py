@@ -1,11 +1,11 @@
 """``ordervib demo``: the whole chain on the embedded default, no router to install.
 
 Simulates one engine's pass-off runs (once; kept in DIR/data): 8 to train on, 2
-healthy ones held out, and an 11th with an imbalance fault. Trains with the
-defaults (or reuses the model), prints the held-out table against the
-characteristic-curve baseline, starts the live node on a loopback endpoint,
-publishes the fault run through Zenoh, stops the node, and writes the node's MCAP
-and a Rerun file.
+healthy ones held out, and an 11th with an imbalance fault. Trains every tracked
+order (yA, yB, yC) with the defaults (or reuses the model), prints each target's
+held-out table against the characteristic-curve baseline, starts the live node on
+a loopback endpoint, publishes the fault run through Zenoh, stops the node, and
+writes the node's MCAP and a Rerun file.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     if args.retrain or not _trained_on(model, rec_train):
         log.info("[2/5] training %s on %s (%d runs) ...", args.method, rec_train.name, TRAIN_RUNS)
         if cli(["train", str(rec_train), "--schedule", str(schedule), "--out", str(model),
-                "--method", args.method, "--target", "yB"]) != 0:
+                "--method", args.method]) != 0:
             return 2
     else:
         log.info("[2/5] reusing the model in %s, trained on %s (--retrain to train again)", model,
