@@ -24,7 +24,7 @@ from node.contract import Flag, HealthMessage, decode_samples, monitor_key, oc_k
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import AlignedSample, Aligner
-from node.runtime.history import EngineState
+from node.runtime.history import HISTORY_CHANNELS, EngineState
 from node.runtime.pipeline import MonitorPipeline
 
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
@@ -85,6 +85,8 @@ class NodeCore:
         """engines: each bed's engine history before (a state file's); others start unknown."""
         self.model = as_model(model)
         self._engines = dict(engines or {})
+        # the slow temperatures feed the bed's engine history when any target's models use it
+        self._slow_temperatures = any(c in HISTORY_CHANNELS for b in self.model.bundles for c in b.inputs)
         self.beds: dict[str, Bed] = {}
         self.foreign = 0  # messages on keys that are no sensor keys (node-wide)
         self.published = 0  # outputs returned
@@ -181,8 +183,11 @@ class NodeCore:
     def _bed(self, name: str) -> Bed:
         bed = self.beds.get(name)
         if bed is None:
-            engine = self._engines.get(name)
-            pipes = [MonitorPipeline(b, engine) for b in self.model.bundles]
+            first = MonitorPipeline(self.model.bundles[0], self._engines.get(name),
+                                    slow_temperatures=self._slow_temperatures)
+            pipes = [first] + [MonitorPipeline(b, history=first.history,  # one engine, one history
+                                               slow_temperatures=self._slow_temperatures)
+                               for b in self.model.bundles[1:]]
             channels = sorted({c for p in pipes for c in p.sensor_channels})
             aligner = Aligner(channels, max_wait=self.model.config.align_wait_s)
             keys = [monitor_key(name, p.target) for p in pipes]

@@ -136,6 +136,7 @@ class HistoryTracker:
         self.cooling = float(cooling)
         self.state = EngineState() if state is None else dataclasses.replace(state)
         self.light_offs = 0  # engine runs begun (not continued) while this tracker ran
+        self._last: tuple[float, tuple[float, float, float, float]] | None = None  # (t, values)
         self._on = False
         self._block_sum = 0.0
         self._block_n = 0
@@ -165,7 +166,18 @@ class HistoryTracker:
 
         t: sample time, s; speed: the switch speed, rpm (NaN: unknown, the engine's state
         is kept); slow: the slow temperatures (tF, tI, tH), °C (held over dropouts by the caller).
+        A second call for the same t (another target's pipeline of the same bed) returns the
+        first call's values and changes nothing.
         """
+        last = self._last
+        if last is not None and last[0] == t:
+            return last[1]
+        out = self._advance(t, speed, slow)
+        self._last = (t, out)
+        return out
+
+    def _advance(self, t: float, speed: float, slow: Sequence[float]
+                 ) -> tuple[float, float, float, float]:
         st = self.state
         if speed >= self.on_speed:
             if not self._on or (st.last_on_t is not None and not t - st.last_on_t < _SAME_RUN_S):

@@ -55,7 +55,11 @@ class MonitorPipeline:
     up to date across runs (a new run does not reset it).
     """
 
-    def __init__(self, bundle: Bundle, engine: EngineState | None = None) -> None:
+    def __init__(self, bundle: Bundle, engine: EngineState | None = None,
+                 history: HistoryTracker | None = None, slow_temperatures: bool = False) -> None:
+        """history: the bed's tracker when several targets' pipelines share it (it is stepped
+        once per sample; ``engine`` is then unused); slow_temperatures: await the slow
+        temperatures even when this target's models take no history input (another target's do)."""
         cfg = bundle.config
         self.bundle = bundle
         self.target = bundle.target
@@ -63,12 +67,12 @@ class MonitorPipeline:
         self.detector = OCDetector(bundle.schedule, cfg, FS)
         self._names = bundle.schedule.names  # a tuple built on each access: keep one
         self._uses_history = any(c in HISTORY_CHANNELS for c in bundle.inputs)
-        slow = SLOW_TEMPERATURES if self._uses_history else ()
+        slow = SLOW_TEMPERATURES if self._uses_history or slow_temperatures else ()
         self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow})
         # what the test bed publishes: the derived inputs are computed here, never awaited
         derived = {RUN_CURVE, *HISTORY_CHANNELS}
         self.sensor_channels = [c for c in self.channels if c not in derived]
-        self.history = HistoryTracker(self.detector.off_level, cfg.history_cooling, engine)
+        self.history = history or HistoryTracker(self.detector.off_level, cfg.history_cooling, engine)
         self._slow = slow
         self._hist: deque[tuple[float, ...]] = deque(maxlen=int(cfg.history_s * FS))
         self._last: dict[str, float] = dict.fromkeys(self.channels, _NAN)  # in channel order
@@ -93,11 +97,11 @@ class MonitorPipeline:
         oc_changed = st.oc != self._state[0]
         if self._curve is not None:
             vals[RUN_CURVE] = self._curve.step(vals[self.switch], vals[self.target], oc_changed)
+        # stepped with or without history inputs: the bed's engine history stays known
+        known = self.history.step(sample.t, vals[self.switch],
+                                  tuple(vals[c] for c in self._slow) if self._slow else _NO_SLOW)
         if self._uses_history:
-            vals.update(zip(HISTORY_CHANNELS, self.history.step(
-                sample.t, vals[self.switch], tuple(vals[c] for c in self._slow))))
-        else:  # kept all the same: the bed's engine history stays known for the next model
-            self.history.step(sample.t, vals[self.switch], _NO_SLOW)
+            vals.update(zip(HISTORY_CHANNELS, known))
         oc_msg = None
         if oc_changed or st.phase != self._state[1]:
             oc_msg = self._switch(sample.t, st, oc_changed)

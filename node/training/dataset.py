@@ -97,11 +97,16 @@ def run_arrays(run: Run, target: str, inputs: list[str]) -> RunArrays:
     return RunArrays(filled[:, 0], filled[:, 1:], valid)
 
 
+def time_order(runs: list[Run]) -> list[int]:
+    """Indices of ``runs`` by their first sample's time (the order one engine ran them)."""
+    return sorted(range(len(runs)), key=lambda i: float(runs[i].t[0]) if len(runs[i].t) else 0.0)
+
+
 def with_history(runs: list[Run], schedule: Schedule, config: RuntimeConfig) -> list[Run]:
     """``runs`` with the engine-history channels (``node.runtime.history``) appended, derived
     through them in time order as the node derives them (one engine; the first run's past
     unknown: a cold engine). Returned in the order given."""
-    order = sorted(range(len(runs)), key=lambda i: float(runs[i].t[0]) if len(runs[i].t) else 0.0)
+    order = time_order(runs)
     on_speed = OCDetector(schedule, config).off_level
     done = add_history([runs[i] for i in order], schedule.switch, on_speed, config.history_cooling)
     out: list[Run] = list(runs)

@@ -31,7 +31,7 @@ from node.runtime.ocdetect import OCDetector
 from node.runtime.runcurve import add_run_curve
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, peak_score, set_thresholds
-from node.training.dataset import Segment, run_arrays, segment_runs, with_history
+from node.training.dataset import Segment, run_arrays, segment_runs, time_order, with_history
 from node.training.features import rank_inputs
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
@@ -260,7 +260,7 @@ def history_config(runs: list[Run], schedule: Schedule, config: RuntimeConfig | 
     """``config`` with the engine history's cooling rate estimated from ``runs`` (one engine's,
     see ``node.runtime.history.estimate_cooling``); unchanged when the runs cannot tell."""
     config = config or RuntimeConfig()
-    order = sorted(runs, key=lambda r: float(r.t[0]) if len(r.t) else 0.0)
+    order = [runs[i] for i in time_order(runs)]
     rate = estimate_cooling(order, schedule.switch, OCDetector(schedule, config).off_level)
     return config if rate is None else dataclasses.replace(config, history_cooling=rate)
 
