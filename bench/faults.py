@@ -54,17 +54,24 @@ from node.mcap import Run, read_runs
 from node.models.bundle import Bundle, load_bundle
 from simulator.schedule import BUILT_IN_SCHEDULE, SimSchedule, load_sim_schedule
 
-FAULTS = ("imbalance", "stiffness", "stuck-sensor", "drift")
+FAULTS = ("imbalance", "imbalance-90", "stiffness", "stuck-sensor", "drift")
 DELAY_TARGET_S = 60.0
 FALSE_ALARM_TARGET_PER_H = 1.0
 
 
 class Setup:
-    """What every simulation of a bench run shares: the schedule and the noise scale."""
+    """What every simulation of a bench run shares: the schedule and the noise scale; whether the
+    model uses the order phases the recordings always hold (``train --no-phase`` when not)."""
 
-    def __init__(self, schedule: SimSchedule = BUILT_IN_SCHEDULE, noise_scale: float = 1.0) -> None:
+    def __init__(self, schedule: SimSchedule = BUILT_IN_SCHEDULE, noise_scale: float = 1.0,
+                 phase: bool = True) -> None:
         self.schedule = schedule
         self.noise_scale = float(noise_scale)
+        self.phase = phase
+
+    def model_name(self, method: str) -> str:
+        """The model's folder in an engine's work dir (with and without phase side by side)."""
+        return f"model-{method}" + ("" if self.phase else "-nophase")
 
     def argv(self) -> list[str]:
         out = [] if self.schedule.built_in else ["--schedule", self.schedule.source]
@@ -73,9 +80,10 @@ class Setup:
     def matches(self, truth: dict | None, first: int, count: int) -> bool:
         """Whether a recording's truth JSON is this setup's, with runs first .. first + count - 1.
 
-        Truth files from before --schedule / --noise-scale carry neither: built-in and 1.
+        Truth files from before --schedule / --noise-scale carry neither: built-in and 1; those
+        from before the phase channels carry no ``phase``: simulated again.
         """
-        if truth is None:
+        if truth is None or truth.get("phase") is None:
             return False
         digest = truth.get("schedule", {}).get("sha256", BUILT_IN_SCHEDULE.digest())
         return (digest == self.schedule.digest()
@@ -149,8 +157,8 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
     """
     setup = setup or Setup()
     work.mkdir(parents=True, exist_ok=True)
-    train, normal, model = work / "train.mcap", work / "normal.mcap", work / f"model-{method}"
-    stamp = work / f"model-{method}.trained-on.json"
+    train, normal, model = work / "train.mcap", work / "normal.mcap", work / setup.model_name(method)
+    stamp = model.with_name(model.name + ".trained-on.json")
     if not setup.matches(_truth(train), 0, n):
         print(f"[engine {seed}] simulating {n} training runs ...", flush=True)
         stamp.unlink(missing_ok=True)  # the model, if any, was trained on other data
@@ -164,7 +172,8 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
         print(f"[engine {seed}] training {method} on the training runs ...", flush=True)
         stamp.unlink(missing_ok=True)
         argv = ["train", str(train), "--schedule", str(work / "train.schedule.toml"), "--out",
-                str(model), "--method", method, "--target", "yB", "--quiet"]
+                str(model), "--method", method, "--target", "yB", "--quiet",
+                *([] if setup.phase else ["--no-phase"])]
         if cli(argv) != 0:
             raise SystemExit(f"train failed: {argv}")
         stamp.write_text(json.dumps({"train_truth_sha256": trained_on}) + "\n")
@@ -203,12 +212,15 @@ def main(argv: list[str] | None = None) -> int:
                     help="simulate this schedule's OCs (simulate --schedule; default the built-in 12)")
     ap.add_argument("--noise-scale", type=float, default=1.0, metavar="X",
                     help="scale every sensor's noise (simulate --noise-scale; default 1)")
+    ap.add_argument("--no-phase", dest="phase", action="store_false",
+                    help="the model ignores the order phases (train --no-phase; same recordings, "
+                         "its own model folder model-METHOD-nophase)")
     args = ap.parse_args(argv)
     if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
         ap.error(f"--noise-scale must be > 0 and finite, got {args.noise_scale!r}")
     try:
         setup = Setup(BUILT_IN_SCHEDULE if args.schedule is None else load_sim_schedule(args.schedule),
-                      args.noise_scale)
+                      args.noise_scale, args.phase)
     except OrdervibError as e:
         ap.error(f"--schedule: {e}")
     faults = tuple(x.strip() for x in args.faults.split(",") if x.strip())
@@ -237,7 +249,8 @@ def main(argv: list[str] | None = None) -> int:
           f"work dir {work}")
     print(f"schedule {setup.schedule.source} ({len(setup.schedule.ocs)} OCs: "
           f"{', '.join(f'{o.name} {o.speed:g}' for o in setup.schedule.ocs)} rpm); "
-          f"noise scale {setup.noise_scale:g}")
+          f"noise scale {setup.noise_scale:g}; "
+          f"order phases {'used' if setup.phase else 'ignored (--no-phase)'}")
     print()
     w = f"{DELAY_TARGET_S:.0f} s"
     print("| engine | fault | size | instance | onset OC | onset s into run | first alarm after onset, s "

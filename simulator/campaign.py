@@ -33,7 +33,9 @@ from simulator.schedule import (
     make_profile,
 )
 
-FAULTS = ("imbalance", "stiffness", "stuck-sensor", "drift")
+# "imbalance-90": the imbalance fault with its phase chosen so that the added order vector is at
+# right angles to the order's vector at the onset (the amplitude moves least for its size)
+FAULTS = ("imbalance", "imbalance-90", "stiffness", "stuck-sensor", "drift")
 CAMPAIGN_START = 1767600000.0  # 2026-01-05 08:00:00 UTC, epoch seconds
 OFF_FRACTION = 0.05  # contract: engine off when every shaft speed is below 5 % of its maximum
 MAX_SPEEDS = {"nA": gaspath.NA_TOP, "nB": gaspath.NB_TOP, "nC": gaspath.NC_TOP}
@@ -257,10 +259,13 @@ def simulate_run(
         b0 = thermal.bow_at_start(engine.bow_max[shaft.out], shutdown) * rng.uniform(0.7, 1.3)
         bow = b0 * np.exp(1j * rng.uniform(0, 2 * np.pi)) * heal
         stiffness = None
-        if fault == "imbalance" and shaft.out == "yB":
+        if fault in ("imbalance", "imbalance-90") and shaft.out == "yB":
             assert fault_rng is not None
             extra = (IMBALANCE_FAULT * fault_size * abs(base[0])
                      * np.exp(1j * fault_rng.uniform(0, 2 * np.pi)))
+            if fault == "imbalance-90":
+                extra = _right_angle(shaft, sig[shaft.speed], metal, unbalance, bow, after, abs(extra))
+                truth_run["fault"]["angle_deg"] = 90.0
             unbalance[after, 0] += extra
         if fault == "stiffness" and shaft.out == "yB":
             ramp = np.clip((profile.t - onset) / STIFFNESS_RAMP, 0.0, 1.0)
@@ -278,6 +283,19 @@ def simulate_run(
         "slow": {name: float(sig[name][-1]) for name in gaspath.SLOW_TEMPS},
     }
     return sig, profile, truth_run, end_state
+
+
+def _right_angle(shaft: rotor.Shaft, speed: np.ndarray, metal: np.ndarray, unbalance: np.ndarray,
+                 bow: np.ndarray, after: np.ndarray, size: float) -> complex:
+    """The added plane-1 imbalance (complex mm, modulus ``size``) whose steady order vector at the
+    onset (first sample of ``after``) leads the order vector there by 90 degrees."""
+    i = int(np.argmax(after))
+    one = slice(i, i + 1)
+    unit = np.zeros((1, 2), dtype=complex)
+    unit[0, 0] = 1.0
+    total = rotor.order(shaft, speed[one], metal[one], unbalance[one], bow[one], steady=True)[0]
+    gain = rotor.order(shaft, speed[one], metal[one], unit, np.zeros(1, dtype=complex), steady=True)[0]
+    return complex(size * np.exp(1j * (np.angle(total) - np.angle(gain) + np.pi / 2)))
 
 
 def _sensor_fault(

@@ -76,19 +76,21 @@ def order(
     unbalance: np.ndarray,
     bow: np.ndarray,
     stiffness: dict[int, np.ndarray] | None = None,
+    steady: bool = False,
 ) -> np.ndarray:
     """Complex order-1 velocity (mm/s) before the order tracker, shape (K,).
 
     The sum of the lagged modal envelopes and the mass-line residual. speed_rpm,
     metal (°C), bow (complex mm): (K,); unbalance: (K, 2) complex mm; stiffness:
-    optional per-mode stiffness factor (K,) (faults).
+    optional per-mode stiffness factor (K,) (faults); steady: without the envelope lags
+    (each sample's steady response).
     """
     w = rad_s(np.clip(speed_rpm, 0.0, None))
     total: np.ndarray = np.zeros(len(w), dtype=complex)
     for i, mode in enumerate(shaft.modes):
         k = 1.0 if stiffness is None or i not in stiffness else stiffness[i]
         q_ss = steady_modal(mode, w, mode_frequency(mode, metal, k), unbalance, bow)
-        total += lag(q_ss, mode.tau, 0.0)
+        total += q_ss if steady else lag(q_ss, mode.tau, 0.0)
     total += shaft.residual * w**3 * unbalance.sum(axis=1)
     return total
 

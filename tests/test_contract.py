@@ -154,7 +154,7 @@ def test_keys_round_trip_and_kinds() -> None:
 
 def test_enums_hold_the_contract_strings() -> None:
     assert [f.value for f in Flag] == ["ok", "alarm", "no-model"]
-    assert {r.value for r in Reason} == {"residual", "step", "flatline"}
+    assert {r.value for r in Reason} == {"residual", "step", "flatline", "vector"}
     assert [Phase.from_code(i) for i in range(3)] == [Phase.OFF, Phase.TRANSITION, Phase.STEADY]
     assert all(Phase.from_code(p.code) is p for p in Phase)
 

@@ -61,14 +61,16 @@ def test_stepper_equals_batch_predict_bit_for_bit():
         speed = _profile(rng, 2000.0, 4000.0) + rng.normal(0, 3.0, 1)
         speed = speed + rng.normal(0, 4.0, speed.size)
         y = _law(speed, _codes(speed)) + rng.normal(0, 0.05, speed.size)
-        trajs.append(Trajectory(y, speed[:, None], start=150))
+        z = y * np.exp(-1j * (speed / 1000.0 + rng.uniform(0, 6.3)))  # the phase turns with speed
+        trajs.append(Trajectory(y, speed[:, None], start=150, z=z))
     lookups = [c for c in CURVE_CANDIDATES if c["variant"] != "run"]
-    assert any(c["variant"] == "anchored" for c in lookups)
+    assert {"anchored", "vector"} <= {c["variant"] for c in lookups}
     for params in lookups:
         m = CurveModel.fit(Method.CURVE, params, trajs[:3])
         for t in trajs:
             rt = m.runtime()
-            rt.start(t.y[:t.start], t.U[:t.start])
+            past = t.z if params["variant"] == "vector" else t.y
+            rt.start(past[:t.start], t.U[:t.start])
             node = [rt.step([u]) for u in t.seg_U[:, 0].tolist()]  # as the pipeline calls it
             np.testing.assert_array_equal(np.array(node), m.predict(t))
     run = fit_oc_model("curve", {"variant": "run"}, trajs)

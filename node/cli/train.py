@@ -61,6 +61,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the engine-history inputs (hist_energy, hist_rate, hist_shutdown, "
                         "hist_thermal; appendix A.2.5) are candidates like any channel; the "
                         "recordings are then one engine's, in time order (default: off)")
+    p.add_argument("--phase", action=argparse.BooleanOptionalAction, default=True,
+                   help="use the orders' phase channels (yA_ph..yC_ph) where every recording has the "
+                        "target's: the vector rule watches the 1x vector; --no-phase: an amplitude-only "
+                        "model whatever the recordings hold (default: use them)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
     p.add_argument("--allow-empty", action="store_true",
@@ -206,14 +210,15 @@ def run(args: argparse.Namespace) -> int:
         results = train(runs, schedule, target=target, method=args.method, inputs=inputs,
                         n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
                         false_alarms_per_hour=per_rule, cv_undercoverage=under,
-                        fleet=curve, curves=args.curves, config=config, history=args.history)
+                        fleet=curve, curves=args.curves, config=config, history=args.history,
+                        phase=args.phase)
         if not any(r.model is not None for r in results) and not args.allow_empty:
             notes = sorted({r.note for r in results if r.note})
             which = f"target {target}: " if len(targets) > 1 else ""
             raise OrdervibError(f"{which}no OC could be trained ({'; '.join(notes) or 'no segment'}): "
                                 f"no model written (--allow-empty writes one that flags every sample "
                                 f"no-model)")
-        checks = calibrate_checks(runs, schedule, target, per_rule)
+        checks = calibrate_checks(runs, schedule, target, per_rule, use_phase=args.phase)
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
         trained.append((target, results, curve, checks))
     training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],

@@ -35,6 +35,7 @@ class Reason(StrEnum):
     RESIDUAL = "residual"
     STEP = "step"
     FLATLINE = "flatline"
+    VECTOR = "vector"
 
 
 class Phase(StrEnum):
@@ -80,6 +81,13 @@ class MonitorMessage(TypedDict):
     model: NotRequired[Annotated[str | None, "the model in force, method:OC"]]
     reason: NotRequired[Annotated[Reason | None, "the rule that raised the alarm"]]
     run_scale: NotRequired[Annotated[float | None, "how unusual this run has been so far (>= 1)"]]
+    measured_phase: NotRequired[Annotated[float | None, "measured phase of the target order, degrees"]]
+    predicted_phase: NotRequired[Annotated[float | None, "the model's prediction of that phase, degrees"]]
+    vector_residual: NotRequired[Annotated[float | None,
+                                           "|measured - predicted 1x vector| (same unit as the target)"]]
+    vector_score: NotRequired[Annotated[float | None,
+                                        "the vector rule: change of the 1x vector on this plateau over "
+                                        "its alarm level (alarm beyond 1)"]]
 
 
 class OCMessage(TypedDict):

@@ -302,7 +302,8 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
         raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
 
 
-NUMERIC_CHECKS = ("flatline_samples", "step_threshold", "run_scale_prior_ocs", "residual_cv_undercoverage")
+NUMERIC_CHECKS = ("flatline_samples", "step_threshold", "run_scale_prior_ocs", "residual_cv_undercoverage",
+                  "vector_step_threshold", "vector_drift_threshold")
 
 
 def _checks(d: object) -> dict:

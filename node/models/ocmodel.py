@@ -26,6 +26,7 @@ by the seeded state and not pulled towards the training runs' mean.
 from __future__ import annotations
 
 import bisect
+import cmath
 import math
 import warnings
 from collections import deque
@@ -58,19 +59,24 @@ class Method(StrEnum):
     CURVE = "curve"
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    out = np.array(a, dtype=float)
+def _readonly(a: np.ndarray, dtype: type = float) -> np.ndarray:
+    out: np.ndarray = np.array(a, dtype=dtype)
     out.setflags(write=False)
     return out
 
 
 @dataclass(frozen=True, eq=False)
 class Trajectory:
-    """One OC segment with the past before it: y (K,), U (K, m); samples [start, K) are the OC."""
+    """One OC segment with the past before it: y (K,), U (K, m); samples [start, K) are the OC.
+
+    z: the target order's 1x vectors (K,) complex (amplitude x exp(-j phase)), when its phase
+    is recorded (None: amplitude only); the vector curve takes its measured past from it.
+    """
 
     y: np.ndarray
     U: np.ndarray
     start: int
+    z: np.ndarray | None = None
 
     @property
     def seg_y(self) -> np.ndarray:
@@ -88,7 +94,18 @@ class Trajectory:
         """This trajectory with its inputs in ``form`` (itself for ``abs``)."""
         if form is InputForm.ABSOLUTE:
             return self
-        return Trajectory(self.y, self.U - self.reference(), self.start)
+        return Trajectory(self.y, self.U - self.reference(), self.start, self.z)
+
+
+def order_vectors(amplitude: np.ndarray, phase_deg: np.ndarray) -> np.ndarray:
+    """(K,) complex 1x vectors A exp(-j phase) (the phase a lag: ``Trajectory.z``); NaN where either is.
+
+    >>> order_vectors(np.array([2.0, 1.0]), np.array([90.0, np.nan])).round(12)
+    array([ 0. -2.j, nan+nanj])
+    """
+    rad = np.radians(phase_deg)
+    out: np.ndarray = amplitude * (np.cos(rad) - 1j * np.sin(rad))
+    return np.where(np.isfinite(out), out, complex(np.nan, np.nan))
 
 
 @dataclass(frozen=True, eq=False)
@@ -460,6 +477,7 @@ class Variant(StrEnum):
     FLEET = "fleet"  # the training runs' characteristic curve of this OC; input: the switch speed
     RUN = "run"  # the derived run_curve input itself (node.runtime.runcurve); input: run_curve
     ANCHORED = "anchored"  # the fleet curve moved to the level this run had at the switch
+    VECTOR = "vector"  # anchored, on the order's 1x vector (its phase recorded): |vector| predicted
 
 
 STEADY, RISING, FALLING = 0, 1, 2  # the speed's recent change: the rows of CurveModel.means
@@ -493,7 +511,11 @@ def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: 
 def _binned_means(speed: np.ndarray, y: np.ndarray, code: np.ndarray, width: float,
                   min_count: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Bin centres (B,) and the mean target per bin and direction (3, B) (every sample's mean
-    where a direction has fewer than ``min_count`` samples)."""
+    where a direction has fewer than ``min_count`` samples); complex y: complex means."""
+    if np.iscomplexobj(y):
+        ok = np.isfinite(y)
+        centres, re = _binned_means(speed[ok], y.real[ok], code[ok], width, min_count)
+        return centres, re + 1j * _binned_means(speed[ok], y.imag[ok], code[ok], width, min_count)[1]
     ok = np.isfinite(speed) & np.isfinite(y)
     if not ok.any():
         raise ValueError("no finite (speed, target) pairs to fit a curve")
@@ -528,6 +550,10 @@ class CurveModel:
             c + w_mul c (y_sw / c_sw - 1) + w_add (y_sw - c_sw): the curve scaled and shifted
             towards this run's level (a new run's imbalance and bow move its level, its
             curve keeps its shape). The weights are least squares over the training runs.
+            vector: the same on the order's 1x vector (``Trajectory.z``; means complex, y_sw
+            and c_sw complex, the weights real), the predicted amplitude the modulus: a run's
+            own imbalance and bow turn the vector, which the amplitude alone cannot tell
+            from a change of level.
 
     A law that differs on the way up and down is recovered exactly:
 
@@ -564,7 +590,8 @@ class CurveModel:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "centres", _readonly(self.centres))
-        object.__setattr__(self, "means", _readonly(np.reshape(self.means, (3, -1))))
+        kind = complex if self.variant is Variant.VECTOR else float
+        object.__setattr__(self, "means", _readonly(np.reshape(self.means, (3, -1)), kind))
         object.__setattr__(self, "weights", _readonly(np.reshape(self.weights, (2,))))
 
     @property
@@ -583,9 +610,12 @@ class CurveModel:
             return cls(dict(params), np.zeros(0), np.zeros((3, 0)))
         width, window = float(params.get("bin", 25.0)), int(params.get("window", 0))
         deadband = float(params.get("deadband", 0.0))
-        if variant is Variant.ANCHORED:  # the whole trajectories: the switch speed is in the past
+        vector = variant is Variant.VECTOR
+        if vector and any(t.z is None for t in trajs):
+            raise ValueError("a vector curve needs the target's phase")
+        if variant in (Variant.ANCHORED, Variant.VECTOR):  # whole trajectories: the switch is in the past
             speed = np.concatenate([t.U[:, 0] for t in trajs])
-            y = np.concatenate([t.y for t in trajs])
+            y = np.concatenate([_levels(t, vector) for t in trajs])
             code = np.concatenate([direction_codes(t.U[:0, 0], t.U[:, 0], window, deadband) for t in trajs])
         else:
             speed = np.concatenate([t.seg_U[:, 0] for t in trajs])
@@ -594,21 +624,24 @@ class CurveModel:
                                                    t.seg_U[:, 0], window, deadband) for t in trajs])
         centres, means = _binned_means(speed, y, code, width, int(params.get("min_count", 1)))
         plain = cls(dict(params), centres, means)
-        if variant is not Variant.ANCHORED:
+        if variant not in (Variant.ANCHORED, Variant.VECTOR):
             return plain
         rows, targets = [], []
         for t in trajs:
             rt = plain.runtime()
-            rt.start(t.y[:t.start], t.U[:t.start])
-            c = np.array([rt.step_speed(x) for x in t.seg_U[:, 0].tolist()], dtype=float)
+            level = _levels(t, vector)
+            rt.start(level[:t.start], t.U[:t.start])
+            c = np.array([rt.step_speed(x) for x in t.seg_U[:, 0].tolist()], dtype=means.dtype)
             if rt.anchor is None:
                 continue
             y_sw, c_sw = rt.anchor
             rows.append(np.column_stack([c * (y_sw / c_sw - 1.0), np.full(c.size, y_sw - c_sw)]))
-            targets.append(t.seg_y - c)
+            targets.append(level[t.start:] - c)
         weights = np.zeros(2)
         if rows:
             X, r = np.vstack(rows), np.concatenate(targets)
+            if vector:  # real weights: both components of the complex residual
+                X, r = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag])
             ok = np.isfinite(r) & np.isfinite(X).all(axis=1)
             if ok.sum() > 2:
                 weights = np.linalg.lstsq(X[ok], r[ok], rcond=None)[0]
@@ -619,6 +652,9 @@ class CurveModel:
         if self.variant is Variant.RUN:
             return np.array(traj.seg_U[:, 0], dtype=float)
         rt = self.runtime()
+        if self.variant is Variant.VECTOR:
+            rt.start(_levels(traj, True)[:traj.start], traj.U[:traj.start])
+            return np.array([rt.step([x]) for x in traj.seg_U[:, 0].tolist()], dtype=float)
         rt.start(traj.y[:traj.start], traj.U[:traj.start])
         step = rt.step_speed
         return np.array([step(x) for x in traj.seg_U[:, 0].tolist()], dtype=float)
@@ -627,23 +663,37 @@ class CurveModel:
         return CurveRuntime(self)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        out = {"centres": self.centres, "means": self.means}
-        if self.variant is Variant.ANCHORED:
+        out = {"centres": self.centres, "means": self.means.real}
+        if self.variant is Variant.VECTOR:
+            out["means_im"] = self.means.imag
+        if self.variant in (Variant.ANCHORED, Variant.VECTOR):
             out["weights"] = self.weights
         return out
 
     @classmethod
     def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
                     repaired: int = 0) -> CurveModel:
-        return cls(dict(params), arrays["centres"], arrays["means"],
+        means = arrays["means"] + 1j * arrays["means_im"] if "means_im" in arrays else arrays["means"]
+        return cls(dict(params), arrays["centres"], means,
                    arrays["weights"] if "weights" in arrays else np.zeros(2))
+
+
+def _levels(traj: Trajectory, vector: bool) -> np.ndarray:
+    """What a curve is fitted to and anchored on: the 1x vectors (K,) complex, or the target (K,)."""
+    if not vector:
+        return traj.y
+    if traj.z is None:  # no phase recorded: as the node without it, no anchor
+        return np.full(traj.y.shape, complex(np.nan, np.nan))
+    return traj.z
 
 
 class CurveRuntime:
     """Online stepper of a :class:`CurveModel`: a bin lookup per sample.
 
     Memory: the last ``window`` speeds (the direction of the speed's recent change), and
-    for an anchored curve the run's level at the switch (``anchor``: (y_sw, c_sw) or None).
+    for an anchored curve the run's level at the switch (``anchor``: (y_sw, c_sw) or None);
+    a vector curve's are complex, ``start`` takes the 1x vectors as its measured past, and
+    ``step`` returns the predicted amplitude, the predicted vector left in ``vector``.
 
     >>> m = CurveModel({"variant": "fleet", "window": 0}, np.array([0.0, 100.0]),
     ...                np.tile([0.0, 10.0], (3, 1)))
@@ -655,13 +705,16 @@ class CurveRuntime:
 
     def __init__(self, model: CurveModel) -> None:
         self._run = model.variant is Variant.RUN
-        self._anchored = model.variant is Variant.ANCHORED
+        self._vector = model.variant is Variant.VECTOR
+        self._anchored = model.variant in (Variant.ANCHORED, Variant.VECTOR)
         self._anchor_n = int(model.params.get("anchor", FS))
         self._w_mul, self._w_add = (float(w) for w in model.weights)
-        self.anchor: tuple[float, float] | None = None
-        self._shift = self._gain = 0.0
+        self.anchor: tuple[complex, complex] | None = None
+        self._shift: complex = 0.0
+        self._gain: complex = 0.0
+        self.vector: complex = math.nan  # the last predicted 1x vector (vector curves)
         self._xs = [float(x) for x in model.centres]
-        self._rows = [[float(v) for v in row] for row in model.means]
+        self._rows: list[list[complex]] = [row.tolist() for row in model.means]
         self._slopes = [[(r[i + 1] - r[i]) / (self._xs[i + 1] - self._xs[i]) for i in range(len(r) - 1)]
                         for r in self._rows]
         window = int(model.params.get("window", 0))
@@ -669,10 +722,11 @@ class CurveRuntime:
         self._past: deque[float] | None = deque(maxlen=window) if window > 0 else None
 
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
-        """Seed the recent speeds (and the anchor) from the measured past y_hist (K1,),
-        U_hist (K1, 1) (K1 may be 0)."""
+        """Seed the recent speeds (and the anchor) from the measured past y_hist (K1,) (the 1x
+        vectors, complex, for a vector curve), U_hist (K1, 1) (K1 may be 0)."""
         if self._anchored:
-            self._set_anchor(np.asarray(y_hist, float), np.asarray(U_hist, float))
+            levels = np.asarray(y_hist, complex if self._vector else float)
+            self._set_anchor(levels, np.asarray(U_hist, float))
         if self._past is None:
             return
         self._past.clear()
@@ -691,9 +745,9 @@ class CurveRuntime:
         ok = np.isfinite(y) & np.isfinite(x)
         if not ok.any():
             return
-        y_sw = math.fsum(y[ok].tolist()) / int(ok.sum())
-        c_sw = math.fsum(self._lookup(v, STEADY) for v in x[ok].tolist()) / int(ok.sum())
-        if not (math.isfinite(y_sw) and math.isfinite(c_sw)) or c_sw == 0.0:
+        y_sw = _mean(y[ok].tolist())
+        c_sw = _mean([self._lookup(v, STEADY) for v in x[ok].tolist()])
+        if not (cmath.isfinite(y_sw) and cmath.isfinite(c_sw)) or c_sw == 0.0:
             return
         self.anchor = (y_sw, c_sw)
         self._gain = self._w_mul * (y_sw / c_sw - 1.0)
@@ -703,9 +757,12 @@ class CurveRuntime:
         """Prediction for this sample from its raw input u (1,): the speed, or run_curve itself."""
         if self._run:
             return float(u[0])
-        return self.step_speed(float(u[0]))
+        if self._vector:
+            self.vector = self.step_speed(float(u[0]))
+            return abs(self.vector)
+        return self.step_speed(float(u[0])).real
 
-    def _lookup(self, x: float, code: int) -> float:
+    def _lookup(self, x: float, code: int) -> complex:
         xs, ys = self._xs, self._rows[code]
         i = bisect.bisect_right(xs, x)
         if i == 0:
@@ -714,8 +771,9 @@ class CurveRuntime:
             return ys[-1]
         return ys[i - 1] + self._slopes[code][i - 1] * (x - xs[i - 1])
 
-    def step_speed(self, x: float) -> float:
-        """Prediction at speed x (rpm) (NaN: NaN, and the recent speeds are kept)."""
+    def step_speed(self, x: float) -> complex:
+        """Prediction at speed x (rpm) (NaN: NaN, and the recent speeds are kept); complex for a
+        vector curve, else real."""
         if x != x:
             return math.nan
         code = STEADY
@@ -729,6 +787,14 @@ class CurveRuntime:
         if self.anchor is None:
             return c
         return c + self._gain * c + self._shift
+
+
+def _mean(values: list[complex]) -> complex:
+    """Exact-sum mean of real or complex values (real stays real)."""
+    re = math.fsum(v.real for v in values) / len(values)
+    if all(isinstance(v, float) for v in values):
+        return re
+    return complex(re, math.fsum(v.imag for v in values) / len(values))
 
 
 KINDS: dict[Method, OCModelKind] = {

@@ -135,6 +135,10 @@ class StepCheck:
 
     ``step(value, steady) -> z``: |mean(last short) - mean(long before)| / noise sd, 0
     until both windows lie inside the current plateau, after its settling time;
+    ``anchored``: the long window stays the plateau's first one (the change since the
+    plateau settled, slow ones too: a stiffness loss drifting in over seconds), instead of
+    sliding along. Values may be complex (an order's 1x vector: |.| of the mean difference,
+    the noise variance the mean of |first difference|^2 / 2 over both components);
     ``flagged`` is True once z has stayed beyond ``threshold`` for ``persist`` samples,
     and stays True to the end of the plateau (the operating point has not changed, so
     the new level is not normal). NaN values hold the last one. Windows and timings:
@@ -152,9 +156,10 @@ class StepCheck:
     """
 
     def __init__(self, threshold: float = math.inf, config: RuntimeConfig | None = None,
-                 fs: float = FS) -> None:
+                 fs: float = FS, anchored: bool = False) -> None:
         c = config or RuntimeConfig()
         self.threshold = threshold
+        self.anchored = anchored
         self.n_settle = int(round(c.step_settle_s * fs))
         self.n_short = max(1, int(round(c.step_short_s * fs)))
         self.n_long = max(1, int(round(c.step_long_s * fs)))
@@ -163,16 +168,18 @@ class StepCheck:
         self.reset()
 
     def reset(self) -> None:
-        self._win: deque[float] = deque()
+        self._win: deque[complex] = deque()
+        self._frozen = False  # anchored, and the plateau's first long window is complete
         self._age = 0
-        self._sum_short = self._sum_long = 0.0
-        self._last = math.nan
+        self._sum_short: complex = 0.0
+        self._sum_long: complex = 0.0
+        self._last: complex = math.nan
         self._var = 0.0
         self._ndiff = 0
         self._beyond = 0
         self.flagged = False
 
-    def step(self, value: float, steady: bool) -> float:
+    def step(self, value: complex, steady: bool) -> float:
         if not steady:
             if self._age:
                 self.reset()
@@ -185,7 +192,7 @@ class StepCheck:
             if value != value:
                 return 0.0
         if self._last == self._last:
-            d2 = 0.5 * (value - self._last) ** 2
+            d2 = 0.5 * abs(value - self._last) ** 2
             if self._ndiff >= self.n_long:  # clip outliers (the step itself) out of the noise
                 d2 = min(d2, 25.0 * self._var)
             self._ndiff += 1
@@ -198,9 +205,14 @@ class StepCheck:
         if len(win) > self.n_short:
             moved = win[-self.n_short - 1]
             self._sum_short -= moved
-            self._sum_long += moved
+            if not self._frozen:
+                self._sum_long += moved
         if len(win) > self.n_short + self.n_long:
-            self._sum_long -= win.popleft()
+            old = win.popleft()
+            if not self._frozen:
+                self._sum_long -= old
+        if self.anchored and len(win) == self.n_short + self.n_long:
+            self._frozen = True
         z = 0.0
         if len(win) == self.n_short + self.n_long and self._var > 0.0:
             diff = self._sum_short / self.n_short - self._sum_long / self.n_long

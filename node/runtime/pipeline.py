@@ -8,20 +8,29 @@ goes to the OC's ``ResidualCheck`` (``reason`` "residual"). Model-free checks
 flag, with or without a model, an abrupt step of the measured target during a
 steady plateau (``StepCheck``, ``reason`` "step") and a target stuck on one value
 while the engine runs (``FlatlineCheck``, ``reason`` "flatline"); see
-``node.runtime.alarms``. Every timing comes from the bundle's ``RuntimeConfig``.
+``node.runtime.alarms``. A bundle trained on recordings with the target's phase
+channel (``<target>_ph``) also watches the order's 1x vector, measured amplitude x
+exp(-j phase), on steady plateaus (``reason`` "vector"): its abrupt change (``StepCheck``)
+and its change since the plateau settled (``StepCheck`` anchored), which see an added
+imbalance at right angles to the existing one (the amplitude hardly moves) and a mode's
+stiffness drifting in. An OC model that predicts the vector (a vector curve) is seeded
+with the measured vectors. The monitor message then carries ``measured_phase``,
+``predicted_phase``, ``vector_residual`` (|measured - predicted vector|) and
+``vector_score``. Every timing comes from the bundle's ``RuntimeConfig``.
 """
 
 from __future__ import annotations
 
+import cmath
 import math
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
-from node.contract import FS, Flag, Phase, Reason
+from node.contract import FS, Flag, Phase, Reason, phase_channel
 from node.models.bundle import Bundle
-from node.models.ocmodel import OCRuntime
+from node.models.ocmodel import CurveModel, CurveRuntime, OCRuntime, Variant, order_vectors
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
@@ -40,6 +49,33 @@ class _Active:
     inputs: list[str]
     model_id: str
     check: ResidualCheck
+    vector: CurveRuntime | None = None  # the runtime again when it predicts the 1x vector
+
+
+def order_vector(amplitude: float, phase_deg: float) -> complex:
+    """An order's 1x vector from its amplitude and phase lag (degrees): A exp(-j phase); NaN if either is.
+
+    >>> order_vector(2.0, 90.0)
+    (1.2246467991473532e-16-2j)
+    """
+    rad = math.radians(phase_deg)
+    return amplitude * complex(math.cos(rad), -math.sin(rad))
+
+
+_NAN_VECTOR = complex(_NAN, _NAN)
+
+
+def _lag_deg(v: complex) -> float:
+    """The phase lag (degrees, in [-180, 180)) of a 1x vector A exp(-j phase); NaN for NaN or 0."""
+    if not (cmath.isfinite(v) and v != 0):
+        return _NAN
+    lag = -math.degrees(cmath.phase(v))
+    return lag - 360.0 if lag >= 180.0 else lag
+
+
+def _is_vector(model: object) -> bool:
+    """Whether an OC model predicts the 1x vector (a vector curve)."""
+    return isinstance(model, CurveModel) and model.variant is Variant.VECTOR
 
 
 def _num(x: float) -> float | None:
@@ -68,7 +104,15 @@ class MonitorPipeline:
         self._names = bundle.schedule.names  # a tuple built on each access: keep one
         self._uses_history = any(c in HISTORY_CHANNELS for c in bundle.inputs)
         slow = SLOW_TEMPERATURES if self._uses_history or slow_temperatures else ()
-        self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow})
+        # the vector rule: a sliding and an anchored StepCheck on the 1x vector (either may be off)
+        self._vector = [StepCheck(float(thr), cfg, FS, anchored) for anchored, thr in
+                        ((False, bundle.checks.get("vector_step_threshold")),
+                         (True, bundle.checks.get("vector_drift_threshold"))) if thr]
+        self._phase_ch = phase_channel(self.target)
+        vector_models = any(_is_vector(r.model) for r in bundle.ocs)
+        self._uses_phase = bool(self._vector) or vector_models
+        phase = (self._phase_ch,) if self._uses_phase else ()
+        self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow, *phase})
         # what the test bed publishes: the derived inputs are computed here, never awaited
         derived = {RUN_CURVE, *HISTORY_CHANNELS}
         self.sensor_channels = [c for c in self.channels if c not in derived]
@@ -110,19 +154,28 @@ class MonitorPipeline:
                "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
                "score": None, "band": None, "model": None, "reason": None,
                "run_scale": None}
+        z = _NAN_VECTOR
+        if self._uses_phase:
+            phase_deg = sample.values.get(self._phase_ch, _NAN)
+            z = order_vector(measured, phase_deg)
+            msg.update(measured_phase=_num(phase_deg), predicted_phase=None, vector_residual=None,
+                       vector_score=None)
         if self._active is not None:
-            self._predict(self._active, vals, measured, msg)
+            self._predict(self._active, vals, measured, msg, z)
         if self._jump is not None:
             self._jump.step(measured, st.phase is Phase.STEADY)
             if self._jump.flagged:
                 msg["flag"], msg["reason"] = Flag.ALARM, Reason.STEP
+        if self._vector:
+            self._watch_vector(self._vector, z, st.phase, msg)
         if self._flat is not None and self._flat.step(measured, st.phase is not Phase.OFF):
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.FLATLINE
         self._hist.append(tuple(vals.values()))
         return msg, oc_msg
 
-    def _predict(self, a: _Active, vals: dict[str, float], measured: float, msg: dict) -> None:
-        """Step the model in force when its inputs are known, and its residual rule; into msg."""
+    def _predict(self, a: _Active, vals: dict[str, float], measured: float, msg: dict, z: complex) -> None:
+        """Step the model in force when its inputs are known, and its residual rule; into msg
+        (z: the measured 1x vector, for a model that predicts it)."""
         u = [vals[c] for c in a.inputs]
         if not all(x - x == 0.0 for x in u):  # an input never seen yet in this run
             return
@@ -131,10 +184,22 @@ class MonitorPipeline:
         score, raised = a.check.step(r)
         msg.update(predicted=_num(pred), residual=None if r != r else r, score=score, band=a.check.band,
                    model=a.model_id, run_scale=a.check.run_scale)
+        if a.vector is not None:
+            v = a.vector.vector
+            msg.update(predicted_phase=_num(_lag_deg(v)), vector_residual=_num(abs(z - v)))
         if raised:
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.RESIDUAL
         else:
             msg["flag"] = Flag.OK
+
+    @staticmethod
+    def _watch_vector(checks: list[StepCheck], z: complex, phase: Phase, msg: dict) -> None:
+        """The vector rule on this sample's 1x vector z (NaN when amplitude or phase is null):
+        ``vector_score`` the larger statistic over its threshold (alarm beyond 1)."""
+        steady = phase is Phase.STEADY
+        msg["vector_score"] = max(chk.step(z, steady) / chk.threshold for chk in checks)
+        if any(chk.flagged for chk in checks) and msg["flag"] is not Flag.ALARM:
+            msg["flag"], msg["reason"] = Flag.ALARM, Reason.VECTOR
 
     def _name(self, oc: int | None) -> str | None:
         return None if oc is None else self._names[oc]
@@ -144,7 +209,7 @@ class MonitorPipeline:
         self.detector.reset()
         self._hist.clear()
         self._last = dict.fromkeys(self.channels, _NAN)
-        for rule in (self._flat, self._jump, self._runscale, self._curve):
+        for rule in (self._flat, self._jump, *self._vector, self._runscale, self._curve):
             if rule is not None:
                 rule.reset()
         self._active = None  # its segment is not this run's: RunScale never hears of it
@@ -178,15 +243,20 @@ class MonitorPipeline:
         if res is None or res.model is None or res.calibration is None:
             return
         rt = res.model.runtime()
+        vector = rt if isinstance(rt, CurveRuntime) and _is_vector(res.model) else None
         cols = [self.channels.index(c) for c in [self.target, *res.inputs]]
         if self._hist:
-            H = np.asarray(self._hist)[:, cols]
+            full = np.asarray(self._hist)
+            H = full[:, cols]
             ok = np.all(np.isfinite(H), axis=1)
-            H = H[np.argmax(ok):] if ok.any() else H[:0]  # history from the first complete row
-            rt.start(H[:, 0], H[:, 1:])
+            first = int(np.argmax(ok)) if ok.any() else len(H)  # history from the first complete row
+            y = H[first:, 0]
+            if vector is not None:  # its past: the 1x vectors
+                y = order_vectors(y, full[first:, self.channels.index(self._phase_ch)])
+            rt.start(y, H[first:, 1:])
         else:
             rt.start(np.zeros(0), np.zeros((0, len(res.inputs))))
         c = res.calibration
         scale = 1.0 if self._runscale is None else self._runscale.factor
         check = ResidualCheck(c.sigma, c.threshold, c.ewma_alpha, c.persist, self._clear, scale)
-        self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check)
+        self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check, vector)

@@ -14,6 +14,10 @@ Training steps the very rule objects the node runs:
   the CV runs themselves do.
 * step: the ``StepCheck`` and ``OCDetector`` stepped over every training run; the
   steady plateaus' peak statistics, pooled, a Gumbel law and the same alarm budget.
+* vector (recordings with the target's phase channel): the same on the order's 1x vector,
+  twice: the sliding ``StepCheck`` (an abrupt change: an added imbalance, at any angle) and
+  the one anchored at each plateau's start (a slow change: a mode's stiffness drifting in),
+  each with half the rule's budget.
 * flatline: ``FLATLINE_FACTOR`` x the longest repeat seen in training, at least
   ``FLATLINE_MIN_S``, so coarse quantisation on another test bed raises it.
 
@@ -34,8 +38,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from node.contract import FS, Phase
+from node.contract import FS, Phase, phase_channel
 from node.models.config import RuntimeConfig
+from node.models.ocmodel import order_vectors
 from node.models.result import Calibration, OCResult
 from node.runtime.alarms import RUN_SCALE_PRIOR_OCS, ResidualCheck, RunScale, StepCheck
 from node.runtime.ocdetect import OCDetector
@@ -166,8 +171,38 @@ def flatline_limit(longest: int, fs: float) -> int:
     return max(int(round(FLATLINE_MIN_S * fs)), int(math.ceil(FLATLINE_FACTOR * max(longest, 1))))
 
 
+def plateau_peaks(y: np.ndarray, phase: np.ndarray, config: RuntimeConfig | None, fs: float,
+                  anchored: bool = False) -> list[float]:
+    """The peak ``StepCheck`` statistic of each steady plateau of one run long enough for it.
+
+    y: (K,) the watched values (real, or complex 1x vectors); phase: (K,) ``Phase`` codes.
+    """
+    chk, peak = StepCheck(math.inf, config, fs, anchored), None
+    full = chk.n_settle + chk.n_short + chk.n_long  # samples before the statistic exists
+    peaks: list[float] = []
+    n_steady = 0
+    for v, steady in zip(y.tolist(), (phase == Phase.STEADY.code).tolist()):
+        z = chk.step(v, steady)
+        if steady:
+            n_steady += 1
+            peak = z if peak is None else max(peak, z)
+        elif peak is not None:
+            if n_steady >= full:  # a plateau too short for the check says nothing
+                peaks.append(peak)
+            peak, n_steady = None, 0
+    if peak is not None and n_steady >= full:
+        peaks.append(peak)
+    return peaks
+
+
+def _budget_threshold(peaks: list[float], running_s: float, budget: float) -> float:
+    """The level a plateau's peak exceeds with the budget's chance (Gumbel), at least margin x the largest."""
+    p = min(0.5, budget / (len(peaks) / (running_s / 3600.0)))
+    return max(gumbel_quantile(peaks, p), THRESHOLD_MARGIN * max(peaks))
+
+
 def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALSE_ALARMS_PER_HOUR,
-                     fs: float = FS, config: RuntimeConfig | None = None) -> dict:
+                     fs: float = FS, config: RuntimeConfig | None = None, use_phase: bool = True) -> dict:
     """The model-free checks' limits from training runs (objects with ``column(name)`` (K,)).
 
     Steps the very ``StepCheck`` and OC detector the node runs (with ``config``, default
@@ -175,9 +210,14 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     pooled, gives the step threshold for the alarm budget (per hour of running); the
     longest repeat gives the flatline limit. ``run_scale_prior_ocs`` tells the node the
     residual thresholds were calibrated with ``RunScale`` (bundles without it are run without).
+    When every run holds the target's phase channel (and ``use_phase``), the vector rule (the anchored
+    ``StepCheck`` on the 1x vector) gets its threshold the same way, with the same budget.
     """
     det = OCDetector(schedule, config, fs)
     peaks: list[float] = []
+    vector_peaks: dict[bool, list[float]] = {False: [], True: []}  # by anchored
+    ph = phase_channel(target)
+    with_phase = use_phase and bool(runs) and all(ph in getattr(run, "channels", ()) for run in runs)
     longest, running_s = 0, 0.0
     for run in runs:
         speed, y = run.column(schedule.switch), run.column(target)
@@ -186,25 +226,21 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
         running = phase != Phase.OFF.code
         running_s += float(running.sum()) / fs
         longest = max(longest, longest_repeat(y, running))
-        chk, peak = StepCheck(math.inf, config, fs), None
-        full = chk.n_settle + chk.n_short + chk.n_long  # samples before the statistic exists
-        n_steady = 0
-        for v, steady in zip(y.tolist(), (phase == Phase.STEADY.code).tolist()):
-            z = chk.step(v, steady)
-            if steady:
-                n_steady += 1
-                peak = z if peak is None else max(peak, z)
-            elif peak is not None:
-                if n_steady >= full:  # a plateau too short for the check says nothing
-                    peaks.append(peak)
-                peak, n_steady = None, 0
-        if peak is not None and n_steady >= full:
-            peaks.append(peak)
+        peaks += plateau_peaks(y, phase, config, fs)
+        if with_phase:
+            z = order_vectors(y, run.column(ph))
+            for anchored, found in vector_peaks.items():
+                found += plateau_peaks(z, phase, config, fs, anchored)
     checks: dict = {"flatline_samples": flatline_limit(longest, fs), "longest_repeat_in_training": longest,
                     "run_scale_prior_ocs": RUN_SCALE_PRIOR_OCS}
     if len(peaks) >= 2 and running_s > 0:
-        p = min(0.5, budget / (len(peaks) / (running_s / 3600.0)))
-        checks["step_threshold"] = max(gumbel_quantile(peaks, p), THRESHOLD_MARGIN * max(peaks))
+        checks["step_threshold"] = _budget_threshold(peaks, running_s, budget)
         checks["step_peaks_in_training"] = {"n": len(peaks), "max": max(peaks),
                                             "median": float(np.median(peaks))}
+    for anchored, found in vector_peaks.items():
+        if len(found) >= 2 and running_s > 0:
+            name = "vector_drift" if anchored else "vector_step"
+            checks[f"{name}_threshold"] = _budget_threshold(found, running_s, budget / 2)
+            checks[f"{name}_peaks_in_training"] = {"n": len(found), "max": max(found),
+                                                   "median": float(np.median(found))}
     return checks

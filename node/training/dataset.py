@@ -12,11 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.contract import Phase
+from node.contract import Phase, phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.config import RuntimeConfig
+from node.models.ocmodel import order_vectors
 from node.runtime.history import add_history
 from node.runtime.ocdetect import OCDetector
 
@@ -95,6 +96,16 @@ def run_arrays(run: Run, target: str, inputs: list[str]) -> RunArrays:
     valid = np.all(np.isfinite(raw), axis=1)
     filled = fill_gaps(raw)
     return RunArrays(filled[:, 0], filled[:, 1:], valid)
+
+
+def target_vectors(run: Run, target: str) -> np.ndarray | None:
+    """The target order's 1x vectors (K,) complex, amplitude and phase each held over gaps as
+    ``run_arrays`` holds them (the node holds each channel's last value); None without phase."""
+    ph = phase_channel(target)
+    if ph not in run.channels or target not in run.channels:
+        return None
+    held = fill_gaps(np.column_stack([run.column(target), run.column(ph)]))
+    return order_vectors(held[:, 0], held[:, 1])
 
 
 def time_order(runs: list[Run]) -> list[int]:

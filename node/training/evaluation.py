@@ -19,7 +19,7 @@ from node.runtime.history import HISTORY_CHANNELS
 from node.runtime.runcurve import RUN_CURVE, add_run_curve
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import alarm_mask
-from node.training.dataset import run_arrays, segment_runs, with_history
+from node.training.dataset import run_arrays, segment_runs, target_vectors, with_history
 
 
 @dataclass
@@ -62,6 +62,7 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
     if any(c in HISTORY_CHANNELS for c in inputs_needed):
         runs = with_history(runs, schedule, config)
     arrays = [run_arrays(run, target, inputs_needed) for run in runs]
+    vectors = [target_vectors(run, target) for run in runs]
     for s in segment_runs(runs, schedule):
         res = by_oc.get(s.oc)
         if res is None or res.model is None:
@@ -69,7 +70,9 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
         ra = arrays[s.run]
         cols = [inputs_needed.index(c) for c in res.inputs]
         lo = max(0, s.start - hist)
-        traj = Trajectory(ra.y[lo:s.stop], ra.U[lo:s.stop][:, cols], s.start - lo)
+        z = vectors[s.run]
+        traj = Trajectory(ra.y[lo:s.stop], ra.U[lo:s.stop][:, cols], s.start - lo,
+                          None if z is None else z[lo:s.stop])
         with np.errstate(all="ignore"):
             pred = res.model.predict(traj)
         out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], traj.seg_y, pred))

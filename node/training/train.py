@@ -31,7 +31,7 @@ from node.runtime.ocdetect import OCDetector
 from node.runtime.runcurve import add_run_curve
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, peak_score, set_thresholds
-from node.training.dataset import Segment, run_arrays, segment_runs, time_order, with_history
+from node.training.dataset import Segment, run_arrays, segment_runs, target_vectors, time_order, with_history
 from node.training.features import rank_inputs
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
@@ -52,7 +52,17 @@ CURVE_CANDIDATES: list[dict] = [
     {"variant": Variant.RUN.value},
     {"variant": Variant.ANCHORED.value, "bin": 25.0, "window": 0, "anchor": int(FS)},
     {"variant": Variant.ANCHORED.value, "bin": 25.0, "window": int(FS), "deadband": 20.0, "anchor": int(FS)},
+    {"variant": Variant.VECTOR.value, "bin": 25.0, "window": 0, "anchor": int(FS)},
+    {"variant": Variant.VECTOR.value, "bin": 25.0, "window": int(FS), "deadband": 20.0, "anchor": int(FS)},
+    {"variant": Variant.VECTOR.value, "bin": 25.0, "window": 0, "anchor": int(10 * FS)},
+    {"variant": Variant.VECTOR.value, "bin": 25.0, "window": 0, "anchor": int(60 * FS)},
 ]
+# The vector curves (the anchored curve on the 1x vector) only where every training run holds
+# the target's phase channel. Chosen on the development engines with phase (23: schedule B,
+# noise x1; 24: B, x2.5; 25: A, x2.5; WDMD, 8 training and 10 held-out runs each), mean held-out
+# eps_td: without the vector curves 0.184, 0.226, 0.286; with the two anchored on the last
+# second 0.104, 0.195, 0.239; with the two longer anchors (10 s, 60 s: the run's unbalance seen
+# over more speeds) too 0.105, 0.190, 0.227.
 # A state-space or regression model keeps an OC only when its CV eps is below (1 - margin) x
 # the best curve's: on new runs a free-running model's error exceeds its leave-one-run-out CV
 # error more often than a curve's does. Chosen on the development engines of ``bench
@@ -87,6 +97,7 @@ class OCData:
     at: list[int] = field(default_factory=list)  # index of the OC's first sample in its run
     switch: str = ""  # the schedule's switch channel
     curves: list[dict] = field(default_factory=list)  # curve candidates (CurveModel params)
+    z: list[np.ndarray] = field(default_factory=list)  # the target's 1x vectors, y's rows (empty: no phase)
 
 
 def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int
@@ -102,7 +113,7 @@ def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int
 
 def _trajs(d: OCData, rows: list[int], inputs: list[str]) -> list[Trajectory]:
     cols = [d.candidates.index(c) for c in inputs]
-    return [Trajectory(d.y[i], d.X[i][:, cols], d.start[i]) for i in rows]
+    return [Trajectory(d.y[i], d.X[i][:, cols], d.start[i], d.z[i] if d.z else None) for i in rows]
 
 
 def _predict_pairs(model: OCModel, trajs: list[Trajectory]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -136,6 +147,8 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
 
 def _curve_inputs(d: OCData, curve: dict) -> list[str] | None:
     """The one input of a curve candidate (the switch speed or run_curve); None: not a candidate."""
+    if curve.get("variant") == Variant.VECTOR and not d.z:
+        return None
     name = RUN_CURVE if curve.get("variant") == Variant.RUN else d.switch
     return [name] if name in d.candidates else None
 
@@ -204,13 +217,18 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
 def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: list[str],
                 segments: list[Segment] | None = None,
                 history_s: float = RuntimeConfig().history_s,
-                curves: list[dict] | None = None) -> list[OCData]:
+                curves: list[dict] | None = None, phase: bool = True) -> list[OCData]:
     """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it.
 
-    curves: each OC's curve candidates (``CURVE_CANDIDATES``; None: none).
+    curves: each OC's curve candidates (``CURVE_CANDIDATES``; None: none). phase: the target's
+    1x vectors too (``OCData.z``) when every run holds its phase channel.
     """
     segments = segment_runs(runs, schedule) if segments is None else segments
     arrays = [run_arrays(run, target, candidates) for run in runs]
+    vectors = [target_vectors(run, target) for run in runs] if phase else []
+    zs = [v for v in vectors if v is not None]
+    if not zs or len(zs) < len(runs):
+        zs = []
     hist = int(history_s * FS)
     out = []
     for j, name in enumerate(schedule.names):
@@ -223,6 +241,8 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
             ra = arrays[s.run]
             d.runs.append(s.run)
             d.y.append(ra.y[lo:s.stop])
+            if zs:
+                d.z.append(zs[s.run][lo:s.stop])
             d.X.append(ra.U[lo:s.stop])
             d.start.append(s.start - lo)
             d.at.append(s.start)
@@ -299,7 +319,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           cv_undercoverage: float = CV_UNDERCOVERAGE,
           fleet: tuple[np.ndarray, np.ndarray] | None = None,
           config: RuntimeConfig | None = None, curves: bool = True,
-          history: bool = False) -> list[OCResult]:
+          history: bool = False, phase: bool = True) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
@@ -315,7 +335,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     curves: per OC, also cross-validate the characteristic curves (``CURVE_CANDIDATES``: the
     OC's fleet curve on the switch speed, the curve anchored to the run's level at the
     switch, and run_curve itself, when among the candidates) and keep the best of them unless
-    the grid's best beats it by ``CURVE_MARGIN`` (see ``train_oc``).
+    the grid's best beats it by ``CURVE_MARGIN`` (see ``train_oc``); with ``phase`` and the
+    target's phase channel in every run, the vector curves too.
 
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
@@ -340,7 +361,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     grid = grid or DEFAULT_GRIDS[meth]
     datas = oc_datasets(runs, schedule, target, candidates,
                         history_s=(config or RuntimeConfig()).history_s,
-                        curves=CURVE_CANDIDATES if curves else None)
+                        curves=CURVE_CANDIDATES if curves else None, phase=phase)
     workers = workers or min(2, os.cpu_count() or 1)
     jobs = [(d, method, grid, inputs, n_inputs) for d in datas]
     results: list[OCResult | None] = [None] * len(jobs)

@@ -1,0 +1,158 @@
+"""The order's phase (issue 15): the vector rule, the vector curve, and the node's vector fields."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from node.cli import main
+from node.models.bundle import load_bundle
+from node.models.ocmodel import CurveModel, Method, Trajectory, order_vectors
+from node.runtime.alarms import StepCheck
+from node.training.evaluation import predict_segments
+
+
+def _rotating(k: np.ndarray, turn_at: int, angle_deg: float, rng: np.random.Generator) -> np.ndarray:
+    """A 1x vector of constant amplitude 5 that turns by ``angle_deg`` at sample ``turn_at``, in noise."""
+    phase = np.radians(30.0 + angle_deg * (k >= turn_at))
+    return 5.0 * np.exp(-1j * phase) + 0.05 * (rng.standard_normal(k.size) + 1j * rng.standard_normal(k.size))
+
+
+def test_a_turn_of_the_vector_is_seen_where_the_amplitude_does_not_move():
+    rng = np.random.default_rng(2)
+    k = np.arange(1200)
+    z = _rotating(k, 600, 40.0, rng)  # |dz| = 2 x 5 sin(20 deg) = 3.4 mm/s, the amplitude unchanged
+    amplitude, vector = StepCheck(threshold=8.0), StepCheck(threshold=8.0)
+    flags_a = [(amplitude.step(abs(v), True), amplitude.flagged)[1] for v in z]
+    flags_v = [(vector.step(v, True), vector.flagged)[1] for v in z]
+    assert not any(flags_a)
+    first = flags_v.index(True)
+    assert 600 <= first <= 640 and all(flags_v[first:])
+
+
+def test_the_anchored_check_sees_a_slow_turn_the_sliding_one_misses():
+    rng = np.random.default_rng(4)
+    k = np.arange(2400)
+    turn = np.clip((k - 800) / 800.0, 0.0, 1.0)  # 40 deg over 20 s, like a stiffness loss ramping in
+    z = 5.0 * np.exp(-1j * np.radians(30.0 + 40.0 * turn)) + 0.05 * (
+        rng.standard_normal(k.size) + 1j * rng.standard_normal(k.size))
+    sliding, anchored = StepCheck(threshold=8.0), StepCheck(threshold=8.0, anchored=True)
+    s = [sliding.step(v, True) for v in z]
+    a = [anchored.step(v, True) for v in z]
+    assert not sliding.flagged and max(s) < 8.0
+    assert anchored.flagged and max(a[:800]) < 4.0
+    # the anchor is the plateau's first full window: a new plateau takes a new one
+    anchored.step(0.0, False)
+    assert not anchored.flagged and anchored.step(z[-1], True) == 0.0
+
+
+def test_a_real_check_gives_the_same_numbers_for_real_and_complex_values():
+    rng = np.random.default_rng(1)
+    y = 3.0 + 0.1 * rng.standard_normal(900) + 1.0 * (np.arange(900) > 500)
+    for anchored in (False, True):
+        r, c = StepCheck(8.0, anchored=anchored), StepCheck(8.0, anchored=anchored)
+        assert [r.step(v, True) for v in y.tolist()] == [c.step(complex(v, 0.0), True) for v in y.tolist()]
+
+
+def test_the_vector_curve_follows_each_run_s_own_unbalance_exactly():
+    """Runs whose 1x vector is the fleet's response times the run's complex unbalance factor:
+    the vector curve, anchored on the second before the switch, predicts the amplitude exactly,
+    which the amplitude alone cannot when the response's phase turns with speed."""
+    rng = np.random.default_rng(7)
+    speed = np.concatenate([np.full(60, 1010.0), np.arange(1010.0, 3000.0, 20.0)])  # bin centres
+    response = (speed / 1000.0) * np.exp(-1j * speed / 700.0)  # turns with speed
+    trajs = []
+    for _ in range(4):
+        u = rng.uniform(0.5, 2.0) * np.exp(1j * rng.uniform(0, 2 * np.pi))
+        z = u * response
+        trajs.append(Trajectory(np.abs(z), speed[:, None], start=60, z=z))
+    m = CurveModel.fit(Method.CURVE, {"variant": "vector", "bin": 20.0, "anchor": 40}, trajs)
+    np.testing.assert_allclose(m.weights, [1.0, 0.0], atol=1e-9)
+    u_new = 1.7 * np.exp(0.4j)
+    new = Trajectory(np.abs(u_new * response), speed[:, None], start=60, z=u_new * response)
+    np.testing.assert_allclose(m.predict(new), new.seg_y, rtol=1e-9)
+    rt = m.runtime()
+    rt.start(new.z[:60], new.U[:60])
+    rt.step([float(speed[-1])])
+    np.testing.assert_allclose(rt.vector, new.z[-1], rtol=1e-9)
+    # stored and loaded: real arrays only (npz without pickle), the same model
+    arrays = m.arrays()
+    assert all(not np.iscomplexobj(a) for a in arrays.values())
+    again = CurveModel.from_arrays(Method.CURVE, m.params, arrays)
+    np.testing.assert_array_equal(again.predict(new), m.predict(new))
+    with pytest.raises(ValueError, match="phase"):
+        CurveModel.fit(Method.CURVE, {"variant": "vector"}, [Trajectory(new.y, new.U, 60)])
+
+
+def test_order_vectors_are_the_lag_convention():
+    z = order_vectors(np.array([2.0, 2.0, 1.0]), np.array([0.0, 90.0, np.nan]))
+    np.testing.assert_allclose(z[:2], [2.0, -2.0j], atol=1e-12)
+    assert np.isnan(z[2])
+
+
+@pytest.fixture(scope="module")
+def phased(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """train.mcap (3 short runs with phase), a model trained on them (lasso on nB, curves on)."""
+    d = tmp_path_factory.mktemp("phase")
+    assert main(["simulate", "--runs", "3", "--seed", "5", "--plateau-scale", "0.3", "--out",
+                 str(d / "train.mcap"), "--quiet"]) == 0
+    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"), "--out",
+                 str(d / "model"), "--method", "lasso", "--inputs", "nB", "--target", "yB", "--quiet",
+                 "--workers", "1"]) == 0
+    return d
+
+
+def _monitor(rec: Path) -> list[dict]:
+    with open(rec, "rb") as f:
+        topics = ["testbed/bed1/monitor/yB"]
+        return [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=topics)]
+
+
+def test_a_model_trained_with_phase_predicts_the_vector_in_the_node_as_in_training(
+        phased: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    bundle = load_bundle(phased / "model")
+    kinds = [r.kind for r in bundle.ocs if r.model is not None]
+    assert "curve:vector" in kinds
+    assert bundle.checks["vector_step_threshold"] > 0 and bundle.checks["vector_drift_threshold"] > 0
+    out = tmp_path / "node.mcap"
+    assert main(["replay", str(phased / "train.mcap"), "--model", str(phased / "model"), "--out", str(out),
+                 "--quiet"]) == 0
+    capsys.readouterr()
+    msgs = _monitor(out)
+    fields = {"measured_phase", "predicted_phase", "vector_residual", "vector_score"}
+    assert all(fields <= set(m) for m in msgs)
+    vec = [m for m in msgs if m["model"] and m["predicted_phase"] is not None]
+    assert vec, "no sample predicted by a vector curve"
+    for m in vec:
+        assert -180.0 <= m["predicted_phase"] < 180.0
+        if m["measured"] is not None and m["measured_phase"] is not None:
+            zm = order_vectors(np.array([m["measured"]]), np.array([m["measured_phase"]]))[0]
+            zp = order_vectors(np.array([m["predicted"]]), np.array([m["predicted_phase"]]))[0]
+            assert m["vector_residual"] == pytest.approx(abs(zm - zp), rel=1e-6, abs=1e-9)
+    node = {round(m["t"], 6): m["predicted"] for m in msgs}
+    from node.cli.train import load_runs
+    runs = load_runs([str(phased / "train.mcap")], quiet=True)
+    preds = predict_segments(bundle.ocs, runs, bundle.schedule, "yB", bundle.curve, bundle.config)
+    pairs = [(node.get(round(float(t), 6)), p) for s in preds for t, p in zip(s.t, s.predicted)]
+    assert pairs and all(a is not None for a, _ in pairs)
+    np.testing.assert_allclose([a for a, _ in pairs], [b for _, b in pairs], rtol=1e-9, atol=1e-9)
+
+
+def test_no_phase_trains_an_amplitude_only_model_whose_messages_have_no_vector_fields(
+        phased: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    out = tmp_path / "m"
+    assert main(["train", str(phased / "train.mcap"), "--schedule", str(phased / "train.schedule.toml"),
+                 "--out", str(out), "--method", "lasso", "--inputs", "nB", "--target", "yB", "--quiet",
+                 "--workers", "1", "--no-phase"]) == 0
+    bundle = load_bundle(out)
+    assert "curve:vector" not in [r.kind for r in bundle.ocs]
+    assert not any(k.startswith("vector") for k in bundle.checks)
+    rec = tmp_path / "node.mcap"
+    assert main(["replay", str(phased / "train.mcap"), "--model", str(out), "--out", str(rec),
+                 "--quiet"]) == 0
+    capsys.readouterr()
+    assert not any(k.startswith(("measured_phase", "vector")) for m in _monitor(rec) for k in m)
