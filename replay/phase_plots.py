@@ -52,7 +52,7 @@ def polar_figure(v: Vectors, title: str, switch: str, unit: str) -> Figure:
     cols = min(len(runs), 3)
     rows = -(-len(runs) // cols)
     fig = Figure(figsize=(4.8 * cols + 1.2, 4.6 * rows + 0.6))
-    norm = Normalize(float(np.nanmin(v.speed)), float(np.nanmax(v.speed)))
+    norm = Normalize(*v.speed_range())
     rmax = float(np.nanmax(np.abs(np.concatenate([v.measured(), v.predicted()])))) * 1.05
     axes = [cast(PolarAxes, fig.add_subplot(rows, cols, k + 1, projection="polar")) for k in range(len(runs))]
     sc = None

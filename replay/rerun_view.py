@@ -282,11 +282,13 @@ def log_curve(
     return xmax * sx, ymax * sy
 
 
-def log_runs(path: str, pos: np.ndarray, colors: np.ndarray, run: np.ndarray, radius: float = 1.5) -> None:
+def log_runs(path: str, pos: np.ndarray, colors: np.ndarray | Sequence[int], run: np.ndarray,
+             radius: float = 1.5) -> None:
     """Static 2-D points pos (N, 2), one entity per run (N,) as ``<path>/run<k>`` (k from 1).
 
-    colors: (N, 3) uint8; radius in UI points; non-finite points are left out.
+    colors: (N, 3) uint8, or one RGB for all; radius in UI points; non-finite points are left out.
     """
+    colors = np.broadcast_to(np.asarray(colors, dtype=np.uint8), (len(pos), 3))
     ok = np.isfinite(pos).all(axis=1)
     for r in np.unique(run[ok]):
         sel = ok & (run == r)
@@ -351,6 +353,12 @@ def polar_grid(rmax: float) -> tuple[float, float]:
     return step, step * max(np.ceil(rmax / step - 1e-9), 1.0)
 
 
+def polar_points(z: np.ndarray, s: float) -> np.ndarray:
+    """Plot positions (N, 2) of vectors z (N,) complex at s plot units per target unit: x = Re, y = -Im
+    (Rerun's y points down, so Im is up and a lag turns clockwise)."""
+    return np.column_stack([z.real, -z.imag]) * s
+
+
 def log_polar(v: Vectors, switch: str, unit: str) -> int:
     """The 1x vector as static 2-D points: x = Re, y = Im (up), per run; grid, axes and speed key.
 
@@ -361,16 +369,14 @@ def log_polar(v: Vectors, switch: str, unit: str) -> int:
     both = np.concatenate([meas, pred])
     step, rmax = polar_grid(float(np.nanmax(np.abs(both))) * 1.05)
     s = POLAR_SIZE / rmax
-    lo, hi = float(np.nanmin(v.speed)), float(np.nanmax(v.speed))
-    log_runs("polar/measured", np.column_stack([meas.real, -meas.imag]) * s, speed_colors(v.speed, lo, hi),
-             v.run)
+    lo, hi = v.speed_range()
+    log_runs("polar/measured", polar_points(meas, s), speed_colors(v.speed, lo, hi), v.run)
     if v.has_predicted():
-        orange = np.tile(np.array(COLORS["predicted"], dtype=np.uint8), (len(pred), 1))
-        log_runs("polar/predicted", np.column_stack([pred.real, -pred.imag]) * s, orange, v.run, 1.0)
+        log_runs("polar/predicted", polar_points(pred, s), COLORS["predicted"], v.run, 1.0)
     circle = np.exp(1j * np.linspace(0.0, 2 * np.pi, 97))
     R, rings = rmax * s, np.arange(step, rmax + 1e-9, step)
     strips: list = [[[-R, 0.0], [R, 0.0]], [[0.0, -R], [0.0, R]]]
-    strips += [np.column_stack([circle.real, circle.imag]) * r * s for r in rings]
+    strips += [polar_points(circle * r, s) for r in rings]
     pts = [[r * s + 0.1, 0.3] for r in rings]
     labels = [f"{r:g}" for r in rings]
     pts += [[R + 0.6, 0.0], [0.0, R + 0.5], [-R - 0.8, 0.0], [0.0, -R - 0.5], [0.0, -R - 1.1]]
@@ -396,7 +402,6 @@ def log_bode(v: Vectors, switch: str, target: str, unit: str) -> None:
     xmax = float(np.nanmax(v.speed)) * 1.05
     amax = max(float(np.nanmax(np.concatenate([v.amplitude, v.predicted_amplitude]))) * 1.1, 1e-6)
     colors = run_colors(v.run, v.t)
-    orange = np.tile(np.array(COLORS["predicted"], dtype=np.uint8), (len(v.t), 1))
     for name, ylim, y, yp, yname, ystep in (
         ("amplitude", (0.0, amax), v.amplitude, v.predicted_amplitude, f"{target} ({unit})", None),
         ("phase", (-180.0, 180.0), v.phase, v.predicted_phase, f"{target} phase lag (°)", 90.0),
@@ -404,7 +409,8 @@ def log_bode(v: Vectors, switch: str, target: str, unit: str) -> None:
         sx, sy = curve_scale(xmax, ylim[1] - ylim[0])
         log_runs(f"bode/{name}/measured", np.column_stack([v.speed * sx, -y * sy]), colors, v.run)
         if v.has_predicted():
-            log_runs(f"bode/{name}/predicted", np.column_stack([v.speed * sx, -yp * sy]), orange, v.run, 1.0)
+            log_runs(f"bode/{name}/predicted", np.column_stack([v.speed * sx, -yp * sy]), COLORS["predicted"],
+                     v.run, 1.0)
         log_axes(f"bode/{name}/axes", xmax, ylim, sx, sy, switch, yname, ystep)
 
 

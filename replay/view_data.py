@@ -161,6 +161,11 @@ class Vectors:
         """Whether any predicted vector is there."""
         return bool(np.isfinite(self.predicted()).any())
 
+    def speed_range(self) -> tuple[float, float]:
+        """Lowest and highest speed (rpm) of the samples with a vector, measured or predicted."""
+        ok = np.isfinite(self.measured()) | np.isfinite(self.predicted())
+        return float(np.nanmin(self.speed[ok])), float(np.nanmax(self.speed[ok]))
+
 
 def vector(amplitude: np.ndarray, phase: np.ndarray) -> np.ndarray:
     """The 1x vector amplitude * exp(-1j * radians(phase)): complex, the shape of the inputs.
