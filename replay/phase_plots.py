@@ -21,6 +21,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.projections.polar import PolarAxes
+from matplotlib.ticker import MaxNLocator
 
 from replay.view_data import Vectors
 
@@ -51,7 +52,7 @@ def polar_figure(v: Vectors, title: str, switch: str, unit: str) -> Figure:
     runs = _runs(v)
     cols = min(len(runs), 3)
     rows = -(-len(runs) // cols)
-    fig = Figure(figsize=(4.8 * cols + 1.2, 4.6 * rows + 0.6))
+    fig = Figure(figsize=(4.4 * cols + 1.2, 4.4 * rows + 0.8), layout="constrained")
     norm = Normalize(*v.speed_range())
     rmax = float(np.nanmax(np.abs(np.concatenate([v.measured(), v.predicted()])))) * 1.05
     axes = [cast(PolarAxes, fig.add_subplot(rows, cols, k + 1, projection="polar")) for k in range(len(runs))]
@@ -68,6 +69,7 @@ def polar_figure(v: Vectors, title: str, switch: str, unit: str) -> Figure:
                                 s=size, marker=marker, linewidths=0.6, label=name, rasterized=True)
         ax.set_thetagrids(np.arange(0, 360, 45), LAG_LABELS)
         ax.set_rmax(rmax)
+        ax.yaxis.set_major_locator(MaxNLocator(4))
         ax.set_title(_run_label(v, r), fontsize=9)
         ax.tick_params(labelsize=7)
         if v.has_predicted():
