@@ -13,6 +13,12 @@ Entity layout (every scalar is sent in bulk with ``rr.send_columns``):
 - ``/health/*``: the node's health messages (lag, late, dropped);
 - ``/curve/**``: the characteristic curve (target against speed), a static 2-D
   point cloud, one entity per run, hue by run and shade by time in the run;
+- with the order's phase (the target's phase channel, or ``measured_phase`` in the
+  monitor messages): ``/polar/**``, the 1x vector over the recording as static 2-D points
+  (x = Re, y = Im up: radius the amplitude, angle the phase lag clockwise from 0 degrees at
+  the right), measured coloured by speed, predicted (``predicted_phase``) in orange, one
+  entity per run; ``/bode/{amplitude,phase}/**``, the Bode pair against speed (phase
+  wrapped to [-180, 180), points); ``/residual/vector``: the node's vector residual;
 - ``/log/oc``: the OC switches as text.
 
 Two timelines: ``time`` (timestamp, the recording's clock) and ``engine_time``
@@ -31,7 +37,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from node.contract import RUN_GAP, Flag
-from replay.view_data import Health, OcSwitches, ViewData
+from replay.view_data import Health, OcSwitches, Vectors, ViewData, speed_at, vectors_of
 
 GAP_SHOWN = 10.0  # s: what a gap between runs shrinks to on engine_time
 ALARM_RED = (230, 40, 40)
@@ -42,7 +48,10 @@ COLORS = {
     "band": (150, 150, 150),
     "residual": (60, 160, 90),
     "score": (140, 80, 200),
+    "vector": (20, 170, 170),
 }
+# viridis at 0, 1/4, 1/2, 3/4, 1: the speed colour map (the PNG plots use matplotlib's viridis)
+SPEED_MAP = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]], dtype=float)
 
 
 # ----------------------------------------------------------------------------- time
@@ -167,6 +176,9 @@ def log_monitor(data: ViewData, clock: Clock) -> None:
     log_style("residual/residual", "residual", COLORS["residual"])
     log_scalars("residual/residual", m.t, m.residual, clock)
     log_band("residual", m.t, np.zeros_like(m.band), m.band, clock)
+    if np.isfinite(m.vector_residual).any():
+        log_style("residual/vector", "vector residual |measured - predicted 1x|", COLORS["vector"])
+        log_scalars("residual/vector", m.t, m.vector_residual, clock)
     log_points("residual/alarm", "alarm", m.t[alarm], m.residual[alarm], clock)
 
     if np.isfinite(m.score).any():
@@ -217,6 +229,18 @@ def run_colors(run: np.ndarray, t: np.ndarray) -> np.ndarray:
     return out
 
 
+def speed_colors(speed: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """RGB (N, 3) uint8 of speeds (N,) on the viridis map from lo to hi (rpm).
+
+    >>> speed_colors(np.array([0.0, 50.0, 100.0]), 0.0, 100.0).tolist()
+    [[68, 1, 84], [33, 145, 140], [253, 231, 37]]
+    """
+    frac = np.clip((np.asarray(speed, dtype=float) - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+    grid = np.linspace(0.0, 1.0, len(SPEED_MAP))
+    rgb = np.column_stack([np.interp(frac, grid, SPEED_MAP[:, c]) for c in range(3)])
+    return np.rint(rgb).astype(np.uint8)
+
+
 def curve_scale(speed_max: float, y_max: float) -> tuple[float, float]:
     """Plot units per rpm and per target unit, so the cloud is about 10 x 6 (y up is negative)."""
     return 10.0 / max(speed_max, 1e-9), 6.0 / max(y_max, 1e-9)
@@ -246,14 +270,7 @@ def log_curve(
     ymax = max(float(np.max(y)) * 1.1, 1e-6)
     sx, sy = curve_scale(xmax, ymax)
     pos = np.column_stack([speed * sx, -y * sy])
-    colors = run_colors(run, t)
-    for r in np.unique(run):
-        sel = run == r
-        rr.log(
-            f"curve/run{int(r) + 1}",
-            rr.Points2D(pos[sel], colors=colors[sel], radii=rr.Radius.ui_points(1.5)),
-            static=True,
-        )
+    log_runs("curve", pos, run_colors(run, t), run)
     if alarm is not None and alarm[ok].any():
         a = alarm[ok]
         rr.log(
@@ -261,36 +278,140 @@ def log_curve(
             rr.Points2D(pos[a], colors=[ALARM_RED], radii=rr.Radius.ui_points(2.5), draw_order=40.0),
             static=True,
         )
-    log_curve_axes(xmax, ymax, sx, sy, switch, f"{target} ({unit})")
+    log_axes("curve/axes", xmax, (0.0, ymax), sx, sy, switch, f"{target} ({unit})")
     return xmax * sx, ymax * sy
 
 
-def log_curve_axes(xmax: float, ymax: float, sx: float, sy: float, xname: str, yname: str) -> None:
-    """Axes, tick marks and tick labels of the curve plot (plot units: x = rpm*sx, y = -value*sy)."""
-    strips = [[[0.0, 0.0], [xmax * sx, 0.0]], [[0.0, 0.0], [0.0, -ymax * sy]]]
+def log_runs(path: str, pos: np.ndarray, colors: np.ndarray | Sequence[int], run: np.ndarray,
+             radius: float = 1.5) -> None:
+    """Static 2-D points pos (N, 2), one entity per run (N,) as ``<path>/run<k>`` (k from 1).
+
+    colors: (N, 3) uint8, or one RGB for all; radius in UI points; non-finite points are left out.
+    """
+    colors = np.broadcast_to(np.asarray(colors, dtype=np.uint8), (len(pos), 3))
+    ok = np.isfinite(pos).all(axis=1)
+    for r in np.unique(run[ok]):
+        sel = ok & (run == r)
+        rr.log(
+            f"{path}/run{int(r) + 1}",
+            rr.Points2D(pos[sel], colors=colors[sel], radii=rr.Radius.ui_points(radius)),
+            static=True,
+        )
+
+
+GREY = (170, 170, 170)
+
+
+def log_lines_and_labels(path: str, strips: list, pts: list, labels: list[str]) -> None:
+    """Grey line strips and text labels of a plot's frame (``<path>/lines``, ``<path>/labels``)."""
+    rr.log(
+        f"{path}/lines",
+        rr.LineStrips2D(strips, colors=[GREY], radii=rr.Radius.ui_points(1.0)),
+        static=True,
+    )
+    rr.log(
+        f"{path}/labels",
+        rr.Points2D(pts, labels=labels, colors=[GREY], radii=rr.Radius.ui_points(0.1), show_labels=True),
+        static=True,
+    )
+
+
+def log_axes(path: str, xmax: float, ylim: tuple[float, float], sx: float, sy: float, xname: str,
+             yname: str, ystep: float | None = None) -> None:
+    """Axes, tick marks and tick labels of a plot of x in [0, xmax] (rpm) against y in ylim.
+
+    Plot units: x = rpm*sx, y = -value*sy; the x axis at y = ylim[0]; ticks every 1-2-5 step
+    (on y every ystep when given).
+    """
+    ymin, ymax = ylim
+    y0 = 0.0 - ymin * sy  # the x axis
+    strips = [[[0.0, y0], [xmax * sx, y0]], [[0.0, y0], [0.0, -ymax * sy]]]
     pts, labels = [], []
-    dx, dy = nice_step(xmax), nice_step(ymax)
+    dx, dy = nice_step(xmax), ystep or nice_step(ymax - ymin)
     for v in np.arange(0.0, xmax + 1e-9, dx):
-        strips.append([[v * sx, 0.0], [v * sx, 0.12]])
-        pts.append([v * sx, 0.35])
+        strips.append([[v * sx, y0], [v * sx, y0 + 0.12]])
+        pts.append([v * sx, y0 + 0.35])
         labels.append(f"{v:g}")
-    for v in np.arange(0.0, ymax + 1e-9, dy):
+    for v in np.arange(ymin, ymax + 1e-9, dy):
         strips.append([[0.0, -v * sy], [-0.12, -v * sy]])
         pts.append([-0.45, -v * sy])
         labels.append(f"{v:g}")
-    pts += [[xmax * sx / 2, 0.8], [0.0, -ymax * sy - 0.35]]
+    pts += [[xmax * sx / 2, y0 + 0.8], [0.0, -ymax * sy - 0.35]]
     labels += [f"{xname} (rpm)", yname]
-    grey = (170, 170, 170)
+    log_lines_and_labels(path, strips, pts, labels)
+
+
+# ----------------------------------------------------------------------------- the order's vector
+
+
+POLAR_SIZE = 5.0  # plot units: the outer grid circle's radius
+
+
+def polar_grid(rmax: float) -> tuple[float, float]:
+    """(step, outer radius) of the polar grid circles for vectors up to rmax (target unit)."""
+    step = nice_step(max(rmax, 1e-6), 4)
+    return step, step * max(np.ceil(rmax / step - 1e-9), 1.0)
+
+
+def polar_points(z: np.ndarray, s: float) -> np.ndarray:
+    """Plot positions (N, 2) of vectors z (N,) complex at s plot units per target unit: x = Re, y = -Im
+    (Rerun's y points down, so Im is up and a lag turns clockwise)."""
+    return np.column_stack([z.real, -z.imag]) * s
+
+
+def log_polar(v: Vectors, switch: str, unit: str) -> int:
+    """The 1x vector as static 2-D points: x = Re, y = Im (up), per run; grid, axes and speed key.
+
+    Measured coloured by speed (viridis from the lowest to the highest speed), predicted in
+    orange. Returns the number of measured vectors drawn.
+    """
+    meas, pred = v.measured(), v.predicted()
+    both = np.concatenate([meas, pred])
+    step, rmax = polar_grid(float(np.nanmax(np.abs(both))) * 1.05)
+    s = POLAR_SIZE / rmax
+    lo, hi = v.speed_range()
+    log_runs("polar/measured", polar_points(meas, s), speed_colors(v.speed, lo, hi), v.run)
+    if v.has_predicted():
+        log_runs("polar/predicted", polar_points(pred, s), COLORS["predicted"], v.run, 1.0)
+    circle = np.exp(1j * np.linspace(0.0, 2 * np.pi, 97))
+    R, rings = rmax * s, np.arange(step, rmax + 1e-9, step)
+    strips: list = [[[-R, 0.0], [R, 0.0]], [[0.0, -R], [0.0, R]]]
+    strips += [polar_points(circle * r, s) for r in rings]
+    pts = [[r * s + 0.1, 0.3] for r in rings]
+    labels = [f"{r:g}" for r in rings]
+    pts += [[R + 0.6, 0.0], [0.0, R + 0.5], [-R - 0.8, 0.0], [0.0, -R - 0.5], [0.0, -R - 1.1]]
+    labels += ["0°", "90° lag", "±180°", "-90°", f"1x vector ({unit}), lag clockwise"]
+    log_lines_and_labels("polar/axes", strips, pts, labels)
+    key = np.linspace(lo, hi, 5)
     rr.log(
-        "curve/axes/lines",
-        rr.LineStrips2D(strips, colors=[grey], radii=rr.Radius.ui_points(1.0)),
+        "polar/axes/speed",
+        rr.Points2D(np.column_stack([np.full(5, R + 2.0), np.linspace(R, -R, 5)]),
+                    colors=speed_colors(key, lo, hi), labels=[f"{switch} {k:.0f} rpm" for k in key],
+                    radii=rr.Radius.ui_points(5.0), show_labels=True),
         static=True,
     )
-    rr.log(
-        "curve/axes/labels",
-        rr.Points2D(pts, labels=labels, colors=[grey], radii=rr.Radius.ui_points(0.1), show_labels=True),
-        static=True,
-    )
+    return int(np.isfinite(meas).sum())
+
+
+def log_bode(v: Vectors, switch: str, target: str, unit: str) -> None:
+    """The Bode pair: amplitude and phase (wrapped, degrees) against speed, static 2-D points.
+
+    ``/bode/amplitude`` and ``/bode/phase``, each with ``measured/run<k>`` coloured by run
+    and time (as the curve) and ``predicted/run<k>`` in orange.
+    """
+    xmax = float(np.nanmax(v.speed)) * 1.05
+    amax = max(float(np.nanmax(np.concatenate([v.amplitude, v.predicted_amplitude]))) * 1.1, 1e-6)
+    colors = run_colors(v.run, v.t)
+    for name, ylim, y, yp, yname, ystep in (
+        ("amplitude", (0.0, amax), v.amplitude, v.predicted_amplitude, f"{target} ({unit})", None),
+        ("phase", (-180.0, 180.0), v.phase, v.predicted_phase, f"{target} phase lag (°)", 90.0),
+    ):
+        sx, sy = curve_scale(xmax, ylim[1] - ylim[0])
+        log_runs(f"bode/{name}/measured", np.column_stack([v.speed * sx, -y * sy]), colors, v.run)
+        if v.has_predicted():
+            log_runs(f"bode/{name}/predicted", np.column_stack([v.speed * sx, -yp * sy]), COLORS["predicted"],
+                     v.run, 1.0)
+        log_axes(f"bode/{name}/axes", xmax, ylim, sx, sy, switch, yname, ystep)
 
 
 # ----------------------------------------------------------------------------- the whole view
@@ -312,9 +433,7 @@ def curve_arrays(data: ViewData, clock: Clock) -> tuple[np.ndarray, ...]:
     else:
         e = np.empty(0)
         return e, e, e, e.astype(np.int64), e.astype(bool)
-    ok = np.isfinite(data.speed.v)
-    speed = np.interp(t, data.speed.t[ok], data.speed.v[ok]) if ok.any() else np.full(len(t), np.nan)
-    return speed, y, t, clock.run_index(t), alarm
+    return speed_at(data.speed, t), y, t, clock.run_index(t), alarm
 
 
 def log_view(data: ViewData) -> dict[str, int]:
@@ -341,6 +460,9 @@ def log_view(data: ViewData) -> dict[str, int]:
     counts["curve"] = int(np.sum(np.isfinite(speed) & np.isfinite(y)))
     counts["runs"] = int(run.max()) + 1 if len(run) else 0
     log_curve(speed, y, t, run, data.switch, data.target, data.target_unit, alarm)
+    if (v := vectors_of(data)) is not None:
+        counts["vectors"] = log_polar(v, data.switch, data.target_unit)
+        log_bode(v, data.switch, data.target, data.target_unit)
     return counts
 
 
@@ -376,12 +498,23 @@ def blueprint(data: ViewData) -> rrb.Blueprint:
         if np.isfinite(data.monitor.score).any():
             left.append(rrb.TimeSeriesView(origin="/score", name="score", axis_x=link, plot_legend=legend))
             shares.append(1.0)
-    right: list[rrb.View] = [
-        rrb.Spatial2DView(
-            origin="/curve",
-            name=f"characteristic curve: {data.target} against {data.switch} (colour: run, shade: time)",
+    curve = rrb.Spatial2DView(
+        origin="/curve",
+        name=f"characteristic curve: {data.target} against {data.switch} (colour: run, shade: time)",
+    )
+    right: list[rrb.View | rrb.Container] = [curve]
+    if vectors_of(data) is not None:
+        right[0] = rrb.Tabs(
+            curve,
+            rrb.Spatial2DView(origin="/polar", name=f"polar: {data.target} 1x vector (x Re, y Im; lag "
+                              f"clockwise; colour: {data.switch}, orange: predicted)"),
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="/bode/amplitude", name=f"Bode: {data.target} amplitude "
+                                  f"against {data.switch} (colour: run, orange: predicted)"),
+                rrb.Spatial2DView(origin="/bode/phase", name=f"Bode: {data.target} phase lag, wrapped"),
+                name="Bode",
+            ),
         )
-    ]
     rshares = [3.0]
     if data.switches is not None:
         right.append(rrb.TextLogView(origin="/log", name="OC switches"))

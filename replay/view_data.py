@@ -4,7 +4,8 @@
 linear scan that also works on unfinished files) and decodes only the topics the view
 needs -- the switch speed, the target's sensor stream, ``monitor/<target>``,
 ``monitor/oc`` and ``monitor/health`` of one bed -- into time-major arrays, each sorted
-by the message time t. Sensor payloads follow the contract's payload rule
+by the message time t, and ``vectors_of`` the target's 1x vector (amplitude and order
+phase) when the recording has the order's phase. Sensor payloads follow the contract's payload rule
 (``node.contract.decode_samples``: malformed ones are left out); monitor messages keep
 every object with a numeric t, a missing or null field reading NaN (numbers) or ""
 (strings). A sensor-only recording gets its OC switches from a schedule: the node's OC
@@ -21,6 +22,7 @@ import numpy as np
 import orjson
 
 from node.contract import (
+    FS,
     RUN_GAP,
     OrdervibError,
     Phase,
@@ -31,6 +33,7 @@ from node.contract import (
     monitor_key,
     oc_key,
     parse_monitor_key,
+    phase_channel,
     sensor_key,
     topic_kind,
 )
@@ -61,8 +64,10 @@ class MonitorColumns:
     """Monitor messages of one target, time-major, shape (K,) each.
 
     t in s since the epoch; measured, predicted, residual, band in the target's
-    unit and score dimensionless, NaN for null; flag, oc, phase as str arrays
-    (oc "" for null).
+    unit and score dimensionless, NaN for null; flag, oc, phase (of the OC) as str arrays
+    (oc "" for null). The order's phase, where the node publishes it: measured_phase and
+    predicted_phase in degrees (lag from the once-per-rev mark), vector_residual (target unit,
+    |measured - predicted 1x vector|); NaN where null or absent.
     """
 
     t: np.ndarray
@@ -74,6 +79,9 @@ class MonitorColumns:
     flag: np.ndarray
     oc: np.ndarray
     phase: np.ndarray
+    measured_phase: np.ndarray
+    predicted_phase: np.ndarray
+    vector_residual: np.ndarray
     reason: np.ndarray | None = None  # why a sample is flagged ("residual", "step", ...), "" if not
 
     def flag_labels(self) -> np.ndarray:
@@ -120,6 +128,64 @@ class ViewData:
     switches: OcSwitches | None = None
     health: Health | None = None
     target_unit: str = "mm/s"
+    order_phase: Series | None = None  # the target's phase channel (degrees), when recorded
+
+
+@dataclass
+class Vectors:
+    """The target's 1x vector over the recording, time-major, shape (N,) each, sorted by t.
+
+    t: s since the epoch; speed: the switch speed (rpm) at t; run: run number (0-based, runs
+    split by gaps >= RUN_GAP in the speed); amplitude (target unit) and phase (degrees lag from
+    the once-per-rev mark, in [-180, 180)) measured, predicted_amplitude and predicted_phase the
+    model's; NaN where none. The vector is ``vector(amplitude, phase)``.
+    """
+
+    t: np.ndarray
+    speed: np.ndarray
+    run: np.ndarray
+    amplitude: np.ndarray
+    phase: np.ndarray
+    predicted_amplitude: np.ndarray
+    predicted_phase: np.ndarray
+
+    def measured(self) -> np.ndarray:
+        """The measured 1x vector, complex (N,), NaN where amplitude or phase is missing."""
+        return vector(self.amplitude, self.phase)
+
+    def predicted(self) -> np.ndarray:
+        """The predicted 1x vector, complex (N,), NaN where the model gives none."""
+        return vector(self.predicted_amplitude, self.predicted_phase)
+
+    def has_predicted(self) -> bool:
+        """Whether any predicted vector is there."""
+        return bool(np.isfinite(self.predicted()).any())
+
+    def speed_range(self) -> tuple[float, float]:
+        """Lowest and highest speed (rpm) of the samples with a vector, measured or predicted."""
+        ok = np.isfinite(self.measured()) | np.isfinite(self.predicted())
+        return float(np.nanmin(self.speed[ok])), float(np.nanmax(self.speed[ok]))
+
+
+def vector(amplitude: np.ndarray, phase: np.ndarray) -> np.ndarray:
+    """The 1x vector amplitude * exp(-1j * radians(phase)): complex, the shape of the inputs.
+
+    A phase lag turns the vector clockwise: 90 degrees points it down (-Im).
+
+    >>> vector(np.array([2.0, 1.0]), np.array([90.0, -180.0])).round(9).tolist()
+    [-2j, (-1+0j)]
+    """
+    return np.asarray(amplitude, dtype=float) * np.exp(-1j * np.radians(phase))
+
+
+def wrap_degrees(x: np.ndarray) -> np.ndarray:
+    """Angles (degrees) wrapped into [-180, 180), the shape of x.
+
+    >>> wrap_degrees(np.array([180.0, 190.0, -190.5, 359.0])).tolist()
+    [-180.0, -170.0, 169.5, -1.0]
+    """
+    out = np.mod(np.asarray(x, dtype=float) + 180.0, 360.0) - 180.0
+    return np.where(out >= 180.0, out - 360.0, out)  # np.mod gives 360 for tiny negative inputs
 
 
 # ----------------------------------------------------------------------------- decoding
@@ -204,6 +270,9 @@ def monitor_of(payloads: list[bytes]) -> MonitorColumns:
         flag=str_column(objs, "flag"),
         oc=str_column(objs, "oc"),
         phase=str_column(objs, "phase"),
+        measured_phase=float_column(objs, "measured_phase"),
+        predicted_phase=float_column(objs, "predicted_phase"),
+        vector_residual=float_column(objs, "vector_residual"),
         reason=str_column(objs, "reason"),
     )
 
@@ -253,6 +322,52 @@ def switches_from_schedule(speed: Series, schedule: Schedule) -> OcSwitches:
     change = np.ones(len(oc), dtype=bool)
     change[1:] = (oc[1:] != oc[:-1]) | (ph[1:] != ph[:-1])
     return OcSwitches(t=speed.t[change], oc=oc[change], phase=ph[change])
+
+
+def speed_at(speed: Series, t: np.ndarray) -> np.ndarray:
+    """The speed at times t (N,): linear between its valid samples, held over dropouts."""
+    ok = np.isfinite(speed.v)
+    return np.interp(t, speed.t[ok], speed.v[ok]) if ok.any() else np.full(len(t), np.nan)
+
+
+def at_times(s: Series, t: np.ndarray, tol: float = 0.5 / FS) -> np.ndarray:
+    """s's value at each time t (N,): its nearest sample within tol s, else NaN.
+
+    >>> at_times(Series(np.array([1.0, 2.0]), np.array([5.0, 6.0])), np.array([0.99, 1.5, 2.01])).tolist()
+    [5.0, nan, 6.0]
+    """
+    t = np.asarray(t, dtype=float)
+    if not len(s.t):
+        return np.full(len(t), np.nan)
+    j = np.searchsorted(s.t, t)
+    lo, hi = np.clip(j - 1, 0, len(s.t) - 1), np.clip(j, 0, len(s.t) - 1)
+    k = np.where(np.abs(s.t[lo] - t) <= np.abs(s.t[hi] - t), lo, hi)
+    return np.where(np.abs(s.t[k] - t) <= tol, s.v[k], np.nan)
+
+
+def vectors_of(data: ViewData) -> Vectors | None:
+    """The target's 1x vectors; None when the recording has no phase of it (or no valid speed).
+
+    From the monitor messages when they carry the order's phase (measured_phase or
+    predicted_phase), else from the target's sensor stream and its phase channel (the phase
+    sample nearest each amplitude sample, within half a sample period; no prediction).
+    """
+    m = data.monitor
+    if m is not None and np.isfinite(np.concatenate([m.measured_phase, m.predicted_phase])).any():
+        t, amp, phase, pamp, pphase = m.t, m.measured, m.measured_phase, m.predicted, m.predicted_phase
+    elif data.order_phase is not None and data.measured is not None:
+        t, amp = data.measured.t, data.measured.v
+        phase = at_times(data.order_phase, t)
+        pamp = pphase = np.full(len(t), np.nan)
+    else:
+        return None
+    if not np.isfinite(np.concatenate([vector(amp, phase), vector(pamp, pphase)])).any() or \
+            not np.isfinite(data.speed.v).any():
+        return None
+    gap_ends = data.speed.t[np.flatnonzero(np.diff(data.speed.t) >= RUN_GAP) + 1]
+    return Vectors(t=t, speed=speed_at(data.speed, t), run=np.searchsorted(gap_ends, t, side="right"),
+                   amplitude=amp, phase=wrap_degrees(phase), predicted_amplitude=pamp,
+                   predicted_phase=wrap_degrees(pphase))
 
 
 # ----------------------------------------------------------------------------- choosing
@@ -322,6 +437,8 @@ def load_view_data(recording: str, bed: str | None = None, target: str | None = 
         data.monitor = monitor_of(by_topic[tkey])
     if measured is None and data.monitor is None:
         raise OrdervibError(f"no {target} in the recording (neither {mkey} nor {tkey})")
+    if (pkey := sensor_key(bed, phase_channel(target))) in by_topic:
+        data.order_phase = series_of(by_topic[pkey])
     if hkey in by_topic:
         data.health = health_of(by_topic[hkey])
     source = "none"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import sys
@@ -137,6 +138,50 @@ def test_view_node_recording(node_rec: Path, tmp_path: Path, capsys) -> None:
         "/health/lag_ms_p99",
     ):
         assert entity in printed, entity
+
+
+# the data entities of node_rec's view (its view before the order's phase was shown)
+NO_PHASE_ENTITIES = {
+    "/speed/nB", "/state/oc", "/state/phase", "/state/flag", "/log/oc",
+    "/target/measured", "/target/predicted", "/target/upper", "/target/lower", "/target/alarm",
+    "/residual/residual", "/residual/upper", "/residual/lower", "/residual/alarm",
+    "/score/score", "/score/alarm",
+    "/health/lag_ms_p50", "/health/lag_ms_p99", "/health/late", "/health/missing", "/health/dropped",
+    "/health/malformed",
+    "/curve/run1", "/curve/run2", "/curve/alarm", "/curve/axes/lines", "/curve/axes/labels",
+}
+
+
+def _origins(container) -> list[str]:
+    """The views' origins in a blueprint container, depth first (Tabs as "tabs")."""
+    out = ["tabs"] if type(container).__name__ == "Tabs" else []
+    for c in container.contents:
+        out += _origins(c) if hasattr(c, "contents") and not hasattr(c, "origin") else [str(c.origin)]
+    return out
+
+
+def test_no_phase_view_is_unchanged(node_rec: Path, tmp_path: Path, capsys) -> None:
+    from replay.rerun_view import blueprint
+    from replay.view_data import load_view_data, vectors_of
+
+    data, _, _ = load_view_data(str(node_rec))
+    assert vectors_of(data) is None
+    assert _origins(blueprint(data).root_container) == [
+        "/speed", "/state", "/target", "/residual", "/score", "/curve", "/log", "/health"]
+    out = tmp_path / "node.rrd"
+    assert main(["view", str(node_rec), "--save", str(out)]) == 0
+    assert "1x vectors" not in capsys.readouterr().out
+    data_entities = {e for e in re.findall(r" - (/\S+) - ", _entities(out))
+                     if not e.startswith(("/view/", "/container/", "/viewport", "/__properties"))
+                     and not e.endswith("_panel")}
+    assert data_entities == NO_PHASE_ENTITIES
+    # --plots needs the order's phase: one line naming the channel, nothing written
+    plots = tmp_path / "plots"
+    plots.mkdir()
+    assert main(["view", str(node_rec), "--plots", str(plots), "--save", str(tmp_path / "x.rrd")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "yB_ph" in err[0] and "testbed/b1/sensor/yB_ph" in err[0]
+    assert not any(plots.iterdir()) and not (tmp_path / "x.rrd").exists()
 
 
 def test_view_sensor_only_recording(tmp_path: Path, capsys) -> None:

@@ -3,7 +3,9 @@
 The arrays come from ``replay.view_data.load_view_data`` and the Rerun calls from
 ``replay.rerun_view``. A sensor-only recording shows its OCs when a schedule is given
 (``--schedule``, or ``REC.schedule.toml`` beside it): the node's own OC detector is run
-over the speed.
+over the speed. With the order's phase (the target's phase channel, e.g. ``yB_ph``) the view
+adds the polar plot and the Bode pair; ``--plots DIR`` writes them as PNG files
+(``DIR/<bed>-<target>-polar.png``, ``-bode.png``; ``replay.phase_plots``) and starts no viewer.
 """
 
 from __future__ import annotations
@@ -16,21 +18,29 @@ import time
 from typing import TYPE_CHECKING
 
 from node.cli.outputs import check_output, replacing, warn_unfinished
-from node.contract import OrdervibError
+from node.contract import OrdervibError, monitor_key, phase_channel, sensor_key
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
-    from replay.view_data import ViewData
+    from replay.view_data import Vectors, ViewData
 
 log = logging.getLogger(__name__)
 
 NAME = "view"
-HELP = "show a recording in the Rerun viewer, or save the Rerun file (--save OUT.rrd)"
+HELP = ("show a recording in the Rerun viewer, or save the Rerun file (--save OUT.rrd); "
+        "polar and Bode PNG plots of the order's phase (--plots DIR)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", metavar="REC.mcap", help="recording (sensor-only or a node's)")
     p.add_argument("--save", metavar="OUT.rrd", default=None, help="write a Rerun file, start no viewer")
+    p.add_argument(
+        "--plots",
+        metavar="DIR",
+        default=None,
+        help="write DIR/<bed>-<target>-polar.png and -bode.png (needs the target's phase channel), "
+        "start no viewer",
+    )
     p.add_argument("--bed", metavar="NAME", default=None, help="test bed (default: the only one)")
     p.add_argument(
         "--target",
@@ -64,9 +74,49 @@ def _schedule_for(args: argparse.Namespace) -> Schedule | None:
 
 
 def _check(args: argparse.Namespace) -> None:
-    if args.save is None:
-        return
-    check_output(args.save, "--save", suffix=".rrd", inputs=[args.recording])
+    if args.save is not None:
+        check_output(args.save, "--save", suffix=".rrd", inputs=[args.recording])
+    if args.plots is not None and not os.path.isdir(args.plots):
+        raise OrdervibError(f"--plots {args.plots} is not a directory")
+
+
+def _png_paths(args: argparse.Namespace, data: ViewData) -> list[str]:
+    """The polar and Bode PNG paths of --plots, checked (before anything is written)."""
+    paths = [os.path.join(args.plots, f"{data.bed}-{data.target}-{kind}.png") for kind in ("polar", "bode")]
+    for path in paths:
+        check_output(path, "--plots", suffix=".png", inputs=[args.recording])
+    return paths
+
+
+def _write_plots(data: ViewData, vectors: Vectors, paths: list[str]) -> str:
+    """The polar and Bode plots to paths, each replaced only by a complete file; the summary line."""
+    import numpy as np
+
+    from replay.phase_plots import bode_figure, polar_figure, save_png
+
+    title = f"{data.bed} {data.target}: 1x vector"
+    figures = (polar_figure(vectors, title, data.switch, data.target_unit),
+               bode_figure(vectors, title, data.switch, data.target, data.target_unit))
+    for fig, path in zip(figures, paths):
+        with replacing(path) as part:
+            save_png(fig, part)
+        log.info("wrote %s", path)
+    ok = np.isfinite(vectors.measured())
+    return (f"plots: bed {data.bed}, {data.target} {int(ok.sum())} 1x vectors in "
+            f"{len(np.unique(vectors.run[ok]))} runs{', with predicted' if vectors.has_predicted() else ''} "
+            f"-> {', '.join(paths)}")
+
+
+def _vectors(data: ViewData) -> Vectors:
+    """The target's 1x vectors for --plots; one-line OrdervibError when the recording has no phase."""
+    from replay.view_data import vectors_of
+
+    vectors = vectors_of(data)
+    if vectors is None:
+        ph, bed = phase_channel(data.target), data.bed
+        raise OrdervibError(f"--plots: no phase of {data.target} in the recording (no {ph} in "
+                            f"{sensor_key(bed, ph)}, no measured_phase in {monitor_key(bed, data.target)})")
+    return vectors
 
 
 def _has_display() -> bool:
@@ -100,6 +150,14 @@ def run(args: argparse.Namespace) -> int:
                                          _schedule_for(args))
     if stats.truncated:
         warn_unfinished(log, args.recording, f"{stats.messages} messages")
+    if args.plots is not None:
+        vectors = _vectors(data)
+        paths = _png_paths(args, data)
+        line = _write_plots(data, vectors, paths)
+        if not args.quiet:
+            print(line)
+        if args.save is None:
+            return 0
     if args.save is None and not _has_display():
         raise OrdervibError(_NO_VIEWER.format(why="no display"))
 
@@ -122,9 +180,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         where = f"-> {args.save} ({os.path.getsize(args.save)} bytes)" if args.save else "-> viewer"
         extra = " (unfinished file)" if stats.truncated else ""
+        vec = f"{counts['vectors']} 1x vectors, " if "vectors" in counts else ""
         print(
             f"view: bed {data.bed}, {data.switch} {counts.get('speed', 0)} samples, "
             f"{data.target} {counts.get('curve', 0)} curve points in {counts.get('runs', 0)} runs, "
+            f"{vec}"
             f"monitor {counts.get('monitor', 0)} ({counts.get('alarm', 0)} alarm), "
             f"OCs from {source}{extra} {where} in {time.perf_counter() - start:.2f} s"
         )
