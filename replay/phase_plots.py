@@ -2,11 +2,11 @@
 
 - ``polar_figure``: the vector over the recording in polar axes, one panel per run: radius the
   amplitude, angle the phase lag measured clockwise from 0 degrees at the right (the
-  Rerun view's x = Re, y = Im picture); measured as dots and predicted as crosses, both
-  coloured by the switch speed, with a colour bar.
+  Rerun view's x = Re, y = Im picture); measured as dots coloured by the switch speed (a
+  colour bar), predicted as black crosses.
 - ``bode_figure``: the Bode pair, amplitude and phase against speed on two stacked axes
   sharing speed; the phase wrapped to [-180, 180) and drawn as markers (no line across
-  a wrap); a colour per run, measured dots and predicted crosses.
+  a wrap); measured dots in a colour per run, predicted black crosses.
 
 Both return a matplotlib Figure on an Agg canvas; ``save_png`` writes one.
 """
@@ -27,6 +27,9 @@ from replay.view_data import Vectors
 
 DPI = 100
 LAG_LABELS = ["0°", "45°", "90°", "135°", "±180°", "-135°", "-90°", "-45°"]  # every 45° clockwise from 0
+
+
+PREDICTED = "black"  # the prediction in every plot
 
 
 def save_png(fig: Figure, path: str) -> None:
@@ -61,12 +64,16 @@ def polar_figure(v: Vectors, title: str, switch: str, unit: str) -> Figure:
         sel = v.run == r
         ax.set_theta_zero_location("E")
         ax.set_theta_direction(-1)  # a lag turns the vector clockwise
-        for vec, marker, size, name in ((v.measured(), "o", 3.0, "measured"), (v.predicted(), "x", 6.0,
-                                                                                   "predicted")):
-            ok = sel & np.isfinite(vec)
-            if ok.any():
-                sc = ax.scatter(-np.angle(vec[ok]), np.abs(vec[ok]), c=v.speed[ok], cmap="viridis", norm=norm,
-                                s=size, marker=marker, linewidths=0.6, label=name, rasterized=True)
+        ok = sel & np.isfinite(v.measured())
+        if ok.any():
+            vec = v.measured()[ok]
+            sc = ax.scatter(-np.angle(vec), np.abs(vec), c=v.speed[ok], cmap="viridis", norm=norm, s=3.0,
+                            marker="o", linewidths=0.0, label="measured", rasterized=True)
+        ok = sel & np.isfinite(v.predicted())
+        if ok.any():  # one contrasting colour: the prediction must stand out from the measured cloud
+            vec = v.predicted()[ok]
+            ax.scatter(-np.angle(vec), np.abs(vec), color=PREDICTED, s=4.0, marker="x", linewidths=0.5,
+                       alpha=0.6, label="predicted", rasterized=True)
         ax.set_thetagrids(np.arange(0, 360, 45), LAG_LABELS)
         ax.set_rmax(rmax)
         ax.yaxis.set_major_locator(MaxNLocator(4))
@@ -92,7 +99,7 @@ def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str) -> 
             ax.plot(v.speed[sel], y[sel], ".", ms=2.0, color=color, label=f"{_run_label(v, r)} measured",
                     rasterized=True)
             if np.isfinite(yp[sel]).any():
-                ax.plot(v.speed[sel], yp[sel], "x", ms=3.0, mew=0.6, color=color,
+                ax.plot(v.speed[sel], yp[sel], "x", ms=3.0, mew=0.5, color=PREDICTED, alpha=0.6,
                         label=f"{_run_label(v, r)} predicted", rasterized=True)
     amp_ax.set_ylabel(f"{target} amplitude ({unit})")
     amp_ax.set_ylim(bottom=0.0)
