@@ -10,7 +10,9 @@ of the same engine. Per engine and OC it prints the mean held-out eps_td of
 
 * ``today``: ``ordervib train --no-curve-candidates --no-history`` (WDMD with run_curve,
   the defaults before issue 13),
+* ``no phase``: ``ordervib train --no-phase``: this version's defaults on the amplitudes alone,
 * ``default``: ``ordervib train`` with this version's defaults (and which kind won the OC),
+  which use the order's phase (the recordings carry it: ``yB_ph``),
 * ``curve``: the characteristic-curve baseline,
 
 all measured in this one run, then per set the mean and the OCs worse than the curve by
@@ -23,6 +25,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import tempfile
 import time
 from dataclasses import dataclass
@@ -47,7 +50,8 @@ class Engine:
 
 
 SETS = {
-    "dev": [Engine(11, "A", 1.0), Engine(12, "A", 1.0), Engine(21, "B", 2.5), Engine(22, "A", 2.5)],
+    "dev": [Engine(11, "A", 1.0), Engine(12, "A", 1.0), Engine(21, "B", 2.5), Engine(22, "A", 2.5),
+            Engine(23, "B", 1.0), Engine(24, "B", 2.5), Engine(25, "A", 2.5)],
     "report": [Engine(14, "A", 1.0), Engine(15, "A", 1.0), Engine(16, "A", 1.0),
                Engine(31, "B", 1.0), Engine(32, "B", 1.0), Engine(33, "A", 2.5),
                Engine(34, "A", 2.5), Engine(35, "B", 2.5), Engine(36, "B", 2.5)],
@@ -55,15 +59,19 @@ SETS = {
 
 
 def simulate(e: Engine, work: Path) -> tuple[Path, Path]:
-    """The engine's 8 training and 10 held-out runs (reused when already there)."""
+    """The engine's 8 training and 10 held-out runs (reused when already there with the order
+    phases; recordings from before the phase channels are simulated again)."""
     train, test = work / f"{e.name}-train.mcap", work / f"{e.name}-test.mcap"
     common = ["--seed", str(e.seed), "--noise-scale", str(e.noise), "--quiet"]
     if e.schedule == "B":
         common += ["--schedule", str(SCHEDULE_B)]
-    if not train.exists():
-        cli(["simulate", "--runs", "8", "--out", str(train), *common])
-    if not test.exists():
-        cli(["simulate", "--runs", "18", "--skip", "8", "--out", str(test), *common])
+    for rec, runs in ((train, ["--runs", "8"]), (test, ["--runs", "18", "--skip", "8"])):
+        truth = rec.with_suffix(".truth.json")
+        if rec.exists() and truth.exists() and json.loads(truth.read_text()).get("phase") is not None:
+            continue
+        for old in (rec, truth, rec.with_suffix(".schedule.toml")):  # this bench's own files
+            old.unlink(missing_ok=True)
+        cli(["simulate", *runs, "--out", str(rec), *common])
     return train, test
 
 
@@ -97,13 +105,14 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(args.workdir or tempfile.mkdtemp(prefix="ordervib-generalise-"))
     work.mkdir(parents=True, exist_ok=True)
     engines = SETS["dev"] + SETS["report"] if args.set == "all" else SETS[args.set]
-    rows: list[tuple[str, str, float, float, float, str]] = []
+    rows: list[tuple[str, str, float, float, float, float, str]] = []
     for e in engines:
         t0 = time.perf_counter()
         train, test = simulate(e, work)
         schedule = train.with_suffix(".schedule.toml")
         scores = {}
-        for name, extra in (("today", ["--no-curve-candidates", "--no-history"]), ("default", [])):
+        for name, extra in (("today", ["--no-curve-candidates", "--no-history"]),
+                            ("no-phase", ["--no-phase"]), ("default", [])):
             model = work / f"{e.name}-{name}"
             with contextlib.redirect_stdout(io.StringIO()):
                 code = cli(["train", str(train), "--schedule", str(schedule), "--out", str(model),
@@ -117,24 +126,25 @@ def main(argv: list[str] | None = None) -> int:
                             sched, "yB")
         print(f"\n{e.name} (seed {e.seed}, schedule {e.schedule}, noise x{e.noise:g}; "
               f"{time.perf_counter() - t0:.0f} s)")
-        print("| OC | today | default | default's model | curve |")
-        print("|---|---|---|---|---|")
-        for (oc, today, _), (_, new, kind), b in zip(scores["today"], scores["default"], base):
-            print(f"| {oc} | {today:.3f} | {new:.3f} | {kind} | {b:.3f} |")
-            rows.append((e.name, oc, today, new, b, kind))
-        mine = [r for r in rows if r[0] == e.name]
-        print(f"| mean | {np.nanmean([r[2] for r in mine]):.3f} | {np.nanmean([r[3] for r in mine]):.3f} | "
-              f"| {np.nanmean([r[4] for r in mine]):.3f} |", flush=True)
-    a_today = np.array([r[2] for r in rows])
-    a_new = np.array([r[3] for r in rows])
-    a_curve = np.array([r[4] for r in rows])
+        print("| OC | today | no phase | no phase's model | default | default's model | curve |")
+        print("|---|---|---|---|---|---|---|")
+        for (oc, today, _), (_, amp, amp_kind), (_, new, kind), b in zip(
+                scores["today"], scores["no-phase"], scores["default"], base):
+            print(f"| {oc} | {today:.3f} | {amp:.3f} | {amp_kind} | {new:.3f} | {kind} | {b:.3f} |")
+            rows.append((e.name, oc, today, amp, new, b, kind))
+        mine = np.array([r[2:6] for r in rows if r[0] == e.name], dtype=float)
+        m = np.nanmean(mine, axis=0)
+        print(f"| mean | {m[0]:.3f} | {m[1]:.3f} | | {m[2]:.3f} | | {m[3]:.3f} |", flush=True)
+    a = np.array([r[2:6] for r in rows], dtype=float)
+    a_curve = a[:, 3]
     print(f"\n{args.set} set: {len(engines)} engines, {len(rows)} OCs (8 training, 10 held-out runs each)")
     print("| | mean held-out eps_td | OCs worse than the curve by > 5 % |")
     print("|---|---|---|")
-    for label, v in (("today", a_today), ("default", a_new)):
+    for label, v in (("today", a[:, 0]), ("no phase", a[:, 1]), ("default (with phase)", a[:, 2])):
         print(f"| {label} | {np.nanmean(v):.3f} | {int(np.sum(v > 1.05 * a_curve))} of {v.size} |")
     print(f"| characteristic curve | {np.nanmean(a_curve):.3f} | - |")
-    print(f"default against today: {100 * (np.nanmean(a_new) / np.nanmean(a_today) - 1):+.1f} %")
+    for label, v in (("no phase", a[:, 1]), ("default", a[:, 2])):
+        print(f"{label} against today: {100 * (np.nanmean(v) / np.nanmean(a[:, 0]) - 1):+.1f} %")
     return 0
 
 
