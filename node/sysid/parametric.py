@@ -47,13 +47,14 @@ def _modes(pr: PoleResidue, real: bool) -> _Modes:
     z, Rz = pr.poles, pr.residues
     is_real = np.abs(z.imag) <= 1e-10 * np.maximum(1.0, np.abs(z))
     keep = (is_real & (z.real > 0)) if real else (~is_real & (z.imag > 0))
-    # H2 norm share of each mode: ||R||^2 / (1 - |z|^2) (inf for a pole on or outside the circle)
-    with np.errstate(divide="ignore"):
-        h2 = np.sum(np.abs(Rz) ** 2, axis=(1, 2)) / np.maximum(1.0 - np.abs(z) ** 2, 0.0)
+    # H2 norm share of each mode: ||R||^2 / (1 - |z|^2), the distance to the circle floored at 1e-9
+    h2 = np.sum(np.abs(Rz) ** 2, axis=(1, 2)) / np.maximum(1.0 - np.abs(z) ** 2, 1e-9)
     total = float(np.sum(h2[~is_real | (z.real > 0)])) or 1.0
     z, Rz = (z[keep].real + 0j, Rz[keep].real + 0j) if real else (z[keep], Rz[keep])
     s = np.log(z) / pr.dt
-    return _Modes(s, Rz * (s / (z - 1.0))[:, None, None], h2[keep] / total)
+    near1 = np.abs(z - 1.0) < 1e-12
+    ratio = np.where(near1, 1.0 / pr.dt, s / np.where(near1, 1.0, z - 1.0))  # s / (z - 1) -> 1 / dt
+    return _Modes(s, Rz * ratio[:, None, None], h2[keep] / total)
 
 
 def _directions(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
