@@ -31,8 +31,10 @@ INPUTS, OUTPUTS = [30], [13, 22, 30]
 LIBRARY, TARGET = [0.0, 3.0, 4.0], 2.0
 N_PAIRS = 4
 FREQS = np.linspace(1.0, 150.0, 300)
-TEXT = {  # section 6.3.2: eps_td, eps_fd
-    "rom0": ("1.49e-2 (node 13)", "1.51e-2"), "rom3": ("3.93e-2", "2.16e-2"), "rom4": ("7.36e-2", "3.88e-2"), "prom": ("3.79e-2", "3.26e-2")}
+TEXT = {  # sections 6.3.1-6.3.2: eps_td, eps_fd
+    "rom0": ("1.49e-2 (node 13)", "1.51e-2"), "rom3": ("3.93e-2", "2.16e-2"), "rom4": ("7.36e-2", "3.88e-2")}
+REFS = {("direct", "lagrange"): ("3.79e-2", "3.26e-2"),  # the text's pROM (eq. 6.10)
+        ("modal", "lagrange"): ("1.56e-2 (ref. impl.)", "-")}  # issue 14: reference implementations
 
 
 def truth(p: float) -> StateSpace:
@@ -63,26 +65,22 @@ def plot_poles(path: str, rom: ParametricROM, rom2: StateSpace, prom: StateSpace
         return np.log(z.astype(complex)) * SPEC.fs
 
     lib = s_plane(rom.poles_)
-    others = {"ROM p = 2": s_plane(rom2.poles()), "truth p = 2": s_plane(truth(TARGET).poles())}
-    interp = s_plane(prom.poles())
+    marks = [("ROM p = 2", s_plane(rom2.poles()), "s", "tab:red"),
+             ("truth p = 2", s_plane(truth(TARGET).poles()), "+", "tab:purple"),
+             ("pROM p = 2", s_plane(prom.poles()), "x", "k")]
     r = lib.shape[1]
-    fig, axes = plt.subplots(1, r, figsize=(3.2 * r, 3.2), layout="constrained")
-    for j, ax in enumerate(np.atleast_1d(axes)):
+    fig, axes = plt.subplots(1, r, figsize=(3.2 * r, 3.2), layout="constrained", squeeze=False)
+    for j, ax in enumerate(axes[0]):
         for i, p in enumerate(LIBRARY):
             ax.plot(lib[i, j].real, lib[i, j].imag / (2 * np.pi), "o", ms=8, label=f"ROM p = {p:g}")
-        centre = lib[:, j]
-        span = max(np.ptp(centre.real), np.ptp(centre.imag)) + 1e-9
-        def near(s: np.ndarray) -> np.ndarray:
-            return s[np.min(np.abs(s[:, None] - centre[None, :]), axis=1) < 1.5 * span + 1.0]
-        for (name, s), mk in zip(others.items(), ("s", "+")):
-            s = near(s[s.imag > 0])
-            ax.plot(s.real, s.imag / (2 * np.pi), mk, ms=9, mfc="none", label=name)
-        s = near(interp[interp.imag > 0])
-        ax.plot(s.real, s.imag / (2 * np.pi), "x", ms=9, color="k", label="pROM p = 2")
+        reach = 1.5 * max(np.ptp(lib[:, j].real), np.ptp(lib[:, j].imag)) + 1.0
+        for name, s, mk, colour in marks:
+            s = s[(s.imag > 0) & (np.min(np.abs(s[:, None] - lib[None, :, j]), axis=1) < reach)]
+            ax.plot(s.real, s.imag / (2 * np.pi), mk, ms=9, mfc="none", color=colour, label=name)
         ax.set_xlabel("Re s (1/s)")
         ax.set_title(f"mode {j + 1}")
-    np.atleast_1d(axes)[0].set_ylabel("Im s / 2 pi (Hz)")
-    np.atleast_1d(axes)[-1].legend(fontsize=7)
+    axes[0, 0].set_ylabel("Im s / 2 pi (Hz)")
+    axes[0, -1].legend(fontsize=7)
     fig.suptitle("Poles of the WDMD ROMs at p = 0, 3, 4 and the pROM at p = 2 (fig. 6.4)")
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -130,10 +128,9 @@ def main(argv: list[str] | None = None) -> int:
         prom = rom.at(TARGET).model_
         td, fd = errors(prom, TARGET, u)
         stable = all(rom.at(p).model_.is_stable() for p in stable_range)
-        ref = {("direct", "lagrange"): TEXT["prom"], ("modal", "lagrange"): ("1.56e-2 (ref. impl.)", "-")}
         name = "pROM " + ("w^2, 2 zeta w, R w" if scheme == "modal" else "s, R (eq. 6.10)") + f", {weights}"
         rows.append([name + (", stable on [-0.5, 4.5]" if stable else ", UNSTABLE somewhere"), "2",
-                     f"{td:.2e}", f"{fd:.2e}", *ref.get((scheme, weights), ("-", "-"))])
+                     f"{td:.2e}", f"{fd:.2e}", *REFS.get((scheme, weights), ("-", "-"))])
         if default is None:
             default = (rom, prom)
     print_table(["model", "p", "eps_td", "eps_fd", "text eps_td", "text eps_fd"], rows, markdown=True,

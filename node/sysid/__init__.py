@@ -20,6 +20,7 @@ from node.sysid.wdmd import WDMD, Components
 
 __all__ = [
     "IODMD", "DelayDMD", "WDMD", "LinearDMD", "Estimator", "Components", "StateSpace",
-    "PoleResidue", "ParametricROM", "ParametricModel", "CausalMODWT", "causal_modwt", "modwt_mra", "delay_embed",
+    "PoleResidue", "ParametricROM", "ParametricModel", "CausalMODWT", "causal_modwt", "modwt_mra",
+    "delay_embed",
     "eps_td", "eps_fd", "mac", "pooled_eps", "estimate_state",
 ]

@@ -142,8 +142,8 @@ class ParametricROM:
             w^2 = |s|^2, 2 zeta w = -2 Re s and R_s w; ``"direct"``: the poles s and residues
             R_s themselves, the text's eq. 6.10. Modal is the default because a stiffness-like
             parameter moves w^2 linearly while w, the pole and the residue (~ 1 / w) follow its
-            square root: on the axially loaded beam (``python -m bench parametric``) it halves
-            the error of eq. 6.10 at p = 2 from p = 0, 3, 4.
+            square root. On the axially loaded beam (``python -m bench parametric``, models at
+            p = 0, 3, 4, Lagrange weights) eps_td at p = 2 is 5.9e-3 against 1.6e-1 for eq. 6.10.
         weights: ``"lagrange"`` (polynomial through the samples, one parameter), ``"linear"``
             (piecewise linear, one parameter, linear beyond the ends), ``"rbf"`` (thin-plate
             spline with a linear term over range-scaled parameters, any number of them);
