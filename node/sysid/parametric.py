@@ -35,7 +35,7 @@ WEIGHTS = ("auto", "lagrange", "linear", "rbf")
 
 @dataclass(frozen=True)
 class _Modes:
-    """The candidate modes of one sample in continuous form: s (k,), R_s (k, p, m), H2 share (k,)."""
+    """The candidate modes of one sample in continuous form: s (k,), R_s (k, p, m), peak share (k,)."""
 
     s: np.ndarray
     R: np.ndarray
@@ -47,14 +47,16 @@ def _modes(pr: PoleResidue, real: bool) -> _Modes:
     z, Rz = pr.poles, pr.residues
     is_real = np.abs(z.imag) <= 1e-10 * np.maximum(1.0, np.abs(z))
     keep = (is_real & (z.real > 0)) if real else (~is_real & (z.imag > 0))
-    # H2 norm share of each mode: ||R||^2 / (1 - |z|^2), the distance to the circle floored at 1e-9
-    h2 = np.sum(np.abs(Rz) ** 2, axis=(1, 2)) / np.maximum(1.0 - np.abs(z) ** 2, 1e-9)
-    total = float(np.sum(h2[~is_real | (z.real > 0)])) or 1.0
+    # peak gain of each mode, ||R|| / (1 - |z|) (its response at its own frequency; the distance
+    # to the circle floored at 1e-9); the H2 norm ||R||^2 / (1 - |z|^2) would rank broadband,
+    # heavily damped modes fitted to noise above lightly damped physical ones
+    peak = np.linalg.norm(Rz, axis=(1, 2)) / np.maximum(1.0 - np.abs(z), 1e-9)
+    total = float(np.sum(peak[~is_real | (z.real > 0)])) or 1.0
     z, Rz = (z[keep].real + 0j, Rz[keep].real + 0j) if real else (z[keep], Rz[keep])
     s = np.log(z) / pr.dt
     near1 = np.abs(z - 1.0) < 1e-12
     ratio = np.where(near1, 1.0 / pr.dt, s / np.where(near1, 1.0, z - 1.0))  # s / (z - 1) -> 1 / dt
-    return _Modes(s, Rz * ratio[:, None, None], h2[keep] / total)
+    return _Modes(s, Rz * ratio[:, None, None], peak[keep] / total)
 
 
 def _directions(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -135,8 +137,9 @@ class ParametricROM:
     Args:
         base_estimator: any method of :mod:`node.sysid` (WDMD, DelayDMD, ...); a copy is
             fitted per sample (``sklearn.base.clone`` when it has ``get_params``, else a deep copy).
-        n_pairs: dominant complex-conjugate pole pairs kept, ranked by their mean share of the
-            models' H2 norm, ||R||^2 / (1 - |z|^2), over the samples.
+        n_pairs: dominant complex-conjugate pole pairs kept, ranked by their mean share over the
+            samples of the modes' peak gains ||R||_F / (1 - |z|) (the H2 norm ||R||^2 / (1 - |z|^2)
+            ranks broadband modes fitted to noise above lightly damped physical ones).
         n_real: dominant real poles (0 < z < 1) kept besides.
         scheme: what is interpolated, in the ZOH-equivalent s-plane. ``"modal"`` (default):
             w^2 = |s|^2, 2 zeta w = -2 Re s and R_s w; ``"direct"``: the poles s and residues
@@ -262,7 +265,7 @@ class ParametricROM:
     def _match(self, modes: list[_Modes], root: int, edges: list[tuple[int, int]],
                keep: int) -> tuple[np.ndarray, np.ndarray]:
         """Tracks from every mode of the root sample, linked along ``edges`` by assignment;
-        the ``keep`` with the largest mean H2 share; those with a link above tol are reported.
+        the ``keep`` with the largest mean peak share; those with a link above tol are reported.
         Returns s (n, r) and R_s (n, r, p, m) of the matched tracks."""
         n = len(modes)
         track = np.full((n, len(modes[root].s)), -1)
