@@ -137,3 +137,23 @@ def test_several_runs_per_sample_and_conventions():
         r.fit(runs, PS[:2])
     with pytest.raises(ValueError, match="scheme"):
         ParametricROM(base(), scheme="poles").fit(runs, PS[:3])
+
+
+def test_real_poles_are_kept_and_interpolated_when_asked():
+    def lagged(p: float) -> StateSpace:
+        osc = system(freqs_hz(p))
+        a = np.exp(-2 * np.pi * (1.0 + p) * DT)  # a first-order lag whose corner moves with p
+        lag = PoleResidue(np.array([a + 0j]), np.array([[[0.02], [0.01], [-0.01]]], dtype=complex),
+                          np.zeros((3, 1)), DT).to_statespace()
+        return StateSpace(np.block([[osc.A, np.zeros((6, 1))], [np.zeros((1, 6)), lag.A]]),
+                          np.vstack([osc.B, lag.B]), np.hstack([osc.C, lag.C]), osc.D, DT)
+    ps = PS[:3]
+    r = ParametricROM(DelayDMD(delays=4, input_delays=4, dt=DT), n_pairs=3, n_real=1)
+    r.fit([(lagged(p).simulate(U), U) for p in ps], ps)
+    assert r.poles_.shape == (3, 4) and np.isrealobj(r.poles_[:, 3].real)
+    np.testing.assert_allclose(r.poles_[:, 3].real, np.exp(-2 * np.pi * (1.0 + np.array(ps)) * DT), rtol=1e-6)
+    np.testing.assert_allclose(r.at(ps[1]).model_.A, r.library_model(1).A, atol=1e-9)
+    m = r.at(0.8).model_
+    assert m.is_stable() and m.n_states == 7
+    err = eps_fd(lagged(0.8).frequency_response(FREQS), m.frequency_response(FREQS))
+    assert err < 1e-2, err

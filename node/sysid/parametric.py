@@ -42,6 +42,35 @@ class _Modes:
     share: np.ndarray
 
 
+def _pole_residue(ss: StateSpace, fast: float = 0.05, points: int = 8) -> PoleResidue:
+    """The modes of ``ss`` with |z| > ``fast`` in pole-residue form, residues by contour integrals.
+
+    Unlike :meth:`StateSpace.to_pole_residue` it needs no diagonalisable A: DMD models of
+    rank-deficient lifts hold defective clusters (split Jordan blocks, often with an
+    uncontrollable or unobservable partner) whose eigenvectors give huge, cancelling residues.
+    Eigenvalues closer than 1e-6 (1 + |z|) are one pole; its residue is the trapezoidal rule
+    for (1 / 2 pi i) contour integral of H around it on ``points`` points of a small circle
+    that holds no other pole: exact to rounding for a simple pole of H.
+    """
+    lam = np.linalg.eigvals(ss.A)
+    poles: list[complex] = []
+    for z in lam[np.argsort(-np.abs(lam))]:
+        if abs(z) > fast and all(abs(z - q) > 1e-6 * (1 + abs(z)) for q in poles):
+            poles.append(complex(z))
+    P = np.array(poles, dtype=complex)
+    ring = np.exp(2j * np.pi * np.arange(points) / points)
+    eye = np.eye(ss.n_states)
+    R = np.empty((len(P), ss.n_outputs, ss.n_inputs), dtype=complex)
+    for i, z in enumerate(P):
+        others = np.abs(lam - z)
+        near = others[others > 1e-6 * (1 + abs(z))]
+        radius = min(1e-4 * (1 + abs(z)), 0.25 * (near.min() if near.size else 1.0))
+        radius = max(radius, 10 * float(np.max(others[others <= 1e-6 * (1 + abs(z))])))
+        R[i] = sum(radius * w * (ss.C @ np.linalg.solve((z + radius * w) * eye - ss.A, ss.B))
+                   for w in ring) / points
+    return PoleResidue(P, R, ss.D.astype(complex), ss.dt)
+
+
 def _modes(pr: PoleResidue, real: bool) -> _Modes:
     """Complex modes (upper half plane; ``real`` False) or real modes with 0 < z < 1 (``real`` True)."""
     z, Rz = pr.poles, pr.residues
@@ -234,7 +263,7 @@ class ParametricROM:
             est = self._copy().fit(Ys if len(Ys) > 1 else Ys[0], Us if len(Us) > 1 else Us[0])
             self.estimators_.append(est)
             ss = est.model_ if hasattr(est, "model_") else StateSpace(est.A, est.B, est.C, est.D, est.dt)
-            prs.append(ss.to_pole_residue())
+            prs.append(_pole_residue(ss))
         self.params_ = P
         self.dt_ = float(prs[0].dt)
         self._scale = np.where(np.ptp(P, axis=0) > 0, np.ptp(P, axis=0), 1.0)
@@ -250,16 +279,15 @@ class ParametricROM:
                 s, R = self._match([_modes(pr, real) for pr in prs], root, edges, keep)
                 s_all.append(s)
                 R_all.append(R)
-        self._n_pairs_kept = s_all[0].shape[1] if self.n_pairs else 0
-        self._s = np.hstack(s_all)          # (n, r) continuous poles
-        self._R = np.concatenate(R_all, axis=1)  # (n, r, p, m) continuous residues
-        self._Dlib = np.stack([pr.D.real for pr in prs])
-        z = np.exp(self._s * self.dt_)
-        self.poles_ = z
-        self.residues_ = self._R * ((z - 1.0) / self._s)[:, :, None, None]
-        self.D_ = self._Dlib
-        if self._s.shape[1] == 0:
+        if sum(s.shape[1] for s in s_all) == 0:
             raise ValueError("no mode could be matched across the samples (see unmatched_)")
+        self._n_pairs_kept = s_all[0].shape[1] if self.n_pairs else 0
+        self._s = np.hstack(s_all)  # (n, r) continuous poles
+        self._R = np.concatenate(R_all, axis=1)  # (n, r, p, m) continuous residues
+        self.D_ = np.stack([pr.D.real for pr in prs])
+        z = np.exp(self._s * self.dt_)
+        self.residues_ = self._R * ((z - 1.0) / self._s)[:, :, None, None]
+        self.poles_ = z
         return self
 
     def _match(self, modes: list[_Modes], root: int, edges: list[tuple[int, int]],
@@ -364,9 +392,9 @@ class ParametricROM:
         """The model at parameter value ``p`` (scalar or (q,)): real, stable, discrete-time."""
         w = self.weights_at(p)
         s, R = self._interpolate(w)
-        return ParametricModel(self._statespace(s, R, np.einsum("i,ipm->pm", w, self._Dlib)))
+        return ParametricModel(self._statespace(s, R, np.einsum("i,ipm->pm", w, self.D_)))
 
     def library_model(self, i: int) -> StateSpace:
         """The matched modes of sample ``i`` alone, as a state space (what ``at`` reproduces there)."""
         self._require_fit()
-        return self._statespace(self._s[i], self._R[i], self._Dlib[i])
+        return self._statespace(self._s[i], self._R[i], self.D_[i])
