@@ -7,6 +7,7 @@ import sys
 
 BENCHMARKS = {
     "beam": "bench.beam",
+    "parametric": "bench.parametric",
     "faults": "bench.faults",
     "generalise": "bench.generalise",
     "read-speed": "bench.read_speed",

@@ -12,11 +12,15 @@ printed by the benchmark):
 * exact zero-order-hold discretisation at 5 kHz.
 
 Outputs are nodal transverse displacements (m), inputs nodal forces (N).
+
+Section 6.3 loads the beam axially: ``axial`` = P (N, compression) subtracts the
+consistent geometric stiffness P N_g from K (eq. 6.4-6.5); the damping matrix is the
+unloaded beam's, so it does not depend on P.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import linalg
@@ -34,6 +38,7 @@ class BeamSpec:
     n_elements: int = 30
     zeta: float = 0.01           # damping ratio at modes 1 and 3
     fs: float = 5000.0           # Hz
+    axial: float = 0.0           # N, axial compression P (section 6.3)
 
     @property
     def area(self) -> float:
@@ -47,7 +52,7 @@ class BeamSpec:
 
 
 def assemble(spec: BeamSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Mass and stiffness (60 x 60) of the clamped beam, DOF order [w1, th1, ..., w30, th30]."""
+    """Mass and stiffness K - P N_g (60 x 60) of the clamped beam, DOF order [w1, th1, ..., w30, th30]."""
     ne, le = spec.n_elements, spec.length / spec.n_elements
     EI, rhoA = spec.youngs * spec.inertia, spec.density * spec.area
     ke = EI / le ** 3 * np.array([[12, 6 * le, -12, 6 * le],
@@ -58,6 +63,10 @@ def assemble(spec: BeamSpec) -> tuple[np.ndarray, np.ndarray]:
                                      [22 * le, 4 * le ** 2, 13 * le, -3 * le ** 2],
                                      [54, 13 * le, 156, -22 * le],
                                      [-13 * le, -3 * le ** 2, -22 * le, 4 * le ** 2]])
+    ke = ke - spec.axial / (30 * le) * np.array([[36, 3 * le, -36, 3 * le],
+                                                 [3 * le, 4 * le ** 2, -3 * le, -le ** 2],
+                                                 [-36, -3 * le, 36, -3 * le],
+                                                 [3 * le, -le ** 2, -3 * le, 4 * le ** 2]])
     ndof = 2 * (ne + 1)
     K = np.zeros((ndof, ndof))
     M = np.zeros((ndof, ndof))
@@ -85,8 +94,7 @@ def mode_shapes(spec: BeamSpec, nodes: list[int], n_modes: int) -> np.ndarray:
 def continuous_model(spec: BeamSpec, input_nodes: list[int], output_nodes: list[int]):
     """(A, B, C) of eq. 4.37: 120 states [displacements, velocities]."""
     M, K = assemble(spec)
-    w2, vecs = linalg.eigh(K, M)
-    w = np.sqrt(w2)
+    w = 2 * np.pi * natural_frequencies(replace(spec, axial=0.0))  # damping of the unloaded beam
     a = 2 * spec.zeta * w[0] * w[2] / (w[0] + w[2])
     b = 2 * spec.zeta / (w[0] + w[2])
     G = a * M + b * K
@@ -116,6 +124,13 @@ def chirp(fs: float, duration: float, f0: float, f1: float, amplitude: float = 1
     """Linear chirp f0 -> f1 (Hz) over ``duration`` s, (K,)."""
     t = np.arange(int(round(duration * fs))) / fs
     return amplitude * np.sin(2 * np.pi * (f0 * t + (f1 - f0) * t ** 2 / (2 * duration)))
+
+
+def quadratic_chirp(fs: float, duration: float, f0: float, f1: float,
+                    amplitude: float = 1.0) -> np.ndarray:
+    """Chirp whose frequency rises quadratically f0 -> f1 (Hz) over ``duration`` s, (K,)."""
+    t = np.arange(int(round(duration * fs))) / fs
+    return amplitude * np.sin(2 * np.pi * (f0 * t + (f1 - f0) * t ** 3 / (3 * duration ** 2)))
 
 
 def sine_burst(fs: float, freq: float, on: float, off: float, amplitude: float = 1.0) -> np.ndarray:

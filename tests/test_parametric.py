@@ -1,0 +1,159 @@
+"""ParametricROM (chapter 6): matching through a frequency crossing, interpolation, stability,
+several parameters, unmatched modes, scikit-learn conventions."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+from sklearn.exceptions import NotFittedError
+
+from node.sysid import DelayDMD, ParametricROM, PoleResidue, StateSpace, eps_fd
+
+DT = 0.01
+SHAPES = np.array([[1.0, 0.2, 0.1], [0.1, 1.0, -0.3], [0.3, -0.2, 1.0]])  # column j: mode j's outputs
+FREQS = np.linspace(0.5, 10.0, 200)
+
+
+def freqs_hz(p: float, q: float = 0.0) -> np.ndarray:
+    """Mode 1 stiffens with p (its w^2 = w0^2 (1 + 1.5 p)) and passes mode 2; mode 3 moves with q."""
+    return np.array([2.0 * np.sqrt(1 + 1.5 * p), 3.0, 4.5 * np.sqrt(1 + 0.5 * q)])
+
+
+def system(f: np.ndarray, zeta: float = 0.02) -> StateSpace:
+    """Three oscillators (force -> displacement-like, residues ~ 1 / w) seen through SHAPES."""
+    w = 2 * np.pi * np.asarray(f)
+    s = -zeta * w + 1j * w * np.sqrt(1 - zeta ** 2)
+    z = np.exp(s * DT)
+    Rs = SHAPES.T[:, :, None] * (0.5 / (1j * w))[:, None, None]
+    Rz = Rs * ((z - 1) / s)[:, None, None]  # the exact ZOH discretisation of each mode
+    return PoleResidue(np.r_[z, z.conj()], np.r_[Rz, Rz.conj()], np.zeros((3, 1)), DT).to_statespace()
+
+
+U = np.random.default_rng(0).normal(size=(3000, 1))
+PS = [0.0, 0.5, 1.0, 1.5, 2.0]
+
+
+def base() -> DelayDMD:
+    return DelayDMD(delays=2, input_delays=2, dt=DT)
+
+
+def samples(fs: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(system(f).simulate(U), U) for f in fs]
+
+
+@pytest.fixture(scope="module")
+def rom() -> ParametricROM:
+    return ParametricROM(base(), n_pairs=3).fit(samples([freqs_hz(p) for p in PS]), PS)
+
+
+def hz(z: np.ndarray) -> np.ndarray:
+    return np.angle(z) / (2 * np.pi * DT)
+
+
+def test_matching_follows_the_modes_through_the_crossing(rom):
+    f = hz(rom.poles_)
+    assert f.shape == (len(PS), 3) and rom.unmatched_ == []
+    truth = np.array([freqs_hz(p) for p in PS])
+    for j in range(3):  # the track that starts at true mode j stays on it
+        col = int(np.argmin(np.abs(f[0] - truth[0, j])))
+        np.testing.assert_allclose(f[:, col], truth[:, j], rtol=1e-3)
+    # sorting by frequency would have swapped modes 1 and 2 from p = 1 on
+    assert np.argsort(truth[0])[0] != np.argsort(truth[-1])[0]
+
+
+def test_the_interpolated_model_is_the_library_model_at_each_sample(rom):
+    for i, p in enumerate(PS):
+        lib, m = rom.library_model(i), rom.at(p).model_
+        for a, b in ((lib.A, m.A), (lib.B, m.B), (lib.C, m.C), (lib.D, m.D)):
+            np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12 * np.abs(a).max())
+        # and the library model is the fitted model (its dominant modes are all of it here)
+        fitted = rom.estimators_[i].model_
+        assert eps_fd(fitted.frequency_response(FREQS), lib.frequency_response(FREQS)) < 1e-6
+
+
+@pytest.mark.parametrize("scheme", ["modal", "direct"])
+def test_stable_between_and_beyond_the_samples_and_close_to_the_truth(scheme):
+    r = ParametricROM(base(), n_pairs=3, scheme=scheme).fit(samples([freqs_hz(p) for p in PS]), PS)
+    for p in np.linspace(-0.4, 2.4, 15):
+        m = r.at(p)
+        assert m.model_.is_stable() and np.isrealobj(m.A)
+    for p in (0.25, 1.25):
+        err = eps_fd(system(freqs_hz(p)).frequency_response(FREQS), r.at(p).model_.frequency_response(FREQS))
+        assert err < (1e-3 if scheme == "modal" else 5e-2), (scheme, p, err)
+
+
+def test_simulate_from_history_continues_the_measured_run(rom):
+    y = system(freqs_hz(0.75)).simulate(U)
+    m = rom.at(0.75)
+    pred = m.simulate(U[2000:], history=(y[:2000], U[:2000]))
+    assert np.sqrt(np.mean((pred - y[2000:]) ** 2) / np.mean(y[2000:] ** 2)) < 1e-2
+    assert m.simulate(U[:10]).shape == (10, 3)
+
+
+def test_two_parameters():
+    grid = [(p, q) for p in (0.0, 1.0, 2.0) for q in (0.0, 1.0, 2.0)]
+    r = ParametricROM(base(), n_pairs=3).fit(samples([freqs_hz(p, q) for p, q in grid]), grid)
+    assert r.params_.shape == (9, 2) and r.poles_.shape == (9, 3) and r.unmatched_ == []
+    for i, pq in enumerate(grid):
+        np.testing.assert_allclose(r.at(pq).model_.A, r.library_model(i).A, atol=1e-9)
+    for pq in ((0.5, 1.5), (1.7, 0.3), (2.2, -0.2)):
+        m = r.at(np.array(pq)).model_
+        assert m.is_stable()
+        got = np.sort(hz(m.poles()[m.poles().imag > 0]))
+        np.testing.assert_allclose(got, np.sort(freqs_hz(*pq)), rtol=2e-2)
+    with pytest.raises(ValueError, match="2 parameter"):
+        r.at(1.0)
+    with pytest.raises(ValueError, match="rbf"):
+        ParametricROM(base(), weights="lagrange").fit(samples([freqs_hz(p, q) for p, q in grid]), grid)
+
+
+def test_a_mode_that_cannot_be_matched_is_reported_not_forced(caplog):
+    fs = [freqs_hz(p) for p in PS[:3]]
+    fs[-1] = fs[-1] * np.array([1.0, 1.0, 2.0])  # mode 3 jumps to 9 Hz at the last sample
+    with caplog.at_level(logging.WARNING, logger="node.sysid.parametric"):
+        r = ParametricROM(base(), n_pairs=3, tol=0.3).fit(samples(fs), PS[:3])
+    assert len(r.unmatched_) == 1
+    sample, pole, cost = r.unmatched_[0]
+    assert sample == 2 and cost > 0.3 and abs(hz(np.array([pole]))[0] - 4.5) < 1e-2
+    assert r.poles_.shape == (3, 2)
+    assert "no match" in caplog.text
+    assert r.at(0.75).model_.is_stable()
+
+
+def test_several_runs_per_sample_and_conventions():
+    r = ParametricROM(base(), n_pairs=3)
+    with pytest.raises(NotFittedError):
+        r.at(0.5)
+    assert r.n_pairs == 3 and r.scheme == "modal"  # __init__ only stores its arguments
+    runs = [[(system(freqs_hz(p)).simulate(U[:1500]), U[:1500]),
+             (system(freqs_hz(p)).simulate(U[1500:]), U[1500:])] for p in PS[:3]]
+    assert r.fit(runs, np.array(PS[:3])[:, None]) is r
+    np.testing.assert_allclose(np.sort(hz(r.poles_[1])), np.sort(freqs_hz(PS[1])), rtol=1e-3)
+    assert all(e is not r.base_estimator for e in r.estimators_)
+    assert not hasattr(r.base_estimator, "model_")
+    with pytest.raises(ValueError, match="samples"):
+        r.fit(runs, PS[:2])
+    with pytest.raises(ValueError, match="scheme"):
+        ParametricROM(base(), scheme="poles").fit(runs, PS[:3])
+
+
+def test_real_poles_are_kept_and_interpolated_when_asked():
+    def lagged(p: float) -> StateSpace:
+        osc = system(freqs_hz(p))
+        a = np.exp(-2 * np.pi * (1.0 + p) * DT)  # a first-order lag whose corner moves with p
+        lag = PoleResidue(np.array([a + 0j]), np.array([[[0.02], [0.01], [-0.01]]], dtype=complex),
+                          np.zeros((3, 1)), DT).to_statespace()
+        return StateSpace(np.block([[osc.A, np.zeros((6, 1))], [np.zeros((1, 6)), lag.A]]),
+                          np.vstack([osc.B, lag.B]), np.hstack([osc.C, lag.C]), osc.D, DT)
+    ps = PS[:3]
+    r = ParametricROM(DelayDMD(delays=4, input_delays=4, dt=DT), n_pairs=3, n_real=1)
+    r.fit([(lagged(p).simulate(U), U) for p in ps], ps)
+    assert r.poles_.shape == (3, 4) and np.isrealobj(r.poles_[:, 3].real)
+    np.testing.assert_allclose(r.poles_[:, 3].real, np.exp(-2 * np.pi * (1.0 + np.array(ps)) * DT), rtol=1e-6)
+    np.testing.assert_allclose(r.at(ps[1]).model_.A, r.library_model(1).A, atol=1e-9)
+    m = r.at(0.8).model_
+    assert m.is_stable() and m.n_states == 7
+    err = eps_fd(lagged(0.8).frequency_response(FREQS), m.frequency_response(FREQS))
+    assert err < 1e-2, err
