@@ -153,12 +153,12 @@ def test_three_beds_at_40_hz_every_sample_gets_its_monitor_message(setup, tmp_pa
 
 
 def test_three_targets_live_equal_replay_for_each_target(tmp_path):
-    """One model of yA, yB and yC: the live node's monitor messages of every target equal
-    offline replay's to the last bit."""
+    """One model of yA, yB and yC, with their phases: the live node's monitor messages of every
+    target equal offline replay's to the last bit, vector fields included."""
     from node.live.node import LiveNode
     from node.models.bundle import load_model
     from replay.publish import publish_recording
-    chans = ["--channels", "nB,yA,yB,yC,tF", "--plateau-scale", "0.05", "--quiet"]
+    chans = ["--channels", "nB,yA,yB,yC,tF,yA_ph,yB_ph,yC_ph", "--plateau-scale", "0.05", "--quiet"]
     train, test = str(tmp_path / "train.mcap"), str(tmp_path / "test.mcap")
     assert main(["simulate", "--runs", "2", "--seed", "7", "--out", train, *chans]) == 0
     assert main(["simulate", "--runs", "3", "--skip", "2", "--seed", "7", "--out", test, *chans]) == 0
@@ -170,7 +170,7 @@ def test_three_targets_live_equal_replay_for_each_target(tmp_path):
     node = LiveNode(model, str(tmp_path / "node.mcap"), listen=[endpoint])
     node.start()
     try:
-        sent = publish_recording(test, endpoint, speed=0.0, quiet=True)
+        sent = publish_recording(test, endpoint, speed=20.0, quiet=True)  # flat out would test the load
         deadline = time.monotonic() + 30
         while node.stats.received < sent and time.monotonic() < deadline:
             time.sleep(0.1)
@@ -191,3 +191,4 @@ def test_three_targets_live_equal_replay_for_each_target(tmp_path):
     for topic in live:
         assert len(live[topic]) > 500
         assert live[topic] == offline[topic], topic
+        assert any(b'"measured_phase":' in m for m in live[topic])  # the phase is used
