@@ -43,57 +43,74 @@ from pathlib import Path
 import numpy as np
 
 from node.contract import FS
+from node.contract.schedule import Schedule
+from node.mcap import Run
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import InputScaling, Method, StateSpaceModel, Trajectory
+from node.models.ocmodel import CurveModel, InputScaling, Method, StateSpaceModel, Trajectory, Variant
 from node.sysid import WDMD, ParametricROM, StateSpace
 from node.sysid.metrics import pooled_eps
 from node.sysid.observer import estimate_state
+from node.sysid.parametric import ParametricModel
+from node.training.train import CURVE_CANDIDATES
 
 log = logging.getLogger(__name__)
 
 PARAMS = ("hist_thermal", "hist_shutdown", "hist_energy")
-ONE = [(p,) for p in PARAMS]
-TWO = list(itertools.combinations(PARAMS, 2))
-LEVELS = [1, 2, 3, 4]
-MODES = [(0, 1), (0, 2), (1, 1), (1, 2), (2, 1)]  # (n_pairs, n_real)
+ONE: list[tuple[str, ...]] = [(p,) for p in PARAMS]
+TWO: list[tuple[str, ...]] = list(itertools.combinations(PARAMS, 2))
+LEVELS = [1, 2, 3]
+MODES = [(0, 1), (1, 1), (1, 2)]  # (n_pairs, n_real)
 SCHEMES = ["modal", "direct"]
 N_TRAIN = 8
-SEED = 10  # samples of the measured past the pROM state is fitted on (chosen on the training runs: 10, 40, 200)
+SEED = 10  # samples of past the pROM state is fitted on (of 10, 40, 200 on the training runs)
 TOL = 10.0  # matching cost accepted: the per-run models of a quasi-static OC hold no common physical modes
 
 
 @dataclass
 class Seg:
-    """One OC segment with its past: y (K,), speed (K,), start, parameters at the switch."""
+    """One OC segment with its past: the model's target y (K,) and inputs U (K, m), start,
+    the parameters at the switch; ``base`` (K,) is added to the model's prediction (the
+    anchored vector curve for the residual variant, else zeros), ``ref`` (K,) the measured target."""
 
     run: int
     y: np.ndarray
-    speed: np.ndarray
+    U: np.ndarray
     start: int
     p: dict[str, float]
+    base: np.ndarray
+    ref: np.ndarray
+    z: np.ndarray | None = None  # the 1x vectors (K,) complex
+
+    def pair(self, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(measured, predicted) over the segment for ``pooled_eps``."""
+        return self.ref[self.start:], pred + self.base[self.start:]
 
 
 class StudyROM(ParametricROM):
     """ParametricROM with two more weight rules for the study: ``regress`` (the least-squares
     hyperplane through the samples, evaluated at p) and ``mean`` (equal weights); and, with
     ``static``, each sample's D set so that its kept modes keep the full model's static gain
-    (the dropped modes' DC part moved into D: modal truncation with static correction)."""
+    (see ``at``: modal truncation with static correction)."""
 
     rule = "interp"
     static = True
 
     def fit(self, samples: object, params: object) -> StudyROM:
         super().fit(samples, params)
-        if self.static:
-            k = self._n_pairs_kept
-            for i, est in enumerate(self.estimators_):
-                full = est.model_
-                dc = full.C @ np.linalg.solve(np.eye(full.n_states) - full.A, full.B) + full.D
-                z, R = self.poles_[i], self.residues_[i]
-                part = R / (1.0 - z)[:, None, None]
-                kept = 2.0 * part[:k].real.sum(axis=0) + part[k:].real.sum(axis=0)
-                self.D_[i] = dc - kept
+        self.dc_ = np.stack([_dc(est.model_) for est in self.estimators_])  # (n, p, m)
         return self
+
+    def at(self, p: object) -> ParametricModel:
+        """The interpolated modes; with ``static``, D such that the static gain is the weighted
+        sum of the samples' full static gains (the modes near z = 1 of a quasi-static OC carry
+        it as R / (1 - z): interpolating R and z separately would scramble it)."""
+        if not self.static:
+            return super().at(p)
+        w = self.weights_at(p)
+        s, R = self._interpolate(w)
+        bare = self._statespace(s, R, np.zeros_like(self.D_[0]))
+        D = np.einsum("i,ipm->pm", w, self.dc_) - _dc(bare)
+        return ParametricModel(self._statespace(s, R, D))
 
     def weights_at(self, p: object) -> np.ndarray:
         if self.rule == "interp":
@@ -105,6 +122,11 @@ class StudyROM(ParametricROM):
         x = np.asarray(p, dtype=float).reshape(-1) / self._scale
         X = np.column_stack([np.ones(n), P])
         return np.asarray(np.r_[1.0, x] @ np.linalg.pinv(X))
+
+
+def _dc(ss: StateSpace) -> np.ndarray:
+    """Static gain (p, m) of a discrete model: C (I - A)^-1 B + D."""
+    return np.asarray(ss.C @ np.linalg.solve(np.eye(ss.n_states) - ss.A, ss.B) + ss.D)
 
 
 _LIB: dict[tuple, StateSpace] = {}  # (engine, oc, levels, run) -> the run's fitted WDMD
@@ -124,7 +146,7 @@ class Prefit:
 def _lifted(s: Seg, scaling: InputScaling, need: int) -> tuple[np.ndarray, np.ndarray]:
     """The segment with ``need`` samples of past (the first held where the run has fewer)."""
     lo = max(0, s.start - need)
-    y, U = s.y[lo:], scaling.apply(s.speed[lo:, None])
+    y, U = s.y[lo:], scaling.apply(s.U[lo:])
     pad = need - (s.start - lo)
     if pad:
         y = np.concatenate([np.repeat(y[:1], pad), y])
@@ -164,7 +186,7 @@ def predict_prom(rom: StudyROM, s: Seg, names: tuple[str, ...], scaling: InputSc
     try:
         with np.errstate(all="ignore"):
             m = rom.at([s.p[n] for n in names])
-            U = scaling.apply(s.speed[:, None])
+            U = scaling.apply(s.U)
             x0 = seed(m.model_, s.y[:s.start], U[:s.start], window)
             pred = m.simulate(U[s.start:], x0=x0)[:, 0]
     except (np.linalg.LinAlgError, ValueError):
@@ -219,14 +241,14 @@ def cv_prom(key: tuple, train: list[Seg], scaling: InputScaling, sets: list[tupl
         for names, modes, scheme, rule in itertools.product(sets, MODES, SCHEMES, rules):
             if not all(np.isfinite(s.p[n]) for s in train for n in names):
                 continue
-            pairs = []
+            pairs: list[tuple[np.ndarray, np.ndarray]] = []
             for f in runs:
                 rest = [r for r in runs if r != f]
                 rom = build_rom(key, rest, rom_params(by_run, rest, names), lv, modes, scheme, rule)
                 if rom is None:
                     pairs = []
                     break
-                pairs += [(s.y[s.start:], predict_prom(rom, s, names, scaling)) for s in by_run[f]]
+                pairs += [s.pair(predict_prom(rom, s, names, scaling)) for s in by_run[f]]
             eps = pooled_eps(pairs) if pairs else float("inf")
             if eps < best.cv:
                 best = Choice(eps, names, lv, modes, scheme, rule)
@@ -243,27 +265,27 @@ def held_out_prom(key: tuple, train: list[Seg], test: list[Seg], scaling: InputS
     rom = build_rom(key, runs, rom_params(by_run, runs, c.names), c.levels, c.modes, c.scheme, c.rule)
     if rom is None:
         return float("nan")
-    return pooled_eps([(s.y[s.start:], predict_prom(rom, s, c.names, scaling)) for s in test])
+    return pooled_eps([s.pair(predict_prom(rom, s, c.names, scaling)) for s in test])
 
 
 def wdmd_plain(train: list[Seg], test: list[Seg]) -> tuple[float, float, int]:
     """One WDMD over every training run (the node's StateSpaceModel, input the switch speed),
     levels by leave-one-run-out CV: (held-out eps, CV eps, levels)."""
     def traj(s: Seg) -> Trajectory:
-        return Trajectory(s.y, s.speed[:, None], s.start)
+        return Trajectory(s.y, s.U, s.start)
 
     def score(model: StateSpaceModel, segs: list[Seg]) -> list[tuple[np.ndarray, np.ndarray]]:
         out = []
         for s in segs:
             with np.errstate(all="ignore"):
                 p = model.predict(traj(s))
-            out.append((s.y[s.start:], np.where(np.isfinite(p), p, np.inf)))
+            out.append(s.pair(np.where(np.isfinite(p), p, np.inf)))
         return out
 
     runs = sorted({s.run for s in train})
     best = (float("inf"), LEVELS[0])
     for lv in LEVELS:
-        pairs = []
+        pairs: list[tuple[np.ndarray, np.ndarray]] = []
         for f in runs:
             try:
                 m = StateSpaceModel.fit(Method.WDMD, {"levels": lv, "rcond": 1e-8},
@@ -279,7 +301,7 @@ def wdmd_plain(train: list[Seg], test: list[Seg]) -> tuple[float, float, int]:
     return pooled_eps(score(m, test)), best[0], best[1]
 
 
-def engine_segments(data: Path, e: str) -> tuple[object, list[list[Seg]], list[object], list[object]]:
+def engine_segments(data: Path, e: str) -> tuple[Schedule, list[list[Seg]], list[Run], list[Run]]:
     """The schedule, per OC its segments (runs 0-7 training, 8-17 held-out), and the runs."""
     from node.cli.train import load_runs
     from node.contract.schedule import load_schedule
@@ -295,25 +317,74 @@ def engine_segments(data: Path, e: str) -> tuple[object, list[list[Seg]], list[o
     cols = [sched.switch, *HISTORY_CHANNELS]
     per_oc = []
     for d in oc_datasets(runs, sched, "yB", cols, history_s=RuntimeConfig().history_s):
-        segs = []
+        segs: list[Seg] = []
         for run, y, X, start in zip(d.runs, d.y, d.X, d.start):
             at = X[max(start - 1, 0)]
-            segs.append(Seg(run, y, X[:, 0], start, {c: float(at[cols.index(c)]) for c in HISTORY_CHANNELS}))
+            segs.append(Seg(run, y, X[:, :1], start, {c: float(at[cols.index(c)]) for c in HISTORY_CHANNELS},
+                            np.zeros(len(y)), y, d.z[len(segs)] if d.z else None))
         per_oc.append(segs)
     return sched, per_oc, tr, te
 
 
-def default_scores(e: str, sched: object, tr: list, te: list, cache: Path | None) -> dict:
+VECTOR_CURVES = [c for c in CURVE_CANDIDATES if c["variant"] == Variant.VECTOR and c["window"] == 0]
+
+
+def curve_track(model: CurveModel, s: Seg) -> np.ndarray:
+    """The anchored vector curve's predicted amplitude (K,) over the whole trajectory: anchored
+    on the past as at the switch, then looked up at every sample's speed (past ones too)."""
+    rt = model.runtime()
+    z = s.z if s.z is not None else np.full(len(s.y), complex(np.nan, np.nan))
+    rt.start(z[:s.start], s.U[:s.start, :1])
+    return np.array([rt.step([x]) for x in s.U[:, 0].tolist()], dtype=float)
+
+
+def with_curve(segs: list[Seg], how: str) -> tuple[list[Seg], str, float]:
+    """The segments for the ``res`` (target y minus the curve, the curve added back) or ``cin``
+    (the curve an extra input) variant: the vector curve (window 0; anchor chosen by
+    leave-one-run-out CV on the training runs), fitted without the run itself for training
+    runs, on all training runs for held-out ones. Also its label and held-out eps alone."""
+    train = [s for s in segs if s.run < N_TRAIN]
+    runs = sorted({s.run for s in train})
+
+    def traj(s: Seg) -> Trajectory:
+        return Trajectory(s.ref, s.U[:, :1], s.start, s.z)
+
+    best: tuple[float, dict] = (float("inf"), VECTOR_CURVES[0])
+    for params in VECTOR_CURVES:
+        pairs = []
+        for f in runs:
+            m = CurveModel.fit(Method.CURVE, params, [traj(s) for s in train if s.run != f])
+            pairs += [(s.ref[s.start:], m.predict(traj(s))) for s in train if s.run == f]
+        eps = pooled_eps(pairs)
+        if eps < best[0]:
+            best = (eps, params)
+    models = {f: CurveModel.fit(Method.CURVE, best[1], [traj(s) for s in train if s.run != f]) for f in runs}
+    full = CurveModel.fit(Method.CURVE, best[1], [traj(s) for s in train])
+    out = []
+    for s in segs:
+        c = curve_track(models.get(s.run, full), s)
+        c = np.where(np.isfinite(c), c, 0.0)
+        if how == "res":
+            out.append(Seg(s.run, s.ref - c, s.U[:, :1], s.start, s.p, c, s.ref, s.z))
+        else:
+            out.append(Seg(s.run, s.ref, np.column_stack([s.U[:, :1], c]), s.start, s.p, np.zeros(len(c)),
+                           s.ref, s.z))
+    test = [s for s in out if s.run >= N_TRAIN]
+    alone = pooled_eps([(s.ref[s.start:], curve_track(full, s)[s.start:]) for s in test])
+    return out, f"anchor {best[1]['anchor']}", alone
+
+
+def default_scores(e: str, sched: Schedule, tr: list[Run], te: list[Run], cache: Path | None) -> dict:
     path = cache / f"default-{e}.json" if cache else None
     if path is not None and path.exists():
         return dict(json.loads(path.read_text()))
     from node.training.evaluation import baseline_eps, evaluate
     from node.training.train import fleet_curve, train
 
-    fleet = fleet_curve(tr, sched.switch, "yB")  # type: ignore[attr-defined]
-    res = train(tr, sched, target="yB", fleet=fleet, workers=1)  # type: ignore[arg-type]
-    ev, _ = evaluate(res, te, sched, "yB", fleet)  # type: ignore[arg-type]
-    base = baseline_eps(tr, te, sched, "yB")  # type: ignore[arg-type]
+    fleet = fleet_curve(tr, sched.switch, "yB")
+    res = train(tr, sched, target="yB", fleet=fleet, workers=1)
+    ev, _ = evaluate(res, te, sched, "yB", fleet)
+    base = baseline_eps(tr, te, sched, "yB")
     out = {}
     for r, x, b in zip(res, ev, base):
         kind = "-" if r.model is None else r.model.method.value
@@ -332,46 +403,68 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--default", help="folder of default-{e}.json (today's model's scores; written there)")
     ap.add_argument("--quick", action="store_true", help="levels 1-2 only")
     ap.add_argument("--ocs", help="only these OCs (comma-separated names)")
+    ap.add_argument("--variant", choices=["amp", "res", "cin"], default="amp",
+                    help="amp: the amplitude on the speed; res: the residual of the anchored vector "
+                         "curve; cin: the amplitude on the speed and the vector curve's prediction")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     cache = Path(args.default) if args.default else None
     rows = []
+    cands: list[tuple[float, float, float, float]] = []
     for e in args.engines.split(","):
         t0 = time.perf_counter()
         sched, per_oc, tr, te = engine_segments(Path(args.data), e)
         dflt = default_scores(e, sched, tr, te, cache)
-        print(f"\nengine {e} ({len(sched.names)} OCs)")  # type: ignore[attr-defined]
+        print(f"\nengine {e} ({len(sched.names)} OCs), variant {args.variant}")
         print("| OC | pROM 1 | its choice (CV) | pROM 2 | its choice (CV) | pROM mean (CV) | WDMD (CV, L) "
-              "| default | default's kind | curve |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
-        for name, segs in zip(sched.names, per_oc):  # type: ignore[attr-defined]
+              "| vector curve (anchor) | default | default's kind | curve |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for name, segs in zip(sched.names, per_oc):
             if args.ocs and name not in args.ocs.split(","):
                 continue
             train = [s for s in segs if s.run < N_TRAIN]
             test = [s for s in segs if s.run >= N_TRAIN]
             if len({s.run for s in train}) < 3 or not test:
                 continue
-            scaling = InputScaling.fit(np.concatenate([s.speed[s.start:] for s in train])[:, None])
-            key = (e, name)
+            vec, vlabel = float("nan"), "-"
+            if args.variant != "amp":
+                segs, vlabel, vec = with_curve(segs, args.variant)
+                train = [s for s in segs if s.run < N_TRAIN]
+                test = [s for s in segs if s.run >= N_TRAIN]
+            scaling = InputScaling.fit(np.vstack([s.U[s.start:] for s in train]))
+            key = (e, name, args.variant)
             c1 = cv_prom(key, train, scaling, ONE, ["interp", "regress"], args.quick)
             c2 = cv_prom(key, train, scaling, TWO, ["interp", "regress"], args.quick)
             c0 = cv_prom(key, train, scaling, [()], ["mean"], args.quick)
             p1, p2, p0 = (held_out_prom(key, train, test, scaling, c) for c in (c1, c2, c0))
             w, wcv, wl = wdmd_plain(train, test)
             d = dflt[name]
-            rows.append((e, name, p1, p2, p0, w, d["eps"], d["curve"]))
+            rows.append((e, name, p1, p2, p0, w, vec, d["eps"], d["curve"]))
+            # a pROM as one more CV candidate per OC: the better of pROM 1 and 2 by CV replaces
+            # today's model when its CV eps is below (1 - margin) x today's CV eps
+            cv_p, held_p = min((c1.cv, p1), (c2.cv, p2))
+            cands.append((cv_p, held_p, float(d["cv"]), float(d["eps"])))
             print(f"| {name} | {p1:.3f} | {c1.label()} ({c1.cv:.3f}) | {p2:.3f} | {c2.label()} ({c2.cv:.3f}) "
-                  f"| {p0:.3f} ({c0.cv:.3f}) | {w:.3f} ({wcv:.3f}, {wl}) | {d['eps']:.3f} | {d['kind']} "
+                  f"| {p0:.3f} ({c0.cv:.3f}) | {w:.3f} ({wcv:.3f}, {wl}) | {vec:.3f} ({vlabel}) "
+                  f"| {d['eps']:.3f} | {d['kind']} "
                   f"| {d['curve']:.3f} |", flush=True)
         mine = np.array([r[2:] for r in rows if r[0] == e], dtype=float)
         m = np.nanmean(mine, axis=0)
-        print(f"| mean | {m[0]:.3f} | | {m[1]:.3f} | | {m[2]:.3f} | {m[3]:.3f} | {m[4]:.3f} | | {m[5]:.3f} |")
+        print(f"| mean | {m[0]:.3f} | | {m[1]:.3f} | | {m[2]:.3f} | {m[3]:.3f} | {m[4]:.3f} | {m[5]:.3f} | "
+              f"| {m[6]:.3f} |")
         print(f"({time.perf_counter() - t0:.0f} s)", flush=True)
     a = np.array([r[2:] for r in rows], dtype=float)
     print(f"\nall: {len(rows)} OCs, mean held-out eps_td")
-    for label, j in (("pROM 1", 0), ("pROM 2", 1), ("pROM mean", 2), ("WDMD", 3), ("default", 4), ("curve", 5)):
-        wins = int(np.sum(a[:, j] < a[:, 4])) if j != 4 else 0
+    for label, j in (("pROM 1", 0), ("pROM 2", 1), ("pROM mean", 2), ("WDMD", 3), ("vector curve", 4),
+                     ("default", 5), ("curve", 6)):
+        wins = int(np.sum(a[:, j] < a[:, 5])) if j != 5 else 0
         print(f"| {label} | {np.nanmean(a[:, j]):.3f} | below default in {wins} of {len(a)} OCs |")
+    c = np.array(cands)
+    for margin in (0.0, 0.5):
+        take = c[:, 0] < (1.0 - margin) * c[:, 2]
+        mixed = np.where(take, c[:, 1], c[:, 3])
+        print(f"| default + pROM candidate (margin {margin:g}) | {np.nanmean(mixed):.3f} | pROM taken in "
+              f"{int(take.sum())} of {len(c)} OCs |")
     return 0
 
 
