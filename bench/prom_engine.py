@@ -181,11 +181,14 @@ def seed(ss: StateSpace, y: np.ndarray, U: np.ndarray, window: int) -> np.ndarra
 
 def predict_prom(rom: StudyROM, s: Seg, names: tuple[str, ...], scaling: InputScaling,
                  window: int = SEED) -> np.ndarray:
-    """Free run over the segment of the model at the segment's own parameter value(s)."""
+    """Free run over the segment of the model at the segment's own parameter value(s) (each
+    clipped to the library's range: a least-squares plane extrapolated in two parameters
+    gave eps_td of 1e6-1e8 on held-out runs outside the training runs' hull)."""
     seg = s.y[s.start:]
     try:
         with np.errstate(all="ignore"):
-            m = rom.at([s.p[n] for n in names])
+            # never beyond the library's range: clipped per parameter
+            m = rom.at(np.clip([s.p[n] for n in names], rom.params_.min(axis=0), rom.params_.max(axis=0)))
             U = scaling.apply(s.U)
             x0 = seed(m.model_, s.y[:s.start], U[:s.start], window)
             pred = m.simulate(U[s.start:], x0=x0)[:, 0]
