@@ -100,6 +100,15 @@ class StudyROM(ParametricROM):
         self.dc_ = np.stack([_dc(est.model_) for est in self.estimators_])  # (n, p, m)
         return self
 
+    def _interpolate(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The package's interpolation, each pole's real and imaginary parts then clipped to the
+        library's range for that mode: weights with negative entries (the least-squares line,
+        Lagrange) otherwise move a slow real pole onto z = 1 (an integrator; eps_td 1e6-1e8)."""
+        s, R = super()._interpolate(w)
+        re = np.clip(s.real, self._s.real.min(axis=0), self._s.real.max(axis=0))
+        im = np.clip(s.imag, self._s.imag.min(axis=0), self._s.imag.max(axis=0))
+        return re + 1j * im, R
+
     def at(self, p: object) -> ParametricModel:
         """The interpolated modes; with ``static``, D such that the static gain is the weighted
         sum of the samples' full static gains (the modes near z = 1 of a quasi-static OC carry
