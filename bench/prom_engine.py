@@ -1,6 +1,7 @@
 """Parametric ROMs on the engine (issue 14 item 3, first question; dissertation section 6.4).
 
-    python -m bench prom-engine [--engines 23,24,25] [--data /work/exp/eng] [--default DIR] [--quick]
+    python -m bench prom-engine [--variant amp|res|cin] [--engines 23,24,25] [--data /work/exp/eng]
+                                [--default DIR] [--quick] [--ocs B1,B6] [--why]
 
 Does a per-OC parametric model, interpolated to a new run's engine-history parameters,
 predict held-out runs better than what the node uses today? Per engine (``T{e}.mcap``:
@@ -12,7 +13,7 @@ predict held-out runs better than what the node uses today? Per engine (``T{e}.m
   (``hist_thermal``, ``hist_shutdown``, ``hist_energy``: ``with_history`` over training and
   held-out runs in time order, ``RuntimeConfig()``), a :class:`ParametricROM` over the 8
   runs, and for each held-out run the model at its own parameter value, free-run over the
-  segment from the state the observer finds on the measured past (60 s).
+  segment from a state fitted on the last ``SEED`` samples of measured past.
   Chosen by leave-one-run-out CV over the training runs only, per OC: the parameter(s),
   levels, kept modes (n_pairs, n_real), scheme (modal, direct) and the weights:
   ``interp`` (piecewise linear for one parameter, thin-plate RBF for two: the package's
@@ -27,7 +28,12 @@ predict held-out runs better than what the node uses today? Per engine (``T{e}.m
   kind); read from ``--default DIR`` (``default-{e}.json``) when there, else trained here.
 * ``curve``: the characteristic curve (``baseline_eps``).
 
-Numbers are held-out eps_td pooled per OC (``pooled_eps``); the CV eps of each pROM beside.
+``--variant``: ``amp`` the amplitude on the speed; ``res`` the amplitude minus the anchored
+vector curve (anchor by CV; for a training run fitted without it), the curve added back;
+``cin`` the amplitude on the speed and the curve's prediction. ``StudyROM`` holds what the
+engine needed beyond the package's ParametricROM (static gain, pole and parameter ranges).
+Numbers are held-out eps_td pooled per OC (``pooled_eps``); the CV eps beside. Results and
+conclusion: docs/prom_engine_study.md.
 """
 
 from __future__ import annotations
@@ -408,6 +414,29 @@ def default_scores(e: str, sched: Schedule, tr: list[Run], te: list[Run], cache:
     return out
 
 
+def why(data: Path, engines: list[str]) -> None:
+    """Per OC: Pearson r over all 18 runs of each parameter with the run's mean level over the OC
+    and with the run's mean relative residual of the anchored vector curve (``--why``)."""
+    for e in engines:
+        sched, per_oc, _, _ = engine_segments(data, e)
+        head = ", ".join(PARAMS)
+        print(f"\nengine {e}: | OC | r with the level: {head} | r with the curve residual |")
+        rl_all, rr_all = [], []
+        for name, segs in zip(sched.names, per_oc):
+            rsegs, _, _ = with_curve(segs, "res")
+            lvl = np.array([np.mean(s.ref[s.start:]) for s in rsegs])
+            res = np.array([np.mean(s.y[s.start:]) / np.mean(s.ref[s.start:]) for s in rsegs])
+            P = {n: np.array([s.p[n] for s in rsegs]) for n in PARAMS}
+            rl = [float(np.corrcoef(P[n], lvl)[0, 1]) for n in PARAMS]
+            rr = [float(np.corrcoef(P[n], res)[0, 1]) for n in PARAMS]
+            rl_all.append(np.abs(rl))
+            rr_all.append(np.abs(rr))
+            print(f"| {name} | " + " ".join(f"{v:+.2f}" for v in rl) + " | "
+                  + " ".join(f"{v:+.2f}" for v in rr) + " |")
+        print("| mean abs r | " + " ".join(f"{v:.2f}" for v in np.mean(rl_all, axis=0)) + " | "
+              + " ".join(f"{v:.2f}" for v in np.mean(rr_all, axis=0)) + " |")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench prom-engine")
     ap.add_argument("--engines", default="23,24,25")
@@ -418,8 +447,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variant", choices=["amp", "res", "cin"], default="amp",
                     help="amp: the amplitude on the speed; res: the residual of the anchored vector "
                          "curve; cin: the amplitude on the speed and the vector curve's prediction")
+    ap.add_argument("--why", action="store_true", help="only the correlations of the history "
+                    "parameters with each run's level and curve residual, per OC")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
+    if args.why:
+        why(Path(args.data), args.engines.split(","))
+        return 0
     cache = Path(args.default) if args.default else None
     rows = []
     cands: list[tuple[float, float, float, float]] = []
