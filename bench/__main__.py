@@ -8,6 +8,7 @@ import sys
 BENCHMARKS = {
     "beam": "bench.beam",
     "parametric": "bench.parametric",
+    "prom-engine": "bench.prom_engine",
     "faults": "bench.faults",
     "generalise": "bench.generalise",
     "read-speed": "bench.read_speed",
