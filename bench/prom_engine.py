@@ -1,6 +1,6 @@
 """Parametric ROMs on the engine (issue 14 item 3, first question; dissertation section 6.4).
 
-    python -m bench prom-engine [--variant amp|res|cin] [--engines 23,24,25] [--data /work/exp/eng]
+    python -m bench prom-engine [--variant amp|res|cin] [--engines 23,24,25] [--data DIR]
                                 [--default DIR] [--quick] [--ocs B1,B6] [--why]
 
 Does a per-OC parametric model, interpolated to a new run's engine-history parameters,
@@ -319,6 +319,19 @@ def wdmd_plain(train: list[Seg], test: list[Seg]) -> tuple[float, float, int]:
     return pooled_eps(score(m, test)), best[0], best[1]
 
 
+def _recordings(data: Path, e: str) -> tuple[Path, Path]:
+    """``T{e}.mcap`` and ``H{e}.mcap`` in ``data`` when there; else the development engine ``e``
+    of ``bench generalise`` (its schedule and noise), simulated into ``data`` once."""
+    if (data / f"T{e}.mcap").exists():
+        return data / f"T{e}.mcap", data / f"H{e}.mcap"
+    from bench.generalise import SETS, simulate
+    engine = next((x for x in SETS["dev"] if str(x.seed) == e), None)
+    if engine is None:
+        raise SystemExit(f"no T{e}.mcap in {data}, and {e} is no development engine of bench generalise")
+    data.mkdir(parents=True, exist_ok=True)
+    return simulate(engine, data)
+
+
 def engine_segments(data: Path, e: str) -> tuple[Schedule, list[list[Seg]], list[Run], list[Run]]:
     """The schedule, per OC its segments (runs 0-7 training, 8-17 held-out), and the runs."""
     from node.cli.train import load_runs
@@ -327,9 +340,10 @@ def engine_segments(data: Path, e: str) -> tuple[Schedule, list[list[Seg]], list
     from node.training.dataset import with_history
     from node.training.train import oc_datasets
 
-    sched = load_schedule(data / f"T{e}.schedule.toml")
-    tr = load_runs([str(data / f"T{e}.mcap")], quiet=True)
-    te = load_runs([str(data / f"H{e}.mcap")], quiet=True)
+    train, test = _recordings(data, e)
+    sched = load_schedule(train.with_suffix(".schedule.toml"))
+    tr = load_runs([str(train)], quiet=True)
+    te = load_runs([str(test)], quiet=True)
     assert len(tr) == N_TRAIN, len(tr)
     runs = with_history(tr + te, sched, RuntimeConfig())
     cols = [sched.switch, *HISTORY_CHANNELS]
@@ -440,7 +454,8 @@ def why(data: Path, engines: list[str]) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench prom-engine")
     ap.add_argument("--engines", default="23,24,25")
-    ap.add_argument("--data", default="/work/exp/eng")
+    ap.add_argument("--data", default="out/bench/engines",
+                    help="T{e}.mcap / H{e}.mcap per engine; missing ones are simulated there")
     ap.add_argument("--default", help="folder of default-{e}.json (today's model's scores; written there)")
     ap.add_argument("--quick", action="store_true", help="levels 1-2 only")
     ap.add_argument("--ocs", help="only these OCs (comma-separated names)")
