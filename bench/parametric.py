@@ -15,6 +15,7 @@ import argparse
 import logging
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -130,7 +131,7 @@ def study(u: np.ndarray, noise: float, variants: list[tuple[str, str]],
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench parametric", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="a 2 s chirp instead of 4 s, fewer rows")
-    ap.add_argument("--png", default="parametric_poles.png", help="poles plot (default %(default)s)")
+    ap.add_argument("--png", default="out/bench/parametric_poles.png", help="poles plot (default %(default)s)")
     args = ap.parse_args(argv)
     t_start = time.perf_counter()
     duration = 2.0 if args.quick else 4.0
@@ -158,6 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\nMatched modes (Hz) at p = " + ", ".join(f"{p:g}" for p in LIBRARY) + ": "
           + "; ".join("/".join(f"{v:.2f}" for v in f[:, j]) for j in range(f.shape[1]))
           + f"; unmatched: {len(rom.unmatched_)}")
+    Path(args.png).parent.mkdir(parents=True, exist_ok=True)
     plot_poles(args.png, rom, rom2, rom.at(TARGET).model_)
     print(f"Poles plot (fig. 6.4): {args.png}")
     rows, _, _ = study(u, NOISE, variants[:2])
