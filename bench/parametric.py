@@ -131,7 +131,8 @@ def study(u: np.ndarray, noise: float, variants: list[tuple[str, str]],
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench parametric", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="a 2 s chirp instead of 4 s, fewer rows")
-    ap.add_argument("--png", default="out/bench/parametric_poles.png", help="poles plot (default %(default)s)")
+    ap.add_argument("--png", default="out/bench/parametric_poles.png",
+                    help="poles plot (default %(default)s)")
     args = ap.parse_args(argv)
     t_start = time.perf_counter()
     duration = 2.0 if args.quick else 4.0
