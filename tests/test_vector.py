@@ -156,3 +156,20 @@ def test_no_phase_trains_an_amplitude_only_model_whose_messages_have_no_vector_f
                  "--quiet"]) == 0
     capsys.readouterr()
     assert not any(k.startswith(("measured_phase", "vector")) for m in _monitor(rec) for k in m)
+
+
+def test_a_huge_finite_value_neither_raises_nor_stops_the_checks():
+    """1e300 passes the payload rule (finite); squaring it with ** would raise OverflowError.
+    The check goes on, and on the next plateau it finds a step as before."""
+    from node.runtime.pipeline import order_vector
+    rng = np.random.default_rng(3)
+    for huge in (1e300, complex(1e300, -1e300)):
+        chk = StepCheck(threshold=8.0)
+        for _ in range(400):
+            chk.step(1.0 + 0.01 * rng.standard_normal(), True)
+        assert isinstance(chk.step(huge, True), float)
+        chk.step(1.0, False)  # the plateau ends
+        level = 1.0 + 0.01 * rng.standard_normal(700) + 0.5 * (np.arange(700) >= 600)
+        flags = [(chk.step(v, True), chk.flagged)[1] for v in level.tolist()]
+        assert not any(flags[:600]) and flags.index(True) <= 640
+    assert np.isnan(order_vector(1.0, float("inf")))

@@ -192,7 +192,8 @@ class StepCheck:
             if value != value:
                 return 0.0
         if self._last == self._last:
-            d2 = 0.5 * abs(value - self._last) ** 2
+            d = value - self._last  # squared by products: a huge value gives inf, where ** raises
+            d2 = 0.5 * (d.real * d.real + d.imag * d.imag)
             if self._ndiff >= self.n_long:  # clip outliers (the step itself) out of the noise
                 d2 = min(d2, 25.0 * self._var)
             self._ndiff += 1

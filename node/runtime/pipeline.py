@@ -58,6 +58,8 @@ def order_vector(amplitude: float, phase_deg: float) -> complex:
     >>> order_vector(2.0, 90.0)
     (1.2246467991473532e-16-2j)
     """
+    if not math.isfinite(phase_deg):  # (math.cos raises on inf; the payload rule lets none through)
+        return _NAN_VECTOR
     rad = math.radians(phase_deg)
     return amplitude * complex(math.cos(rad), -math.sin(rad))
 
