@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from node.cli import main
@@ -173,3 +175,25 @@ def test_a_huge_finite_value_neither_raises_nor_stops_the_checks():
         flags = [(chk.step(v, True), chk.flagged)[1] for v in level.tolist()]
         assert not any(flags[:600]) and flags.index(True) <= 640
     assert np.isnan(order_vector(1.0, float("inf")))
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.tuples(st.integers(0, 5999), st.sampled_from(["nB", "yB", "yB_ph"]),
+                          st.sampled_from([1e300, -1e300, 1e-300, 0.0, -0.0, float("nan"), 7e5, -400.0])),
+                min_size=1, max_size=40))
+def test_extreme_values_on_any_channel_never_stop_a_phase_pipeline(phased: Path, hits: list) -> None:
+    """Finite extremes pass the payload rule: every sample still gets its monitor message."""
+    from node.contract import Flag
+    from node.mcap import read_runs
+    from node.runtime.align import AlignedSample
+    from node.runtime.pipeline import MonitorPipeline
+    bundle = load_bundle(phased / "model")
+    run = read_runs(phased / "train.mcap")[1]
+    pipe = MonitorPipeline(bundle)
+    cols = {c: run.column(c) for c in pipe.sensor_channels}
+    n = min(6000, len(run.t))
+    bad = {(k, c): v for k, c, v in hits if k < n}
+    for k in range(n):
+        values = {c: bad.get((k, c), float(cols[c][k])) for c in cols}
+        msg, _ = pipe.step(AlignedSample(float(run.t[k]), values, new_run=k == 0))
+        assert msg["flag"] in set(Flag)
