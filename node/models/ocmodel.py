@@ -97,6 +97,29 @@ class Trajectory:
         return Trajectory(self.y, self.U - self.reference(), self.start, self.z)
 
 
+NAN_VECTOR = complex(math.nan, math.nan)  # the 1x vector of a sample without amplitude or phase
+
+
+def order_vector(amplitude: float, phase_deg: float) -> complex:
+    """An order's 1x vector from its amplitude and phase lag (degrees): A exp(-j phase); NaN if either is.
+
+    >>> order_vector(2.0, 90.0)
+    (1.2246467991473532e-16-2j)
+    """
+    if not math.isfinite(phase_deg):  # (math.cos raises on inf; the payload rule lets none through)
+        return NAN_VECTOR
+    rad = math.radians(phase_deg)
+    return amplitude * complex(math.cos(rad), -math.sin(rad))
+
+
+def lag_degrees(v: complex) -> float:
+    """The phase lag (degrees, in [-180, 180)) of a 1x vector A exp(-j phase); NaN for NaN or 0."""
+    if not (cmath.isfinite(v) and v != 0):
+        return math.nan
+    lag = -math.degrees(cmath.phase(v))
+    return lag - 360.0 if lag >= 180.0 else lag
+
+
 def order_vectors(amplitude: np.ndarray, phase_deg: np.ndarray) -> np.ndarray:
     """(K,) complex 1x vectors A exp(-j phase) (the phase a lag: ``Trajectory.z``); NaN where either is.
 

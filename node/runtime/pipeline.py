@@ -21,7 +21,6 @@ with the measured vectors. The monitor message then carries ``measured_phase``,
 
 from __future__ import annotations
 
-import cmath
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -30,7 +29,16 @@ import numpy as np
 
 from node.contract import FS, Flag, Phase, Reason, phase_channel
 from node.models.bundle import Bundle
-from node.models.ocmodel import CurveModel, CurveRuntime, OCRuntime, Variant, order_vectors
+from node.models.ocmodel import (
+    NAN_VECTOR,
+    CurveModel,
+    CurveRuntime,
+    OCRuntime,
+    Variant,
+    lag_degrees,
+    order_vector,
+    order_vectors,
+)
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
@@ -50,29 +58,6 @@ class _Active:
     model_id: str
     check: ResidualCheck
     vector: CurveRuntime | None = None  # the runtime again when it predicts the 1x vector
-
-
-def order_vector(amplitude: float, phase_deg: float) -> complex:
-    """An order's 1x vector from its amplitude and phase lag (degrees): A exp(-j phase); NaN if either is.
-
-    >>> order_vector(2.0, 90.0)
-    (1.2246467991473532e-16-2j)
-    """
-    if not math.isfinite(phase_deg):  # (math.cos raises on inf; the payload rule lets none through)
-        return _NAN_VECTOR
-    rad = math.radians(phase_deg)
-    return amplitude * complex(math.cos(rad), -math.sin(rad))
-
-
-_NAN_VECTOR = complex(_NAN, _NAN)
-
-
-def _lag_deg(v: complex) -> float:
-    """The phase lag (degrees, in [-180, 180)) of a 1x vector A exp(-j phase); NaN for NaN or 0."""
-    if not (cmath.isfinite(v) and v != 0):
-        return _NAN
-    lag = -math.degrees(cmath.phase(v))
-    return lag - 360.0 if lag >= 180.0 else lag
 
 
 def _is_vector(model: object) -> bool:
@@ -156,7 +141,7 @@ class MonitorPipeline:
                "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
                "score": None, "band": None, "model": None, "reason": None,
                "run_scale": None}
-        z = _NAN_VECTOR
+        z = NAN_VECTOR
         if self._uses_phase:
             phase_deg = sample.values.get(self._phase_ch, _NAN)
             z = order_vector(measured, phase_deg)
@@ -188,7 +173,7 @@ class MonitorPipeline:
                    model=a.model_id, run_scale=a.check.run_scale)
         if a.vector is not None:
             v = a.vector.vector
-            msg.update(predicted_phase=_num(_lag_deg(v)), vector_residual=_num(abs(z - v)))
+            msg.update(predicted_phase=_num(lag_degrees(v)), vector_residual=_num(abs(z - v)))
         if raised:
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.RESIDUAL
         else:
