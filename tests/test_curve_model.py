@@ -13,6 +13,7 @@ from node.models.ocmodel import (
     Method,
     StateSpaceModel,
     Trajectory,
+    Variant,
     fit_oc_model,
     model_from_arrays,
 )
@@ -64,12 +65,12 @@ def test_stepper_equals_batch_predict_bit_for_bit():
         z = y * np.exp(-1j * (speed / 1000.0 + rng.uniform(0, 6.3)))  # the phase turns with speed
         trajs.append(Trajectory(y, speed[:, None], start=150, z=z))
     lookups = [c for c in CURVE_CANDIDATES if c["variant"] != "run"]
-    assert {"anchored", "vector"} <= {c["variant"] for c in lookups}
+    assert {"anchored", "vector", "influence"} <= {c["variant"] for c in lookups}
     for params in lookups:
         m = CurveModel.fit(Method.CURVE, params, trajs[:3])
         for t in trajs:
             rt = m.runtime()
-            past = t.z if params["variant"] == "vector" else t.y
+            past = t.z if Variant(params["variant"]).on_vector else t.y
             rt.start(past[:t.start], t.U[:t.start])
             node = [rt.step([u]) for u in t.seg_U[:, 0].tolist()]  # as the pipeline calls it
             np.testing.assert_array_equal(np.array(node), m.predict(t))

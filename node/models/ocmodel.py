@@ -501,9 +501,21 @@ class Variant(StrEnum):
     RUN = "run"  # the derived run_curve input itself (node.runtime.runcurve); input: run_curve
     ANCHORED = "anchored"  # the fleet curve moved to the level this run had at the switch
     VECTOR = "vector"  # anchored, on the order's 1x vector (its phase recorded): |vector| predicted
+    INFLUENCE = "influence"  # the 1x vector from its value at the switch by per-speed influence coefficients
+
+    @property
+    def on_vector(self) -> bool:
+        """Whether the variant predicts the order's 1x vector (needs its phase)."""
+        return self in (Variant.VECTOR, Variant.INFLUENCE)
+
+    @property
+    def anchored(self) -> bool:
+        """Whether the variant is moved by the run's measured level (or vector) at the switch."""
+        return self in (Variant.ANCHORED, Variant.VECTOR, Variant.INFLUENCE)
 
 
 STEADY, RISING, FALLING = 0, 1, 2  # the speed's recent change: the rows of CurveModel.means
+GAINS = 3  # an influence curve's runtime row of gains
 
 
 def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: float) -> np.ndarray:
@@ -577,6 +589,17 @@ class CurveModel:
             and c_sw complex, the weights real), the predicted amplitude the modulus: a run's
             own imbalance and bow turn the vector, which the amplitude alone cannot tell
             from a change of level.
+        gains: influence only, (B,) complex: the influence coefficients g per bin. With z_sw
+            the measured 1x vector over the ``anchor`` samples before the switch and
+            ``anchor_mean`` its mean over the training runs, the predicted vector at speed v is
+            b(v) + g(v) (z_sw - anchor_mean), b the ``means`` (the training runs' mean vector):
+            a linear rotor's response to the run's own unbalance u is H(v) u, so the vector at
+            any speed is an affine function of the vector at the switch, the ratio H(v) / H(v_sw)
+            being what trim balancing calls an influence coefficient. b and g are least squares
+            per bin over every training sample (with its run's z_sw), g shrunk by ``ridge``
+            (relative to the spread of the runs' z_sw; default 1e-3) where the runs' anchors
+            cannot tell it.
+        anchor_mean: influence only, the training runs' mean z_sw (complex).
 
     A law that differs on the way up and down is recovered exactly:
 
@@ -607,15 +630,19 @@ class CurveModel:
     centres: np.ndarray
     means: np.ndarray
     weights: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    gains: np.ndarray = field(default_factory=lambda: np.zeros(0, complex))
+    anchor_mean: complex = 0j
     method: ClassVar[Method] = Method.CURVE
     repaired: ClassVar[int] = 0
     n_states: ClassVar[int] = 0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "centres", _readonly(self.centres))
-        kind = complex if self.variant is Variant.VECTOR else float
+        kind = complex if self.variant.on_vector else float
         object.__setattr__(self, "means", _readonly(np.reshape(self.means, (3, -1)), kind))
         object.__setattr__(self, "weights", _readonly(np.reshape(self.weights, (2,))))
+        object.__setattr__(self, "gains", _readonly(np.reshape(self.gains, (-1,)), complex))
+        object.__setattr__(self, "anchor_mean", complex(self.anchor_mean))
 
     @property
     def variant(self) -> Variant:
@@ -633,10 +660,12 @@ class CurveModel:
             return cls(dict(params), np.zeros(0), np.zeros((3, 0)))
         width, window = float(params.get("bin", 25.0)), int(params.get("window", 0))
         deadband = float(params.get("deadband", 0.0))
-        vector = variant is Variant.VECTOR
+        vector = variant.on_vector
         if vector and any(t.z is None for t in trajs):
             raise ValueError("a vector curve needs the target's phase")
-        if variant in (Variant.ANCHORED, Variant.VECTOR):  # whole trajectories: the switch is in the past
+        if variant is Variant.INFLUENCE:
+            return cls._fit_influence(params, trajs)
+        if variant.anchored:  # whole trajectories: the switch is in the past
             speed = np.concatenate([t.U[:, 0] for t in trajs])
             y = np.concatenate([_levels(t, vector) for t in trajs])
             code = np.concatenate([direction_codes(t.U[:0, 0], t.U[:, 0], window, deadband) for t in trajs])
@@ -647,7 +676,7 @@ class CurveModel:
                                                    t.seg_U[:, 0], window, deadband) for t in trajs])
         centres, means = _binned_means(speed, y, code, width, int(params.get("min_count", 1)))
         plain = cls(dict(params), centres, means)
-        if variant not in (Variant.ANCHORED, Variant.VECTOR):
+        if not variant.anchored:
             return plain
         rows, targets = [], []
         for t in trajs:
@@ -670,12 +699,49 @@ class CurveModel:
                 weights = np.linalg.lstsq(X[ok], r[ok], rcond=None)[0]
         return cls(dict(params), centres, means, weights)
 
+    @classmethod
+    def _fit_influence(cls, params: dict, trajs: Sequence[Trajectory]) -> CurveModel:
+        """b and g per speed bin by least squares over every sample of the trajectories (with
+        their past) against its run's vector at the switch (see the class's ``gains``)."""
+        width, ridge = float(params.get("bin", 25.0)), float(params.get("ridge", 1e-3))
+        speeds, zs, anchors = [], [], []
+        for t in trajs:
+            rt = cls(dict(params), np.zeros(1), np.zeros((3, 1)), gains=np.zeros(1)).runtime()
+            rt.start(_levels(t, True)[:t.start], t.U[:t.start])
+            ok = np.isfinite(t.U[:, 0]) & np.isfinite(_levels(t, True))
+            speeds.append(t.U[ok, 0])
+            zs.append(_levels(t, True)[ok])
+            anchors.append(np.full(int(ok.sum()), np.nan if rt.anchor is None else rt.anchor[0]))
+        v, z, a = np.concatenate(speeds), np.concatenate(zs), np.concatenate(anchors)
+        if not v.size:
+            raise ValueError("no finite (speed, 1x vector) pairs to fit a curve")
+        known = np.isfinite(a)
+        if known.any():  # only runs with their vector at the switch tell the gains
+            v, z, a = v[known], z[known], a[known]
+            a_mean = complex(np.mean(a))
+        else:  # none: the plain mean vector per bin (as a node without the anchor predicts)
+            a, a_mean = np.zeros(v.size, complex), 0j
+        x = a - a_mean
+        bins, inv = np.unique(np.floor(v / width).astype(np.int64), return_inverse=True)
+        n = np.bincount(inv).astype(float)
+
+        def bin_mean(w: np.ndarray) -> np.ndarray:
+            return (np.bincount(inv, w.real) + 1j * np.bincount(inv, w.imag)) / n
+
+        xm, zm = bin_mean(x), bin_mean(z)
+        dx, dz = x - xm[inv], z - zm[inv]
+        sxx = np.bincount(inv, np.abs(dx) ** 2)
+        sxz = bin_mean(np.conj(dx) * dz) * n
+        g = sxz / (sxx + ridge * n * float(np.mean(np.abs(x) ** 2)) + 1e-300)  # 0 where x is 0
+        b = zm - g * xm  # the mean vector at the runs' mean anchor
+        return cls(dict(params), (bins + 0.5) * width, np.tile(b, (3, 1)), gains=g, anchor_mean=a_mean)
+
     def predict(self, traj: Trajectory) -> np.ndarray:
         """Prediction over the OC samples of ``traj``, by the node's very stepper: (K_seg,)."""
         if self.variant is Variant.RUN:
             return np.array(traj.seg_U[:, 0], dtype=float)
         rt = self.runtime()
-        if self.variant is Variant.VECTOR:
+        if self.variant.on_vector:
             rt.start(_levels(traj, True)[:traj.start], traj.U[:traj.start])
             return np.array([rt.step([x]) for x in traj.seg_U[:, 0].tolist()], dtype=float)
         rt.start(traj.y[:traj.start], traj.U[:traj.start])
@@ -687,18 +753,23 @@ class CurveModel:
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {"centres": self.centres, "means": self.means.real}
-        if self.variant is Variant.VECTOR:
+        if self.variant.on_vector:
             out["means_im"] = self.means.imag
         if self.variant in (Variant.ANCHORED, Variant.VECTOR):
             out["weights"] = self.weights
+        if self.variant is Variant.INFLUENCE:
+            out["gains"], out["gains_im"] = self.gains.real, self.gains.imag
+            out["anchor_mean"] = np.array([self.anchor_mean.real, self.anchor_mean.imag])
         return out
 
     @classmethod
     def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
                     repaired: int = 0) -> CurveModel:
         means = arrays["means"] + 1j * arrays["means_im"] if "means_im" in arrays else arrays["means"]
+        gains = arrays["gains"] + 1j * arrays["gains_im"] if "gains" in arrays else np.zeros(0, complex)
+        a_mean = complex(*arrays["anchor_mean"]) if "anchor_mean" in arrays else 0j
         return cls(dict(params), arrays["centres"], means,
-                   arrays["weights"] if "weights" in arrays else np.zeros(2))
+                   arrays["weights"] if "weights" in arrays else np.zeros(2), gains, a_mean)
 
 
 def _levels(traj: Trajectory, vector: bool) -> np.ndarray:
@@ -728,8 +799,10 @@ class CurveRuntime:
 
     def __init__(self, model: CurveModel) -> None:
         self._run = model.variant is Variant.RUN
-        self._vector = model.variant is Variant.VECTOR
-        self._anchored = model.variant in (Variant.ANCHORED, Variant.VECTOR)
+        self._vector = model.variant.on_vector
+        self._anchored = model.variant.anchored
+        self._influence = model.variant is Variant.INFLUENCE
+        self._anchor_mean = model.anchor_mean
         self._anchor_n = int(model.params.get("anchor", FS))
         self._w_mul, self._w_add = (float(w) for w in model.weights)
         self.anchor: tuple[complex, complex] | None = None
@@ -738,6 +811,8 @@ class CurveRuntime:
         self.vector: complex = math.nan  # the last predicted 1x vector (vector curves)
         self._xs = [float(x) for x in model.centres]
         self._rows: list[list[complex]] = [row.tolist() for row in model.means]
+        if self._influence:  # the gains, looked up as a fourth row (GAINS)
+            self._rows.append(model.gains.tolist())
         self._slopes = [[(r[i + 1] - r[i]) / (self._xs[i + 1] - self._xs[i]) for i in range(len(r) - 1)]
                         for r in self._rows]
         window = int(model.params.get("window", 0))
@@ -769,6 +844,11 @@ class CurveRuntime:
         if not ok.any():
             return
         y_sw = _mean(y[ok].tolist())
+        if self._influence:
+            if cmath.isfinite(y_sw):
+                self.anchor = (y_sw, self._anchor_mean)
+                self._shift = y_sw - self._anchor_mean
+            return
         c_sw = _mean([self._lookup(v, STEADY) for v in x[ok].tolist()])
         if not (cmath.isfinite(y_sw) and cmath.isfinite(c_sw)) or c_sw == 0.0:
             return
@@ -809,6 +889,8 @@ class CurveRuntime:
         c = self._lookup(x, code)
         if self.anchor is None:
             return c
+        if self._influence:
+            return c + self._lookup(x, GAINS) * self._shift
         return c + self._gain * c + self._shift
 
 

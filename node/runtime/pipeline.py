@@ -34,7 +34,6 @@ from node.models.ocmodel import (
     CurveModel,
     CurveRuntime,
     OCRuntime,
-    Variant,
     lag_degrees,
     order_vector,
     order_vectors,
@@ -61,8 +60,8 @@ class _Active:
 
 
 def _is_vector(model: object) -> bool:
-    """Whether an OC model predicts the 1x vector (a vector curve)."""
-    return isinstance(model, CurveModel) and model.variant is Variant.VECTOR
+    """Whether an OC model predicts the 1x vector (a vector or influence curve)."""
+    return isinstance(model, CurveModel) and model.variant.on_vector
 
 
 def _num(x: float) -> float | None:

@@ -56,6 +56,8 @@ CURVE_CANDIDATES: list[dict] = [
     {"variant": Variant.VECTOR.value, "bin": 25.0, "window": int(FS), "deadband": 20.0, "anchor": int(FS)},
     {"variant": Variant.VECTOR.value, "bin": 25.0, "window": 0, "anchor": int(10 * FS)},
     {"variant": Variant.VECTOR.value, "bin": 25.0, "window": 0, "anchor": int(60 * FS)},
+    {"variant": Variant.INFLUENCE.value, "bin": 25.0, "anchor": int(FS)},
+    {"variant": Variant.INFLUENCE.value, "bin": 25.0, "anchor": int(10 * FS)},
 ]
 # The vector curves (the anchored curve on the 1x vector) only where every training run holds
 # the target's phase channel. Chosen on the development engines with phase (23: schedule B,
@@ -147,7 +149,7 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
 
 def _curve_inputs(d: OCData, curve: dict) -> list[str] | None:
     """The one input of a curve candidate (the switch speed or run_curve); None: not a candidate."""
-    if curve.get("variant") == Variant.VECTOR and not d.z:
+    if Variant(curve.get("variant", Variant.FLEET)).on_vector and not d.z:
         return None
     name = RUN_CURVE if curve.get("variant") == Variant.RUN else d.switch
     return [name] if name in d.candidates else None
