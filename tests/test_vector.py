@@ -90,6 +90,43 @@ def test_the_vector_curve_follows_each_run_s_own_unbalance_exactly():
         CurveModel.fit(Method.CURVE, {"variant": "vector"}, [Trajectory(new.y, new.U, 60)])
 
 
+def test_the_influence_curve_recovers_a_fixed_part_plus_each_run_s_unbalance_response():
+    """Runs whose 1x vector is a run-independent part b(v) (say a bow) plus the rotor's response
+    H(v) to the run's own unbalance u: the influence curve predicts a new run exactly from its
+    vector at the switch, also an unbalance at an angle no training run had; the vector curve
+    (one response scaled by the run) cannot."""
+    rng = np.random.default_rng(11)
+    speed = np.concatenate([np.full(60, 1010.0), np.arange(1010.0, 3000.0, 20.0)])  # bin centres
+    h = (speed / 1000.0) * np.exp(-1j * speed / 700.0)  # the unbalance response turns with speed
+    b = 0.8 * np.exp(1j * speed / 400.0)  # the fixed part turns otherwise
+
+    def run(u: complex) -> Trajectory:
+        z = b + u * h
+        return Trajectory(np.abs(z), speed[:, None], start=60, z=z)
+
+    trajs = [run(rng.uniform(0.5, 2.0) * np.exp(1j * rng.uniform(-0.6, 0.6))) for _ in range(5)]
+    params = {"variant": "influence", "bin": 20.0, "anchor": 40, "ridge": 0.0}
+    m = CurveModel.fit(Method.CURVE, params, trajs)
+    for u_new in (1.7 * np.exp(0.4j), 1.2 * np.exp(2.5j)):  # inside and far outside the runs' angles
+        new = run(u_new)
+        np.testing.assert_allclose(m.predict(new), new.seg_y, rtol=1e-9)
+        rt = m.runtime()
+        rt.start(new.z[:60], new.U[:60])
+        rt.step([float(speed[-1])])
+        np.testing.assert_allclose(rt.vector, new.z[-1], rtol=1e-9)
+    vec = CurveModel.fit(Method.CURVE, {"variant": "vector", "bin": 20.0, "anchor": 40}, trajs)
+    assert np.max(np.abs(vec.predict(new) - new.seg_y)) > 0.1
+    # stored and loaded: real arrays only, the same model
+    arrays = m.arrays()
+    assert all(not np.iscomplexobj(a) for a in arrays.values())
+    again = CurveModel.from_arrays(Method.CURVE, m.params, arrays)
+    np.testing.assert_array_equal(again.predict(new), m.predict(new))
+    # without its vector at the switch, a run gets the runs' mean vector per speed
+    rt = m.runtime()
+    rt.start(np.zeros(0, complex), np.zeros((0, 1)))
+    assert rt.anchor is None and rt.step([2990.0]) == pytest.approx(abs(np.mean([t.z[-1] for t in trajs])))
+
+
 def test_order_vectors_are_the_lag_convention():
     z = order_vectors(np.array([2.0, 2.0, 1.0]), np.array([0.0, 90.0, np.nan]))
     np.testing.assert_allclose(z[:2], [2.0, -2.0j], atol=1e-12)
