@@ -64,7 +64,12 @@ CURVE_CANDIDATES: list[dict] = [
 # noise x1; 24: B, x2.5; 25: A, x2.5; WDMD, 8 training and 10 held-out runs each), mean held-out
 # eps_td: without the vector curves 0.184, 0.226, 0.286; with the two anchored on the last
 # second 0.104, 0.195, 0.239; with the two longer anchors (10 s, 60 s: the run's unbalance seen
-# over more speeds) too 0.105, 0.190, 0.227.
+# over more speeds) too 0.105, 0.190, 0.227. The influence curves (the vector at each speed an
+# affine function of the vector at the switch, per bin: a linear rotor's response to the run's
+# own unbalance; anchors 1 s and 10 s; the ridge 1e-3 or 1e-2 on engines 23-25 gave the
+# same) added on all seven development engines with phase (11, 12, 21-25; 75 OCs): mean
+# held-out eps_td 0.158 without them, 0.146 with them (better on six engines, 0.190 against 0.191 on 24; OCs
+# worse than the characteristic curve by > 5 %: 1 either way).
 # A state-space or regression model keeps an OC only when its CV eps is below (1 - margin) x
 # the best curve's: on new runs a free-running model's error exceeds its leave-one-run-out CV
 # error more often than a curve's does. Chosen on the development engines of ``bench
