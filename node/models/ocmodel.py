@@ -683,7 +683,8 @@ class CurveModel:
             rt = plain.runtime()
             level = _levels(t, vector)
             rt.start(level[:t.start], t.U[:t.start])
-            c = np.array([rt.step_speed(x) for x in t.seg_U[:, 0].tolist()], dtype=means.dtype)
+            c = rt.speeds_ahead(t.seg_U[:, 0])
+            c = c if vector else c.real
             if rt.anchor is None:
                 continue
             y_sw, c_sw = rt.anchor
@@ -741,12 +742,10 @@ class CurveModel:
         if self.variant is Variant.RUN:
             return np.array(traj.seg_U[:, 0], dtype=float)
         rt = self.runtime()
-        if self.variant.on_vector:
-            rt.start(_levels(traj, True)[:traj.start], traj.U[:traj.start])
-            return np.array([rt.step([x]) for x in traj.seg_U[:, 0].tolist()], dtype=float)
-        rt.start(traj.y[:traj.start], traj.U[:traj.start])
-        step = rt.step_speed
-        return np.array([step(x) for x in traj.seg_U[:, 0].tolist()], dtype=float)
+        rt.start(_levels(traj, self.variant.on_vector)[:traj.start], traj.U[:traj.start])
+        pred = rt.speeds_ahead(traj.seg_U[:, 0])
+        # the modulus as Python's abs() takes it (numpy's own may differ in the last bit)
+        return np.hypot(pred.real, pred.imag) if self.variant.on_vector else pred.real
 
     def runtime(self) -> CurveRuntime:
         return CurveRuntime(self)
@@ -865,6 +864,34 @@ class CurveRuntime:
             return abs(self.vector)
         return self.step_speed(float(u[0])).real
 
+    def speeds_ahead(self, speeds: np.ndarray) -> np.ndarray:
+        """``step_speed`` over speeds (K,) at once, vectorised for training: the same numbers to
+        the last bit (the same real operations in the same order: numpy's own complex product
+        and modulus may round otherwise); complex (K,). The stepper's recent speeds are left
+        as ``start`` set them."""
+        x = np.asarray(speeds, float)
+        codes = np.zeros(x.size, dtype=np.int64)
+        if self._past is not None:
+            codes = direction_codes(np.array(self._past, float), x, self._past.maxlen or 0, self._deadband)
+        xs = np.array(self._xs)
+        i = np.searchsorted(xs, x, side="right")
+        j = np.clip(i - 1, 0, max(xs.size - 2, 0))
+        rows = np.array(self._rows, complex)
+        slopes = np.array(self._slopes, complex).reshape(len(self._rows), -1)
+        c = np.empty(x.size, complex)
+        for code in np.unique(codes):
+            m = codes == code
+            c[m] = _interp(rows[code], slopes[code], xs, i[m], j[m], x[m])
+        if self.anchor is not None:
+            if self._influence:
+                c = c + _cmul(_interp(rows[GAINS], slopes[GAINS], xs, i, j, x), complex(self._shift))
+            elif self._vector:
+                c = c + _cmul(c, complex(self._gain)) + complex(self._shift)
+            else:  # real: as Python floats
+                c = (c.real + float(self._gain.real) * c.real + float(self._shift.real)).astype(complex)
+        c[~np.isfinite(x)] = complex(math.nan, 0.0)
+        return c
+
     def _lookup(self, x: float, code: int) -> complex:
         xs, ys = self._xs, self._rows[code]
         i = bisect.bisect_right(xs, x)
@@ -892,6 +919,23 @@ class CurveRuntime:
         if self._influence:
             return c + self._lookup(x, GAINS) * self._shift
         return c + self._gain * c + self._shift
+
+
+def _cmul(a: np.ndarray, b: complex) -> np.ndarray:
+    """a * b (K,) complex as CPython multiplies complex numbers (``_Py_c_prod``)."""
+    return (a.real * b.real - a.imag * b.imag) + 1j * (a.real * b.imag + a.imag * b.real)
+
+
+def _interp(ys: np.ndarray, slopes: np.ndarray, xs: np.ndarray, i: np.ndarray, j: np.ndarray,
+            x: np.ndarray) -> np.ndarray:
+    """``CurveRuntime._lookup`` vectorised (K,): i = bisect_right(xs, x), j = i - 1 clipped to a
+    segment; a complex slope times a real offset as CPython does it."""
+    if slopes.size == 0:
+        return np.full(x.size, ys[0], complex)
+    sl, dx = slopes[j], x - xs[j]
+    out = ys[j] + ((sl.real * dx - sl.imag * 0.0) + 1j * (sl.real * 0.0 + sl.imag * dx))
+    out = np.where(i == 0, ys[0], out)
+    return np.where(i == xs.size, ys[-1], out)
 
 
 def _mean(values: list[complex]) -> complex:
