@@ -234,3 +234,58 @@ def test_extreme_values_on_any_channel_never_stop_a_phase_pipeline(phased: Path,
         values = {c: bad.get((k, c), float(cols[c][k])) for c in cols}
         msg, _ = pipe.step(AlignedSample(float(run.t[k]), values, new_run=k == 0))
         assert msg["flag"] in set(Flag)
+
+
+def _step_run(bundle, run, turn=None) -> list[dict]:
+    """Monitor messages of ``run`` through a fresh pipeline; ``turn(k) -> degrees`` added to the
+    target's phase at sample k (the amplitude left as it is)."""
+    from node.runtime.align import AlignedSample
+    from node.runtime.pipeline import MonitorPipeline
+    pipe = MonitorPipeline(bundle)
+    cols = {c: run.column(c) for c in pipe.sensor_channels}
+    out = []
+    for k in range(len(run.t)):
+        values = {c: float(cols[c][k]) for c in cols}
+        if turn is not None and values["yB_ph"] == values["yB_ph"]:
+            values["yB_ph"] = (values["yB_ph"] + turn(k) + 180.0) % 360.0 - 180.0
+        out.append(pipe.step(AlignedSample(float(run.t[k]), values, new_run=k == 0))[0])
+    return out
+
+
+def test_the_vector_residual_rule_sees_the_response_turn_where_the_amplitude_does_not(phased: Path):
+    """A model that predicts the 1x vector carries its own residual rule (sigma and CV peaks from
+    training, a pooled threshold): a vector turning by 60 deg over 10 s in mid-plateau, its
+    length unchanged, raises it (reason ``vector``) with the plateau checks switched off; the
+    same run untouched does not, nor does the turned one with the rule off."""
+    import dataclasses
+
+    from node.mcap import read_runs
+    bundle = load_bundle(phased / "model")
+    watched = [r for r in bundle.ocs if r.calibration is not None and r.calibration.watches_vector]
+    assert watched, "no OC with the vector residual rule"
+    for r in watched:
+        c = r.calibration
+        assert c.vector_sigma > 0 and c.vector_threshold >= 1.25 * max(c.vector_peaks)
+    checks = {k: v for k, v in bundle.checks.items() if not k.startswith(("vector", "step"))}
+    quiet = dataclasses.replace(bundle, checks=checks)
+    run = read_runs(phased / "train.mcap")[2]
+    plain = _step_run(quiet, run)
+    names = {r.name for r in watched}
+    steady = [k for k, m in enumerate(plain) if m["oc"] in names and m["phase"] == "steady"
+              and m["vector_residual"] is not None]
+    assert len(steady) > 400
+    # the longest steady stretch of a watched OC: the turn starts 2 s into it
+    runs_of = np.split(np.array(steady), np.flatnonzero(np.diff(steady) > 1) + 1)
+    span = max(runs_of, key=len)
+    k0 = int(span[0]) + 80
+    turn = (lambda k: 60.0 * min(max((k - k0) / 400.0, 0.0), 1.0))
+    turned = _step_run(quiet, run, turn)
+    window = range(k0, int(span[-1]) + 1)
+    assert not any(plain[k]["reason"] == "vector" for k in window)
+    assert any(turned[k]["reason"] == "vector" for k in window)
+    assert all(abs(turned[k]["measured"] - plain[k]["measured"]) < 1e-12 for k in window
+               if plain[k]["measured"] is not None)
+    off = dataclasses.replace(quiet, ocs=[dataclasses.replace(
+        r, calibration=dataclasses.replace(r.calibration, vector_threshold=float("inf")))
+        if r.calibration is not None else r for r in bundle.ocs])
+    assert not any(m["reason"] == "vector" for m in _step_run(off, run, turn)[k0:int(span[-1]) + 1])
