@@ -262,6 +262,6 @@ class MonitorPipeline:
         vcheck = None
         if vector is not None and c.watches_vector:
             vcheck = ResidualCheck(c.vector_sigma, c.vector_threshold, VECTOR_EWMA_ALPHA, c.persist,
-                                   self._clear, scale)
+                                   self._clear)
         self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check, vector,
                                vcheck)

@@ -132,17 +132,6 @@ def run_scaled_peaks(calibs: dict[str, Calibration]) -> dict[str, list[float]]:
     return out
 
 
-def run_scaled_vector_peaks(calibs: dict[str, Calibration]) -> dict[str, list[float]]:
-    """The vector residual rule's CV peaks divided by the same run scale (``run_scaled_peaks``):
-    the node scales both rules by how unusual this run's amplitude residuals have been."""
-    swapped = {name: replace(c, peaks=c.vector_peaks) for name, c in calibs.items()
-               if c.vector_peaks and len(c.vector_peaks) == len(c.segments)}
-    for name, c in calibs.items():  # the other OCs still feed the run scale
-        swapped.setdefault(name, replace(c, peaks=tuple(0.0 for _ in c.segments)))
-    scaled = run_scaled_peaks(swapped)
-    return {name: scaled[name] for name, c in calibs.items() if c.vector_peaks}
-
-
 def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float,
                    undercoverage: float = CV_UNDERCOVERAGE) -> list[OCResult]:
     """The results with every calibrated OC's threshold set from the pooled CV peaks and the
@@ -155,15 +144,14 @@ def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float,
         calibs[name] = replace(calibs[name], peaks=tuple(scaled))
     levels = pooled_thresholds({n: list(c.peaks) for n, c in calibs.items()}, per_hour, budget,
                                undercoverage)
-    vector_peaks = run_scaled_vector_peaks(calibs)  # (from the unscaled peaks' segments)
     calibs = {name: replace(c, threshold=levels[name]) for name, c in calibs.items()}
     # the vector residual rule (OCs whose model predicts the 1x vector): the same budget, its
-    # own peaks, scaled by the run as the residual rule's, pooled over those OCs
-    vector_levels = pooled_thresholds({n: v for n, v in vector_peaks.items()
-                                       if math.isfinite(calibs[n].vector_sigma)},
+    # own peaks pooled over those OCs
+    vector_levels = pooled_thresholds({n: list(c.vector_peaks) for n, c in calibs.items()
+                                       if math.isfinite(c.vector_sigma) and c.vector_peaks},
                                       per_hour, budget, undercoverage)
-    calibs = {name: replace(c, vector_threshold=vector_levels[name], vector_peaks=tuple(vector_peaks[name]))
-              if name in vector_levels else c for name, c in calibs.items()}
+    calibs = {name: replace(c, vector_threshold=vector_levels[name]) if name in vector_levels else c
+              for name, c in calibs.items()}
     return [replace(r, calibration=calibs[r.name]) if r.calibration is not None else r
             for r in results]
 

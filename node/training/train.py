@@ -183,9 +183,7 @@ def _with_vector_calibration(calib: Calibration, residuals: list[np.ndarray]) ->
     if finite.size < 2:
         return calib
     sigma = max(float(np.sqrt(np.mean(finite ** 2))), 1e-9)
-    # one peak per CV segment, in the order of ``calib.segments`` (0: no finite residual in it)
-    peaks = tuple(peak_score(r, sigma, VECTOR_EWMA_ALPHA) if np.isfinite(r).any() else 0.0
-                  for r in residuals)
+    peaks = tuple(peak_score(r, sigma, VECTOR_EWMA_ALPHA) for r in residuals if np.isfinite(r).any())
     return dataclasses.replace(calib, vector_sigma=sigma, vector_peaks=peaks)
 
 
