@@ -86,9 +86,8 @@ class MonitorMessage(TypedDict):
     vector_residual: NotRequired[Annotated[float | None,
                                            "|measured - predicted 1x vector| (same unit as the target)"]]
     vector_score: NotRequired[Annotated[float | None,
-                                        "the vector rules: the largest of their statistics (the 1x "
-                                        "vector's change on this plateau, its residual against the "
-                                        "model) over its alarm level (alarm beyond 1)"]]
+                                        "the vector rule: change of the 1x vector on this plateau over "
+                                        "its alarm level (alarm beyond 1)"]]
 
 
 class OCMessage(TypedDict):

@@ -13,13 +13,10 @@ channel (``<target>_ph``) also watches the order's 1x vector, measured amplitude
 exp(-j phase), on steady plateaus (``reason`` "vector"): its abrupt change (``StepCheck``)
 and its change since the plateau settled (``StepCheck`` anchored), which see an added
 imbalance at right angles to the existing one (the amplitude hardly moves) and a mode's
-stiffness drifting in. An OC model that predicts the vector (a vector or influence curve) is
-seeded with the measured vectors, and its vector residual has a rule of its own (a
-``ResidualCheck`` on |measured - predicted vector|, smoothed over 10 s, ``reason``
-"vector"). The monitor message then carries ``measured_phase``, ``predicted_phase``,
-``vector_residual`` (|measured - predicted vector|) and ``vector_score`` (the largest of
-the vector rules' statistics over their thresholds). Every timing comes from the bundle's
-``RuntimeConfig``.
+stiffness drifting in. An OC model that predicts the vector (a vector curve) is seeded
+with the measured vectors. The monitor message then carries ``measured_phase``,
+``predicted_phase``, ``vector_residual`` (|measured - predicted vector|) and
+``vector_score``. Every timing comes from the bundle's ``RuntimeConfig``.
 """
 
 from __future__ import annotations
