@@ -15,7 +15,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -88,12 +87,9 @@ def _manifest_oc(r: OCResult) -> dict:
                       "n_states": r.model.n_states}
     if r.calibration is not None:
         c = r.calibration
-        residual: dict = {"sigma": c.sigma, "threshold": c.threshold,
-                          "ewma_alpha": c.ewma_alpha, "persist": c.persist, "cv_peaks": c.peaks}
-        if c.watches_vector:
-            residual.update(vector_sigma=c.vector_sigma, vector_threshold=c.vector_threshold,
-                            vector_cv_peaks=c.vector_peaks)
-        d["residual"] = residual
+        d["residual"] = {"sigma": c.sigma, "threshold": c.threshold,
+                         "ewma_alpha": c.ewma_alpha, "persist": c.persist,
+                         "cv_peaks": c.peaks}
     return d
 
 
@@ -286,10 +282,7 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
             if d["residual"] is not None:
                 c = d["residual"]
                 calib = Calibration(c["sigma"], c["threshold"], c["ewma_alpha"], c["persist"],
-                                    tuple(float(x) for x in c.get("cv_peaks", [])),
-                                    vector_sigma=float(c.get("vector_sigma", math.nan)),
-                                    vector_threshold=float(c.get("vector_threshold", math.inf)),
-                                    vector_peaks=tuple(float(x) for x in c.get("vector_cv_peaks", [])))
+                                    tuple(float(x) for x in c.get("cv_peaks", [])))
             ocs.append(OCResult(d["name"], model, list(d["inputs"]), dict(d["params"]), d["n_runs"],
                                 _f(d["train_eps"]), _f(d["cv_eps"]), calib,
                                 [(c, _f(s)) for c, s in d.get("ranking", [])], [], d.get("note", "")))

@@ -9,7 +9,6 @@ Both are frozen: training builds them complete, a bundle stores and loads them.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 from node.contract import FS
@@ -19,11 +18,6 @@ EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
 PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
 EWMA_ALPHA = 2.0 / (EWMA_SPAN_S * FS + 1.0)
 PERSIST = int(PERSIST_S * FS)
-# The vector residual (|measured - predicted 1x vector| of a model that predicts the vector) is
-# smoothed longer: it watches for a slow change of the rotor's response (a support softening
-# over tens of seconds), which the amplitude's 2 s rule and the plateau checks see too late.
-VECTOR_EWMA_SPAN_S = 10.0
-VECTOR_EWMA_ALPHA = 2.0 / (VECTOR_EWMA_SPAN_S * FS + 1.0)
 
 
 @dataclass(frozen=True)
@@ -33,10 +27,7 @@ class Calibration:
     threshold is on the smoothed standardized score (sigma units); ewma_alpha its
     smoothing per sample; persist the samples it must stay beyond. peaks are the CV
     segments' peak |scores| it was calibrated from (see ``node.runtime.alarms``);
-    segments the CV segments as (run, start sample, mean z^2). For a model that predicts
-    the order's 1x vector: vector_sigma, the RMS of its CV vector residual |z - z_hat|
-    (target units), vector_peaks the CV segments' peak scores of the vector residual rule
-    (``VECTOR_EWMA_ALPHA``) and vector_threshold its level (inf: the rule is off).
+    segments the CV segments as (run, start sample, mean z^2).
     """
 
     sigma: float
@@ -45,20 +36,10 @@ class Calibration:
     persist: int = PERSIST
     peaks: tuple[float, ...] = ()
     segments: tuple[tuple[int, int, float], ...] = ()
-    vector_sigma: float = math.nan
-    vector_threshold: float = math.inf
-    vector_peaks: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "peaks", tuple(self.peaks))
         object.__setattr__(self, "segments", tuple(self.segments))
-        object.__setattr__(self, "vector_peaks", tuple(self.vector_peaks))
-
-    @property
-    def watches_vector(self) -> bool:
-        """Whether the vector residual rule is on for this OC."""
-        return (math.isfinite(self.vector_sigma) and self.vector_sigma > 0
-                and math.isfinite(self.vector_threshold))
 
 
 @dataclass(frozen=True, eq=False)

@@ -38,7 +38,6 @@ from node.models.ocmodel import (
     order_vector,
     order_vectors,
 )
-from node.models.result import VECTOR_EWMA_ALPHA
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
@@ -58,7 +57,6 @@ class _Active:
     model_id: str
     check: ResidualCheck
     vector: CurveRuntime | None = None  # the runtime again when it predicts the 1x vector
-    vector_check: ResidualCheck | None = None  # the vector residual rule on |z - z_hat|
 
 
 def _is_vector(model: object) -> bool:
@@ -172,18 +170,11 @@ class MonitorPipeline:
         score, raised = a.check.step(r)
         msg.update(predicted=_num(pred), residual=None if r != r else r, score=score, band=a.check.band,
                    model=a.model_id, run_scale=a.check.run_scale)
-        vector_raised = False
         if a.vector is not None:
             v = a.vector.vector
-            rv = abs(z - v)
-            msg.update(predicted_phase=_num(lag_degrees(v)), vector_residual=_num(rv))
-            if a.vector_check is not None:
-                vscore, vector_raised = a.vector_check.step(rv)
-                msg["vector_score"] = vscore / a.vector_check.threshold
+            msg.update(predicted_phase=_num(lag_degrees(v)), vector_residual=_num(abs(z - v)))
         if raised:
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.RESIDUAL
-        elif vector_raised:
-            msg["flag"], msg["reason"] = Flag.ALARM, Reason.VECTOR
         else:
             msg["flag"] = Flag.OK
 
@@ -192,9 +183,7 @@ class MonitorPipeline:
         """The vector rule on this sample's 1x vector z (NaN when amplitude or phase is null):
         ``vector_score`` the larger statistic over its threshold (alarm beyond 1)."""
         steady = phase is Phase.STEADY
-        model = msg.get("vector_score")  # the vector residual rule's, when its model runs
-        msg["vector_score"] = max([chk.step(z, steady) / chk.threshold for chk in checks]
-                                  + ([model] if model is not None else []))
+        msg["vector_score"] = max(chk.step(z, steady) / chk.threshold for chk in checks)
         if any(chk.flagged for chk in checks) and msg["flag"] is not Flag.ALARM:
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.VECTOR
 
@@ -256,9 +245,4 @@ class MonitorPipeline:
         c = res.calibration
         scale = 1.0 if self._runscale is None else self._runscale.factor
         check = ResidualCheck(c.sigma, c.threshold, c.ewma_alpha, c.persist, self._clear, scale)
-        vcheck = None
-        if vector is not None and c.watches_vector:
-            vcheck = ResidualCheck(c.vector_sigma, c.vector_threshold, VECTOR_EWMA_ALPHA, c.persist,
-                                   self._clear)
-        self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check, vector,
-                               vcheck)
+        self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check, vector)

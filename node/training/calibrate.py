@@ -14,9 +14,6 @@ Training steps the very rule objects the node runs:
   the CV runs themselves do.
 * step: the ``StepCheck`` and ``OCDetector`` stepped over every training run; the
   steady plateaus' peak statistics, pooled, a Gumbel law and the same alarm budget.
-* vector residual (OCs whose model predicts the order's 1x vector): as the residual rule,
-  on |measured - predicted vector| smoothed over ``VECTOR_EWMA_SPAN_S`` (a slow change of
-  the rotor's response), its CV peaks pooled over those OCs, the residual rule's budget.
 * vector (recordings with the target's phase channel): the same on the order's 1x vector,
   twice: the sliding ``StepCheck`` (an abrupt change: an added imbalance, at any angle) and
   the one anchored at each plateau's start (a slow change: a mode's stiffness drifting in),
@@ -145,13 +142,6 @@ def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float,
     levels = pooled_thresholds({n: list(c.peaks) for n, c in calibs.items()}, per_hour, budget,
                                undercoverage)
     calibs = {name: replace(c, threshold=levels[name]) for name, c in calibs.items()}
-    # the vector residual rule (OCs whose model predicts the 1x vector): the same budget, its
-    # own peaks pooled over those OCs
-    vector_levels = pooled_thresholds({n: list(c.vector_peaks) for n, c in calibs.items()
-                                       if math.isfinite(c.vector_sigma) and c.vector_peaks},
-                                      per_hour, budget, undercoverage)
-    calibs = {name: replace(c, vector_threshold=vector_levels[name]) if name in vector_levels else c
-              for name, c in calibs.items()}
     return [replace(r, calibration=calibs[r.name]) if r.calibration is not None else r
             for r in results]
 

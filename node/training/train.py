@@ -24,18 +24,8 @@ from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import (
-    RUN_CURVE,
-    CurveModel,
-    CurveRuntime,
-    Method,
-    OCModel,
-    StateSpaceModel,
-    Trajectory,
-    Variant,
-    fit_oc_model,
-)
-from node.models.result import EWMA_ALPHA, VECTOR_EWMA_ALPHA, Calibration, OCResult
+from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory, Variant, fit_oc_model
+from node.models.result import EWMA_ALPHA, Calibration, OCResult
 from node.runtime.history import estimate_cooling
 from node.runtime.ocdetect import OCDetector
 from node.runtime.runcurve import add_run_curve
@@ -162,31 +152,6 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
     return (pooled_eps(pairs_all) if pairs_all else float("inf")), pairs_all
 
 
-def _vector_residuals(d: OCData, folds: list[int], params: dict, inputs: list[str]) -> list[np.ndarray]:
-    """|z - z_hat| (K_seg,) of each held-out segment of a vector curve's CV, in fold order
-    (as ``_cross_validate`` orders its pairs); z_hat the fold's model, stepped as the node does."""
-    out = []
-    for f in folds:
-        m = fit_oc_model(Method.CURVE, params, _trajs(d, [i for i, r in enumerate(d.runs) if r != f], inputs))
-        for t in _trajs(d, [i for i, r in enumerate(d.runs) if r == f], inputs):
-            rt = m.runtime()
-            assert isinstance(rt, CurveRuntime) and t.z is not None
-            rt.start(t.z[:t.start], t.U[:t.start])
-            out.append(np.abs(t.z[t.start:] - rt.speeds_ahead(t.seg_U[:, 0])))
-    return out
-
-
-def _with_vector_calibration(calib: Calibration, residuals: list[np.ndarray]) -> Calibration:
-    """``calib`` with the vector residual rule's sigma and CV peaks (its threshold comes later,
-    pooled over the OCs in ``set_thresholds``); unchanged when the residuals say nothing."""
-    finite = np.concatenate([r[np.isfinite(r)] for r in residuals]) if residuals else np.zeros(0)
-    if finite.size < 2:
-        return calib
-    sigma = max(float(np.sqrt(np.mean(finite ** 2))), 1e-9)
-    peaks = tuple(peak_score(r, sigma, VECTOR_EWMA_ALPHA) for r in residuals if np.isfinite(r).any())
-    return dataclasses.replace(calib, vector_sigma=sigma, vector_peaks=peaks)
-
-
 def _curve_inputs(d: OCData, curve: dict) -> list[str] | None:
     """The one input of a curve candidate (the switch speed or run_curve); None: not a candidate."""
     if Variant(curve.get("variant", Variant.FLEET)).on_vector and not d.z:
@@ -249,8 +214,6 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
             sigma, float("inf"),
             peaks=tuple(peak_score(r, sigma, EWMA_ALPHA) for r in res),
             segments=tuple((d.runs[i], d.at[i], float(np.mean((r / sigma) ** 2))) for i, r in zip(rows, res)))
-        if isinstance(model, CurveModel) and model.variant.on_vector and d.z:
-            calib = _with_vector_calibration(calib, _vector_residuals(d, folds, params, chosen))
     note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
     if isinstance(model, StateSpaceModel) and not np.isfinite(cv_eps):
         note = "no stable candidate in cross-validation"
