@@ -439,6 +439,12 @@ def curve_arrays(data: ViewData, clock: Clock) -> tuple[np.ndarray, ...]:
 def log_view(data: ViewData) -> dict[str, int]:
     """Log every entity of the view into the current recording. Returns sample counts."""
     clock = Clock(data.speed.t)
+    return {**log_series(data, clock), **log_plots(data, clock)}
+
+
+def log_series(data: ViewData, clock: Clock) -> dict[str, int]:
+    """The time series of the view (speed, OC states, monitor or measured target, health):
+    appended to what is logged already (a live view logs each new stretch once)."""
     counts: dict[str, int] = {}
     log_style(f"speed/{data.switch}", f"{data.switch} (rpm)", COLORS["speed"])
     counts["speed"] = log_scalars(f"speed/{data.switch}", data.speed.t, data.speed.v, clock)
@@ -456,6 +462,13 @@ def log_view(data: ViewData) -> dict[str, int]:
     if data.health is not None:
         log_health(data.health, clock)
         counts["health"] = len(data.health.t)
+    return counts
+
+
+def log_plots(data: ViewData, clock: Clock) -> dict[str, int]:
+    """The 2-D views of all the data (characteristic curve, polar, Bode): static, so logging
+    them again replaces them."""
+    counts: dict[str, int] = {}
     speed, y, t, run, alarm = curve_arrays(data, clock)
     counts["curve"] = int(np.sum(np.isfinite(speed) & np.isfinite(y)))
     counts["runs"] = int(run.max()) + 1 if len(run) else 0

@@ -14,6 +14,7 @@ detector run over the speed.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from typing import Any
@@ -129,6 +130,24 @@ class ViewData:
     health: Health | None = None
     target_unit: str = "mm/s"
     order_phase: Series | None = None  # the target's phase channel (degrees), when recorded
+
+
+def rows_after(data: ViewData, since: dict[str, float]) -> ViewData:
+    """``data`` with only the samples and messages later than ``since[part]`` (s since the
+    epoch) in each time series part (``speed``, ``measured``, ``monitor``, ``switches``,
+    ``health``, ``order_phase``): the stretch a live view has not logged yet."""
+
+    def cut(part: str) -> Any:
+        x = getattr(data, part)
+        if x is None:
+            return None
+        keep = x.t > since.get(part, -np.inf)
+        return dataclasses.replace(x, **{f.name: getattr(x, f.name)[keep] for f in dataclasses.fields(x)
+                                         if isinstance(getattr(x, f.name), np.ndarray)
+                                         and getattr(x, f.name).shape[:1] == x.t.shape})
+
+    parts = ("speed", "measured", "monitor", "switches", "health", "order_phase")
+    return dataclasses.replace(data, **{part: cut(part) for part in parts})
 
 
 @dataclass
@@ -419,6 +438,14 @@ def load_view_data(recording: str, bed: str | None = None, target: str | None = 
     """
     stats = ReadStats()
     by_topic = read_payloads(recording, stats)
+    data, source = view_data_of(by_topic, bed, target, switch, schedule)
+    return data, source, stats
+
+
+def view_data_of(by_topic: dict[str, list[bytes]], bed: str | None = None, target: str | None = None,
+                 switch: str | None = None, schedule: Schedule | None = None) -> tuple[ViewData, str]:
+    """The view's arrays from payloads by topic (a recording's, or those a live view received so
+    far); (data, OC source). Arguments as ``load_view_data``'s."""
     topics = sorted(by_topic)
     bed = pick_bed(topics, bed)
     target = pick_target(topics, bed, target)
@@ -448,4 +475,4 @@ def load_view_data(recording: str, bed: str | None = None, target: str | None = 
     elif schedule is not None:
         data.switches = switches_from_schedule(speed, schedule)
         source = "schedule (OC detector)"
-    return data, source, stats
+    return data, source

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import sys
 import time
@@ -22,6 +23,7 @@ from node.contract import OrdervibError, monitor_key, phase_channel, sensor_key
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
+    from replay.live_view import LiveView
     from replay.view_data import Vectors, ViewData
 
 log = logging.getLogger(__name__)
@@ -32,7 +34,17 @@ HELP = ("show a recording in the Rerun viewer, or save the Rerun file (--save OU
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recording", metavar="REC.mcap", help="recording (sensor-only or a node's)")
+    p.add_argument("recording", metavar="REC.mcap", nargs="?", default=None,
+                   help="recording (sensor-only or a node's); or --connect")
+    p.add_argument("--connect", metavar="ENDPOINT", default=None,
+                   help="the live view: subscribe to a running node's topics and the test bed's sensors "
+                   "at this Zenoh endpoint (e.g. tcp/127.0.0.1:7447) instead of reading a recording")
+    p.add_argument("--zenoh-config", metavar="FILE.json5", default=None,
+                   help="with --connect: Zenoh configuration file (e.g. TLS root CA; see docs/zenoh/)")
+    p.add_argument("--duration", metavar="S", type=float, default=None,
+                   help="with --connect: stop after S seconds (default: at Ctrl-C)")
+    p.add_argument("--refresh", metavar="S", type=float, default=1.0,
+                   help="with --connect: seconds between updates of the view (default 1)")
     p.add_argument("--save", metavar="OUT.rrd", default=None, help="write a Rerun file, start no viewer")
     p.add_argument(
         "--plots",
@@ -74,8 +86,21 @@ def _schedule_for(args: argparse.Namespace) -> Schedule | None:
 
 
 def _check(args: argparse.Namespace) -> None:
+    if (args.recording is None) == (args.connect is None):
+        raise OrdervibError("give a recording REC.mcap or --connect ENDPOINT (one of them)")
+    if args.connect is None:
+        for opt in ("zenoh_config", "duration"):
+            if getattr(args, opt) is not None:
+                raise OrdervibError(f"--{opt.replace('_', '-')} needs --connect")
+    else:
+        if args.plots is not None:
+            raise OrdervibError("--plots needs a recording, not --connect")
+        if args.duration is not None and not args.duration > 0:
+            raise OrdervibError(f"--duration must be positive, got {args.duration:g}")
+        if not args.refresh > 0:
+            raise OrdervibError(f"--refresh must be positive, got {args.refresh:g}")
     if args.save is not None:
-        check_output(args.save, "--save", suffix=".rrd", inputs=[args.recording])
+        check_output(args.save, "--save", suffix=".rrd", inputs=[args.recording] if args.recording else [])
     if args.plots is not None and not os.path.isdir(args.plots):
         raise OrdervibError(f"--plots {args.plots} is not a directory")
 
@@ -141,10 +166,88 @@ def _log(data: ViewData) -> dict[str, int]:
         rr.disconnect()
 
 
+def _live(args: argparse.Namespace) -> tuple[LiveView, dict[str, int]]:
+    """--connect: stream the topics to Rerun until --duration or Ctrl-C; the view and its counts."""
+    import rerun as rr
+
+    from node.contract import MONITOR_SUBSCRIPTION, SENSOR_SUBSCRIPTION
+    from node.live.zenoh import open_session, zenoh_config
+    from replay.live_view import LiveView
+
+    schedule = load_schedule_arg(args.schedule)
+    view = LiveView(args.bed, args.target, args.switch, schedule)
+    session = open_session(zenoh_config(None, [args.connect], args.zenoh_config))
+    counts: dict[str, int] = {}
+    try:
+        def on_sample(sample) -> None:  # noqa: ANN001 - a zenoh.Sample
+            view.add(str(sample.key_expr), sample.payload.to_bytes())
+
+        subs = [session.declare_subscriber(k, on_sample) for k in (SENSOR_SUBSCRIPTION, MONITOR_SUBSCRIPTION)]
+        log.info("live view: subscribed at %s (%s)", args.connect,
+                 f"{args.duration:g} s" if args.duration else "Ctrl-C to stop")
+        end = math.inf if args.duration is None else time.monotonic() + args.duration
+        try:
+            while time.monotonic() < end:
+                time.sleep(min(args.refresh, max(0.0, end - time.monotonic())))
+                _add_counts(counts, view.refresh())
+        except KeyboardInterrupt:
+            pass
+        _add_counts(counts, view.refresh(final=True))
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        session.close()
+        rr.disconnect()
+    if view.data is None:
+        raise OrdervibError(f"nothing to show: {view.received} message(s) received at {args.connect}, "
+                            f"no speed of a test bed among them")
+    return view, counts
+
+
+def _run_live(args: argparse.Namespace) -> int:
+    """--connect into the viewer, or into --save (replaced only by a complete file)."""
+    import rerun as rr
+
+    if args.save is None and not _has_display():
+        raise OrdervibError(_NO_VIEWER.format(why="no display"))
+    rr.init("ordervib_view", spawn=False)
+    if args.save is not None:
+        with replacing(args.save) as part:
+            rr.save(part)
+            view, counts = _live(args)
+    else:
+        try:
+            rr.spawn()
+        except Exception as exc:  # viewer binary missing or unable to start
+            raise OrdervibError(_NO_VIEWER.format(why=str(exc).splitlines()[0])) from None
+        view, counts = _live(args)
+    if not args.quiet and view.data is not None:
+        where = f"-> {args.save} ({os.path.getsize(args.save)} bytes)" if args.save else "-> viewer"
+        print(f"view: live from {args.connect}, {view.received} messages; bed {view.data.bed}, "
+              f"{view.data.switch} {counts.get('speed', 0)} samples, monitor {counts.get('monitor', 0)} "
+              f"({counts.get('alarm', 0)} alarm) of {view.data.target}, OCs from {view.source} {where}")
+    return 0
+
+
+def _add_counts(counts: dict[str, int], new: dict[str, int] | None) -> None:
+    """A refresh's counts into the totals: the time series' samples add up, the 2-D views'
+    are of everything received (the last refresh's)."""
+    for k, v in (new or {}).items():
+        counts[k] = counts.get(k, 0) + v if k in ("speed", "monitor", "alarm", "health", "measured") else v
+
+
+def load_schedule_arg(path: str | None) -> Schedule | None:
+    from node.contract.schedule import load_schedule
+
+    return None if path is None else load_schedule(path)
+
+
 def run(args: argparse.Namespace) -> int:
     from replay.view_data import load_view_data
 
     _check(args)
+    if args.connect is not None:
+        return _run_live(args)
     start = time.perf_counter()
     data, source, stats = load_view_data(args.recording, args.bed, args.target, args.switch,
                                          _schedule_for(args))
