@@ -10,6 +10,7 @@ from node.sysid import (
     WDMD,
     CausalMODWT,
     DelayDMD,
+    ParametricROM,
     StateSpace,
     causal_modwt,
     eps_td,
@@ -259,3 +260,46 @@ def test_seeding_observer_averages_measurement_noise():
     err_window = eps_td(Y[400:], m.simulate(np.zeros((200, 0)), history=Yn[:400]))
     err_lift = eps_td(Y[400:], lifted.simulate(np.zeros((200, 0)), history=Yn[:400]))
     assert err_window < 0.5 * err_lift
+
+
+@pytest.mark.parametrize("make", [lambda: WDMD(levels=3, rcond=1e-8), lambda: DelayDMD(delays=4),
+                                  lambda: IODMD(rcond=1e-9),
+                                  lambda: ParametricROM(WDMD(levels=2), n_pairs=1)])
+def test_the_identification_classes_are_scikit_learn_estimators(make) -> None:
+    """Contract section 6: get_params / set_params, clone, a readable repr, NotFittedError before
+    fit (check_is_fitted agrees), and the applicable estimator checks of scikit-learn."""
+    from sklearn.base import clone
+    from sklearn.exceptions import NotFittedError
+    from sklearn.utils import estimator_checks as ec
+    from sklearn.utils.validation import check_is_fitted
+
+    est = make()
+    name = type(est).__name__
+    params = est.get_params(deep=False)
+    twin = clone(est)
+    assert twin is not est and twin.get_params(deep=False).keys() == params.keys()
+    assert repr(est).startswith(f"{name}(")
+    first = sorted(params)[0]
+    assert est.set_params(**{first: params[first]}) is est
+    with pytest.raises(NotFittedError):
+        check_is_fitted(est)
+    if not isinstance(est, ParametricROM):
+        with pytest.raises(NotFittedError, match="not fitted"):
+            est.A  # noqa: B018 - the property raises
+    for check in ("check_get_params_invariance", "check_set_params", "check_no_attributes_set_in_init",
+                  "check_parameters_default_constructible", "check_estimator_repr",
+                  "check_estimator_cloneable", "check_do_not_raise_errors_in_init_or_set_params"):
+        getattr(ec, check)(name, make())
+
+
+def test_a_fitted_estimator_passes_check_is_fitted() -> None:
+    from sklearn.utils.validation import check_is_fitted
+
+    rng = np.random.default_rng(0)
+    U = rng.standard_normal((400, 1))
+    Y = np.zeros((400, 1))
+    for k in range(1, 400):
+        Y[k] = 0.8 * Y[k - 1] + U[k - 1]
+    m = DelayDMD(delays=1, rcond=1e-10).fit(Y, U)
+    check_is_fitted(m)
+    assert np.allclose(np.sort(np.abs(np.linalg.eigvals(m.A)))[-1], 0.8, atol=1e-6)

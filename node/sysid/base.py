@@ -11,6 +11,8 @@ from __future__ import annotations
 from enum import StrEnum
 
 import numpy as np
+from sklearn.base import BaseEstimator
+from sklearn.exceptions import NotFittedError
 
 from node.sysid.lstsq import pod_basis, truncated_lstsq
 from node.sysid.observer import estimate_state
@@ -28,8 +30,10 @@ class Estimator(StrEnum):
     PEM = "pem"  # least squares, then poles and (B, D) refined on the free-run output error
 
 
-class LinearDMD:
-    """Base of IODMD, DelayDMD and WDMD (scikit-learn style: fit returns self).
+class LinearDMD(BaseEstimator):
+    """Base of IODMD, DelayDMD and WDMD: scikit-learn estimators (``get_params``, ``set_params``,
+    ``sklearn.base.clone``, a readable repr; ``fit`` returns self; used before ``fit``, they
+    raise ``sklearn.exceptions.NotFittedError``, which ``check_is_fitted`` agrees with).
 
     Args:
         rcond: relative singular-value tolerance of the pseudo-inverse (beta).
@@ -191,7 +195,7 @@ class LinearDMD:
     def _require_fit(self) -> StateSpace:
         model = getattr(self, "model_", None)
         if model is None:
-            raise ValueError(f"{type(self).__name__} is not fitted yet: call fit first")
+            raise NotFittedError(f"{type(self).__name__} is not fitted yet: call fit first")
         return model
 
     @property

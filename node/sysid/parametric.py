@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from sklearn.base import BaseEstimator
 
 from node.sysid.metrics import mac
 from node.sysid.observer import estimate_state
@@ -160,7 +161,7 @@ class ParametricModel:
         return self.model_.simulate(U, self.initial_state(history) if x0 is None else x0)
 
 
-class ParametricROM:
+class ParametricROM(BaseEstimator):
     """Models fitted at parameter samples, matched mode by mode, interpolated in pole-residue form.
 
     Args:
