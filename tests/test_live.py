@@ -192,3 +192,40 @@ def test_three_targets_live_equal_replay_for_each_target(tmp_path):
         assert len(live[topic]) > 500
         assert live[topic] == offline[topic], topic
         assert any(b'"measured_phase":' in m for m in live[topic])  # the phase is used
+
+
+def test_two_nodes_with_disjoint_bed_patterns_share_a_fleet(setup, tmp_path):
+    """``run --beds``: each bed is served by the one node whose pattern it matches (both nodes
+    and the beds on one Zenoh network, peers, no router), and the health says which."""
+    from harness.live import Bench, load_stream, wait_for
+    from node.live.node import LiveNode
+    from node.models.bundle import load_bundle
+    from node.runtime.pipeline import MonitorPipeline
+    bundle = load_bundle(setup / "m")
+    stream = load_stream(str(setup / "test.mcap"), 2.0, 0.0, set(MonitorPipeline(bundle).channels))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    east = LiveNode(bundle, str(tmp_path / "east.mcap"), listen=[endpoint], beds="east$*")
+    west = LiveNode(bundle, str(tmp_path / "west.mcap"), connect=[endpoint], beds="west$*")
+    east.start()
+    west.start()
+    beds = ["east1", "east2", "west1"]
+    bench = Bench(endpoint, beds, ["nB", "yB", "tF"], "testbed/*/monitor/yB")
+    try:
+        bench.wait_matched()
+        sent = bench.publish(stream)
+        n = len(stream.slots)
+        wait_for(lambda: len(bench.arrivals) >= 3 * n, 20)
+        health = east.health("east1", time.time())
+    finally:
+        bench.close()
+        east.stop()
+        west.stop()
+    assert set(east.core.beds) == {"east1", "east2"} and set(west.core.beds) == {"west1"}
+    assert east.stats.received == 2 * 3 * n and west.stats.received == 3 * n == sent["count"] // 3
+    assert health["beds"] == "east$*" and health["node"]
+    with pytest.raises(ValueError, match="beds pattern"):
+        LiveNode(bundle, str(tmp_path / "x.mcap"), listen=[endpoint], beds="east/*")
+    assert not (tmp_path / "x.mcap").exists()
+    assert main(["run", "--model", str(setup / "m"), "--record", str(tmp_path / "y.mcap"),
+                 "--beds", "a/b"]) == 2
+    assert not (tmp_path / "y.mcap").exists()

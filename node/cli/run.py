@@ -34,6 +34,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--engine-state", metavar="FILE.json",
                    help="each bed's engine history (last run end, energy, thermal state), loaded at "
                         "start and kept up to date (default: engine-state.json beside --record)")
+    p.add_argument("--beds", default="*", metavar="PATTERN",
+                   help="serve only the test beds matching PATTERN: a bed name, * (every bed, the "
+                        "default) or a name with Zenoh's $* (east$*: the beds whose names start with "
+                        "east); several nodes with disjoint patterns share a fleet (README)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing recording (or rotated files of that name); without it "
@@ -43,12 +47,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from node.contract import sensor_subscription
     from node.live.engine_file import check_engine_file
     from node.live.node import run_node
     from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints
     from node.mcap import RecordingWriter, RotatingRecorder
     from node.models.bundle import load_model
 
+    try:
+        sensor_subscription(args.beds)
+    except ValueError as exc:
+        raise OrdervibError(f"--beds: {exc}") from None
     rotating = args.rotate_mb is not None or args.rotate_minutes is not None
     inputs = [args.zenoh_config] if args.zenoh_config else []
     # written in place (a killed node's file stays recoverable): an existing one needs --force
@@ -72,5 +81,5 @@ def run(args: argparse.Namespace) -> int:
                                   deferred=True, exclusive=not args.force)
     else:
         record = RecordingWriter(args.record, deferred=True, exclusive=not args.force)
-    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file)
+    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file, args.beds)
     return 0

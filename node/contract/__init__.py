@@ -29,6 +29,7 @@ from node.contract.keys import (
     parse_sensor_key,
     phase_channel,
     sensor_key,
+    sensor_subscription,
     topic_kind,
 )
 from node.contract.messages import (
@@ -49,7 +50,7 @@ __all__ = [
     "SENSOR_CHANNELS",
     "SENSOR_SUBSCRIPTION", "SPEED_CHANNELS", "TopicKind", "bed_of", "health_key", "is_monitor_key",
     "is_phase_channel", "liveliness_key", "monitor_key", "oc_key", "parse_monitor_key",
-    "parse_sensor_key", "phase_channel", "sensor_key",
+    "parse_sensor_key", "phase_channel", "sensor_key", "sensor_subscription",
     "topic_kind", "Flag", "HealthMessage", "MonitorMessage", "OCMessage", "Phase", "Reason",
     "SensorSample", "json_schema", "check_sample", "decode_sample", "decode_samples", "log_time_ns",
     "OrdervibError", "OperatingCondition", "Schedule", "load_schedule",

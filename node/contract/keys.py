@@ -35,6 +35,22 @@ PREFIX = "testbed"
 SENSOR_SUBSCRIPTION = f"{PREFIX}/*/sensor/**"  # every test bed's sensors
 MONITOR_SUBSCRIPTION = f"{PREFIX}/*/monitor/**"  # every test bed's node outputs
 LIVELINESS_PREFIX = "ordervib/node"
+_BEDS_CHUNK = re.compile(r"^(\*|(?:[A-Za-z0-9_.\-]|\$\*)+)$")  # a bed name, ``*``, or a name with ``$*``
+
+
+def sensor_subscription(beds: str = "*") -> str:
+    """The sensor key expression of the beds matching ``beds``: one key-expression chunk, a bed's
+    name, ``*`` (every bed) or a name with Zenoh's in-chunk wildcard ``$*`` (``east$*``: every
+    bed whose name starts with ``east``). ValueError for anything else (a ``/`` would reach
+    into other levels).
+
+    >>> sensor_subscription("east$*")
+    'testbed/east$*/sensor/**'
+    """
+    if not _BEDS_CHUNK.match(beds) or "$*$*" in beds:
+        raise ValueError(f"beds pattern {beds!r}: give a bed name, * or a name with $* (e.g. east$*)")
+    return f"{PREFIX}/{beds}/sensor/**"
+
 OC_TOPIC = "oc"  # monitor/<OC_TOPIC>: OC switches
 HEALTH_TOPIC = "health"  # monitor/<HEALTH_TOPIC>: the bed's health
 

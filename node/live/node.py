@@ -42,12 +42,12 @@ from typing import Any
 import orjson
 
 from node.contract import (
-    SENSOR_SUBSCRIPTION,
     HealthMessage,
     OrdervibError,
     health_key,
     liveliness_key,
     parse_sensor_key,
+    sensor_subscription,
 )
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
 from node.live.zenoh import open_session, zenoh_config
@@ -89,7 +89,9 @@ class LiveNode:
     def __init__(self, bundle: Bundle | Model, record: str | RecordingWriter | RotatingRecorder,
                  listen: list[str] | None = None,
                  connect: list[str] | None = None, config_file: str | None = None,
-                 queue_size: int = 1_000_000, engine_file: str | None = None) -> None:
+                 queue_size: int = 1_000_000, engine_file: str | None = None, beds: str = "*") -> None:
+        self.subscription = sensor_subscription(beds)  # ValueError for a bad pattern, before any I/O
+        self.beds = beds  # the beds this node serves (a key-expression chunk, see sensor_subscription)
         self.engine_file = engine_file  # each bed's engine history (node.live.engine_file)
         self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None)
         self._engine_saved: dict = {}  # what the file holds now
@@ -139,7 +141,7 @@ class LiveNode:
         self._json = zenoh.Encoding.APPLICATION_JSON
         self._congestion = zenoh.CongestionControl.DROP  # see the module: never BLOCK on a subscriber
         self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
-        self.sub = self.session.declare_subscriber(SENSOR_SUBSCRIPTION, self._on_sample)
+        self.sub = self.session.declare_subscriber(self.subscription, self._on_sample)
         self.thread = threading.Thread(target=self._work, name="ordervib-node", daemon=True)
         self.thread.start()
 
@@ -292,6 +294,9 @@ class LiveNode:
         msg["lag_ms_max"] = self._lag_max.pop(bed, None)
         msg["recording"] = self.recording
         msg["unrecorded"] = self.stats.unrecorded
+        session = getattr(self, "session", None)
+        msg["node"] = str(session.zid()) if session is not None else ""
+        msg["beds"] = self.beds
         return msg
 
     def _tick(self) -> None:
@@ -344,7 +349,7 @@ class LiveNode:
 
 def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRecorder,
              listen: list[str] | None, connect: list[str] | None, config_file: str | None,
-             duration: float | None, engine_file: str | None = None) -> LiveStats:
+             duration: float | None, engine_file: str | None = None, beds: str = "*") -> LiveStats:
     """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged.
 
     Raises ``OrdervibError`` (one line) when the worker thread died (the watchdog stops
@@ -355,9 +360,9 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     deadline = None if duration is None else time.monotonic() + duration
-    with LiveNode(bundle, record, listen, connect, config_file, engine_file=engine_file) as node:
+    with LiveNode(bundle, record, listen, connect, config_file, engine_file=engine_file, beds=beds) as node:
         where = listen or connect or f"the endpoints of {config_file}"
-        log.info("ordervib node on %s; recording to %s; Ctrl-C stops", where, record)
+        log.info("ordervib node on %s, serving beds %s; recording to %s; Ctrl-C stops", where, beds, record)
         while node.thread.is_alive():  # the watchdog
             wait = WATCHDOG_S if deadline is None else min(WATCHDOG_S, deadline - time.monotonic())
             if stop.wait(max(0.0, wait)) or (deadline is not None and time.monotonic() >= deadline):
