@@ -229,3 +229,52 @@ def test_two_nodes_with_disjoint_bed_patterns_share_a_fleet(setup, tmp_path):
     assert main(["run", "--model", str(setup / "m"), "--record", str(tmp_path / "y.mcap"),
                  "--beds", "a/b"]) == 2
     assert not (tmp_path / "y.mcap").exists()
+
+
+def test_one_router_two_nodes_forty_hz_beds_each_served_once(setup, tmp_path):
+    """The README's deployment: ``ordervib router``, two nodes connected to it with disjoint
+    ``--beds``, the beds connected to the router: every sample of every bed gets exactly one
+    monitor message, from the node its pattern names."""
+    from harness.live import Bench, load_stream, wait_for
+    from node.live.node import LiveNode
+    from node.models.bundle import load_bundle
+    from node.runtime.pipeline import MonitorPipeline
+    bundle = load_bundle(setup / "m")
+    stream = load_stream(str(setup / "test.mcap"), 2.0, 0.0, set(MonitorPipeline(bundle).channels))
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router = subprocess.Popen([sys.executable, "-m", "node.cli", "router", "--listen", endpoint,
+                               "--duration", "60"], cwd=Path(__file__).resolve().parents[1])
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.1)
+        nodes = [LiveNode(bundle, str(tmp_path / f"{b}.mcap"), connect=[endpoint], beds=f"{b}$*")
+                 for b in ("east", "west")]
+        for node in nodes:
+            node.start()
+        beds = ["east1", "west1", "west2"]
+        bench = Bench(endpoint, beds, ["nB", "yB", "tF"], "testbed/*/monitor/yB")
+        try:
+            bench.wait_matched()
+            bench.publish(stream)
+            n = len(stream.slots)
+            wait_for(lambda: len(bench.arrivals) >= 3 * n, 20)
+            time.sleep(0.5)  # any duplicate would arrive by now
+        finally:
+            bench.close()
+            for node in nodes:
+                node.stop()
+    finally:
+        router.send_signal(signal.SIGTERM)
+        router.wait(20)
+    per_bed: dict[str, int] = {}
+    for key, _, _ in bench.arrivals:
+        bed = key.split("/")[1]
+        per_bed[bed] = per_bed.get(bed, 0) + 1
+    assert per_bed == {b: n for b in beds}, per_bed
+    assert set(nodes[0].core.beds) == {"east1"} and set(nodes[1].core.beds) == {"west1", "west2"}
+    assert router.returncode == 0

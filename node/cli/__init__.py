@@ -32,6 +32,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "node.cli.demo",
     "node.cli.view",
     "node.cli.recover",
+    "node.cli.router",
 )
 
 

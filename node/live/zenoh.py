@@ -10,8 +10,9 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
 def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = None,
-                 config_file: str | None = None):
-    """A peer-mode Zenoh config: listen/connect endpoints, no multicast scouting.
+                 config_file: str | None = None, mode: str = "peer"):
+    """A Zenoh config (``mode`` peer, or router for ``ordervib router``): listen/connect
+    endpoints, no multicast scouting.
 
     ``config_file`` (JSON5, Zenoh's own format) carries TLS and access control
     for a real deployment; the endpoint options are applied on top of it.
@@ -19,7 +20,7 @@ def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = No
     import zenoh
     try:
         conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
-        conf.insert_json5("mode", json.dumps("peer"))
+        conf.insert_json5("mode", json.dumps(mode))
         conf.insert_json5("scouting/multicast/enabled", "false")
         if listen:
             conf.insert_json5("listen/endpoints", json.dumps(listen))
