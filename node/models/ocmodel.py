@@ -570,11 +570,13 @@ class CurveModel:
     """A characteristic-curve OC model (``curve``): no dynamics, a lookup of the speed.
 
     Attributes:
-        params: variant ("fleet", "run" or "anchored"), and for fleet and anchored: bin (rpm),
-            window (samples the speed's change is taken over; 0: one curve), deadband (rpm
-            over the window), min_count (a direction's own mean in a bin needs this many
-            samples, else the bin's mean of every sample; default 1), and for anchored: anchor
-            (samples before the switch whose mean level anchors the curve).
+        params: variant (``Variant``: "fleet", "run", "anchored", "vector" or "influence"),
+            and but for run: bin (rpm), window (samples the speed's change is taken over; 0:
+            one curve; influence: one curve whatever it), deadband (rpm over the window),
+            min_count (a direction's own mean in a bin needs this many samples, else the
+            bin's mean of every sample; default 1), and for the anchored ones: anchor
+            (samples before the switch whose mean level, or 1x vector, anchors the curve);
+            influence: ridge.
         centres: (B,) the speed bins' centres, rpm (empty for run).
         means: (3, B) the mean target per bin when the speed is steady, rising, falling
             (rows STEADY, RISING, FALLING); a bin without samples of a direction holds the
@@ -738,7 +740,8 @@ class CurveModel:
         return cls(dict(params), (bins + 0.5) * width, np.tile(b, (3, 1)), gains=g, anchor_mean=a_mean)
 
     def predict(self, traj: Trajectory) -> np.ndarray:
-        """Prediction over the OC samples of ``traj``, by the node's very stepper: (K_seg,)."""
+        """Prediction over the OC samples of ``traj``, by the node's stepper vectorised
+        (``CurveRuntime.speeds_ahead``: the same numbers to the last bit): (K_seg,)."""
         if self.variant is Variant.RUN:
             return np.array(traj.seg_U[:, 0], dtype=float)
         rt = self.runtime()
