@@ -20,38 +20,57 @@ import threading
 from collections import defaultdict
 from typing import TYPE_CHECKING
 
-from node.contract import OrdervibError
+from node.contract import (
+    ORDER_CHANNELS,
+    PHASE_CHANNELS,
+    SPEED_CHANNELS,
+    OrdervibError,
+    parse_sensor_key,
+    phase_channel,
+)
+from replay.view_data import TIME_SERIES
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
     from replay.view_data import ViewData
 
-PARTS = ("speed", "measured", "monitor", "switches", "health", "order_phase")  # ViewData's time series
+# the sensor channels a view can draw (its speed, its target and the target's phase); the
+# other channels' payloads are not kept (each refresh decodes everything kept)
+_DRAWN = frozenset((*SPEED_CHANNELS, *ORDER_CHANNELS, *PHASE_CHANNELS))
+
 PLOTS_EVERY_S = 5.0  # the 2-D views are logged again at most this often (each time all of them)
 
 
 class LiveView:
     """Payloads by topic, added from the Zenoh callback thread; ``refresh`` logs what is new.
 
-    Memory: every payload received (a live pass-off run is some 10^5 messages per target).
+    Memory and each refresh's decoding: every payload kept, the monitor topics' and the
+    sensor channels a view draws (``_DRAWN``, and --switch / --target), some 10^5 per
+    channel over a pass-off run.
     """
 
     def __init__(self, bed: str | None = None, target: str | None = None, switch: str | None = None,
                  schedule: Schedule | None = None) -> None:
         self.bed, self.target, self.switch, self.schedule = bed, target, switch, schedule
+        self._asked = {c for c in (switch, target, target and phase_channel(target)) if c}  # kept too
         self._lock = threading.Lock()
         self._by_topic: dict[str, list[bytes]] = defaultdict(list)
         self.received = 0
-        self._logged = dict.fromkeys(PARTS, -math.inf)  # last time logged, per time series
+        self._logged = dict.fromkeys(TIME_SERIES, -math.inf)  # last time logged, per time series
         self.data: ViewData | None = None  # the last refresh's view of everything received
         self.source = "none"
         self._blueprint_sent = False
         self._plots_at = -math.inf  # monotonic time the 2-D views were last logged
 
     def add(self, key: str, payload: bytes) -> None:
-        """One received message (any thread)."""
+        """One received message (any thread); a sensor channel the view cannot draw is only
+        counted (its topic listed: the beds are picked from the topics)."""
+        sensor = parse_sensor_key(key)
+        keep = sensor is None or sensor[1] in _DRAWN or sensor[1] in self._asked
         with self._lock:
-            self._by_topic[key].append(payload)
+            topic = self._by_topic[key]
+            if keep:
+                topic.append(payload)
             self.received += 1
 
     def topics(self) -> list[str]:
@@ -87,7 +106,7 @@ class LiveView:
         if final or time.monotonic() - self._plots_at >= PLOTS_EVERY_S:
             counts.update(log_plots(data, clock))
             self._plots_at = time.monotonic()
-        for part in PARTS:
+        for part in TIME_SERIES:
             series = getattr(new, part)
             if series is not None and len(series.t):
                 self._logged[part] = float(series.t[-1])

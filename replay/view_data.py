@@ -132,6 +132,9 @@ class ViewData:
     order_phase: Series | None = None  # the target's phase channel (degrees), when recorded
 
 
+TIME_SERIES = ("speed", "measured", "monitor", "switches", "health", "order_phase")  # ViewData's
+
+
 def rows_after(data: ViewData, since: dict[str, float]) -> ViewData:
     """``data`` with only the samples and messages later than ``since[part]`` (s since the
     epoch) in each time series part (``speed``, ``measured``, ``monitor``, ``switches``,
@@ -146,8 +149,7 @@ def rows_after(data: ViewData, since: dict[str, float]) -> ViewData:
                                          if isinstance(getattr(x, f.name), np.ndarray)
                                          and getattr(x, f.name).shape[:1] == x.t.shape})
 
-    parts = ("speed", "measured", "monitor", "switches", "health", "order_phase")
-    return dataclasses.replace(data, **{part: cut(part) for part in parts})
+    return dataclasses.replace(data, **{part: cut(part) for part in TIME_SERIES})
 
 
 @dataclass

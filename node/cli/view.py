@@ -73,11 +73,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _schedule_for(args: argparse.Namespace) -> Schedule | None:
-    """--schedule, else REC.schedule.toml beside the recording when there is one."""
+    """--schedule, else REC.schedule.toml beside the recording when there is one (live: --schedule)."""
     from node.contract.schedule import load_schedule
 
     path = args.schedule
     if path is None:
+        if args.recording is None:
+            return None
         root, _ = os.path.splitext(args.recording)
         path = root + ".schedule.toml"
         if not os.path.isfile(path):
@@ -174,8 +176,7 @@ def _live(args: argparse.Namespace) -> tuple[LiveView, dict[str, int]]:
     from node.live.zenoh import open_session, zenoh_config
     from replay.live_view import LiveView
 
-    schedule = load_schedule_arg(args.schedule)
-    view = LiveView(args.bed, args.target, args.switch, schedule)
+    view = LiveView(args.bed, args.target, args.switch, _schedule_for(args))
     session = open_session(zenoh_config(None, [args.connect], args.zenoh_config))
     counts: dict[str, int] = {}
     try:
@@ -229,17 +230,14 @@ def _run_live(args: argparse.Namespace) -> int:
     return 0
 
 
+_SUMMED = ("speed", "monitor", "alarm", "health", "measured")  # log_series's counts: per stretch
+
+
 def _add_counts(counts: dict[str, int], new: dict[str, int] | None) -> None:
     """A refresh's counts into the totals: the time series' samples add up, the 2-D views'
     are of everything received (the last refresh's)."""
     for k, v in (new or {}).items():
-        counts[k] = counts.get(k, 0) + v if k in ("speed", "monitor", "alarm", "health", "measured") else v
-
-
-def load_schedule_arg(path: str | None) -> Schedule | None:
-    from node.contract.schedule import load_schedule
-
-    return None if path is None else load_schedule(path)
+        counts[k] = counts.get(k, 0) + v if k in _SUMMED else v
 
 
 def run(args: argparse.Namespace) -> int:
