@@ -22,7 +22,7 @@ import multiprocessing
 import os
 import queue
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from itertools import islice
@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from node.contract import OrdervibError, is_monitor_key
+from node.contract import FS, OrdervibError, is_monitor_key
 from node.mcap import ReadStats, RecordingWriter, iter_messages_fast
 from node.models.bundle import Bundle, Model
 from node.runtime.core import NodeCore
@@ -267,3 +267,45 @@ def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int
             gc.enable()
     return ReplayReport(inputs=n_in, seconds=time.perf_counter() - t0, truncated=stats.truncated,
                         workers=engine.workers, **rep)
+
+
+@dataclass
+class NodeAlarms:
+    """The node's alarm episodes over recordings, each replayed alone (its first run a cold start).
+
+    episodes: ``EpisodeLog`` dicts {"key", "start", "end", "reason"}; samples: every bed's
+    samples; per_file: (recording, its episodes, its samples) in the order given.
+
+    >>> NodeAlarms([{"key": "k", "start": 0.0, "end": 1.0, "reason": "step"}], 144000).line()
+    'node alarms (ordervib replay): 1 episode(s) in 60.0 min of data = 1.00 per hour; by rule: step 1'
+    """
+
+    episodes: list[dict]
+    samples: int
+    per_file: list[tuple[str, int, int]] = field(default_factory=list)
+
+    @property
+    def hours(self) -> float:
+        return self.samples / FS / 3600.0
+
+    def by_reason(self) -> Counter:
+        return Counter(e["reason"] for e in self.episodes)
+
+    def line(self) -> str:
+        """One line: episodes, data span, rate per hour, episodes by rule."""
+        by_rule = ", ".join(f"{k} {v}" for k, v in sorted(self.by_reason().items())) or "none"
+        rate = len(self.episodes) / self.hours if self.hours else 0.0
+        return (f"node alarms (ordervib replay): {len(self.episodes)} episode(s) in "
+                f"{self.hours * 60:.1f} min of data = {rate:.2f} per hour; by rule: {by_rule}")
+
+
+def node_alarms(recordings: list[str], model: Bundle | Model, workers: int | None = None) -> NodeAlarms:
+    """Replay the node over each recording alone (no output file) and gather its alarm episodes."""
+    out = NodeAlarms([], 0)
+    for rec in recordings:
+        r = replay(rec, model, None, workers)
+        samples = sum(b["samples"] for b in r.beds.values())
+        out.episodes += r.alarm_episodes
+        out.samples += samples
+        out.per_file.append((rec, len(r.alarm_episodes), samples))
+    return out

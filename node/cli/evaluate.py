@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -12,12 +11,11 @@ import numpy as np
 
 from node.cli.outputs import check_output, replacing
 from node.cli.table import print_table
-from node.contract import FS, OrdervibError
+from node.contract import OrdervibError
 
 if TYPE_CHECKING:
     from node.mcap import Run
     from node.models.bundle import Bundle
-    from node.training.dataset import RunArrays
     from node.training.evaluation import SegmentPrediction
 
 log = logging.getLogger(__name__)
@@ -37,6 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from node.cli.train import load_runs
     from node.models.bundle import load_model
+    from replay.offline import node_alarms
 
     model = load_model(args.model)
     if not any(r.model is not None for b in model.bundles for r in b.ocs):
@@ -52,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         if several:
             print(f"target {bundle.target}:")
         preds.append(_table(bundle, runs))
-    print(node_alarms(args.model, args.recordings))
+    print(node_alarms(args.recordings, model).line())
     for bundle, mine, path in zip(model.bundles, preds, pngs):
         if _plot(bundle, mine, path):
             print(f"plot written to {path}")
@@ -61,29 +60,18 @@ def run(args: argparse.Namespace) -> int:
 
 def _table(bundle: Bundle, runs: list[Run]) -> list[SegmentPrediction]:
     """Print the per-OC held-out table of one target's bundle over ``runs``; its predictions."""
-    from node.models.baseline import CharacteristicCurve
-    from node.training.dataset import run_arrays
-    from node.training.evaluation import evaluate
+    from node.training.evaluation import curve_eps, evaluate
 
     evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve,
                             bundle.config)
-    curve = None
+    base_eps = [float("nan")] * len(evals)
     if bundle.curve is not None:
-        curve = CharacteristicCurve()
-        curve.centres_, curve.means_ = bundle.curve
-    sw = bundle.schedule.switch
-    arrays = [run_arrays(r, bundle.target, [sw]) for r in runs]
+        base_eps = curve_eps(bundle.curve, runs, preds, bundle.schedule, bundle.target)
     header = ["OC", "model", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td"]
     rows = []
     hold, base = [], []
-    for e in evals:
+    for e, b in zip(evals, base_eps):
         res = bundle.oc(e.name)
-        b = float("nan")
-        if curve is not None and e.n_segments:
-            mine = [p for p in preds if bundle.schedule.names[p.oc] == e.name]
-            num = sum(float(np.sum((p.measured - curve.predict(_speed(arrays, runs, p))) ** 2)) for p in mine)
-            den = sum(float(np.sum(p.measured ** 2)) for p in mine)
-            b = float(np.sqrt(num / den)) if den else float("nan")
         rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps),
                      _f(res.cv_eps if res else float("nan")), _f(b)])
         if np.isfinite(e.eps):
@@ -94,31 +82,6 @@ def _table(bundle: Bundle, runs: list[Run]) -> list[SegmentPrediction]:
         print(f"mean held-out eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
               f"(characteristic-curve baseline {np.nanmean(base):.3f})")
     return preds
-
-
-def _speed(arrays: list[RunArrays], runs: list[Run], p: SegmentPrediction) -> np.ndarray:
-    """The switch speed (rpm) over the segment of prediction p: (K,)."""
-    r = runs[p.run]
-    k0 = int(np.searchsorted(r.t, p.t[0]))
-    return arrays[p.run].U[k0:k0 + p.t.size, 0]
-
-
-def node_alarms(model: str, recordings: list[str]) -> str:
-    """The node's own alarms over the recordings (``ordervib replay``'s code): one line."""
-    from node.cli.replay import replay_offline
-
-    episodes: list[dict] = []
-    samples = 0
-    for rec in recordings:
-        s = replay_offline(rec, model, None, quiet=True)
-        episodes += s["alarm_episodes"]
-        samples += sum(b["samples"] for b in s["beds"].values())
-    hours = samples / FS / 3600.0
-    rules = Counter(e["reason"] for e in episodes)
-    by_rule = ", ".join(f"{k} {v}" for k, v in sorted(rules.items())) or "none"
-    rate = len(episodes) / hours if hours else 0.0
-    return (f"node alarms (ordervib replay): {len(episodes)} episode(s) in {hours * 60:.1f} min of data "
-            f"= {rate:.2f} per hour; by rule: {by_rule}")
 
 
 def _f(x: float) -> str:

@@ -1,4 +1,4 @@
-"""Fit metrics of section 4.4: eps_td (also pooled over segments), eps_fd (eq. 4.39) and MAC."""
+"""Fit metrics of section 4.4: eps_td (also pooled over segments), eps_fd (eq. 4.39) and MAC; R^2."""
 
 from __future__ import annotations
 
@@ -43,6 +43,25 @@ def pooled_eps(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> float:
     if not np.isfinite(num) or den == 0:
         return float("inf")
     return float(np.sqrt(num / den))
+
+
+def pooled_r2(pairs: Iterable[tuple[np.ndarray, np.ndarray]]) -> float:
+    """Coefficient of determination 1 - sum ||y - yhat||^2 / sum ||y - mean(y)||^2 pooled over
+    segments (y, yhat), the mean over every y; nan without spread, -inf for a non-finite prediction.
+
+    >>> y = np.array([1.0, 2.0, 3.0])
+    >>> pooled_r2([(y, y)]), pooled_r2([(y, np.full(3, 2.0))])
+    (1.0, 0.0)
+    """
+    pairs = list(pairs)
+    if not pairs:
+        return float("nan")
+    mean = float(np.mean(np.concatenate([np.ravel(y) for y, _ in pairs])))
+    num, _ = _error_energy(pairs)
+    _, den = _error_energy([(y - mean, y) for y, _ in pairs])
+    if den == 0:
+        return float("nan")
+    return float(1.0 - num / den) if np.isfinite(num) else float("-inf")
 
 
 def eps_fd(H: np.ndarray, Hhat: np.ndarray) -> float:

@@ -40,6 +40,20 @@ class OCEvaluation:
     samples: int
 
 
+def derived_runs(runs: list[Run], schedule: Schedule, target: str, channels: list[str],
+                 fleet: tuple[np.ndarray, np.ndarray] | None, config: RuntimeConfig) -> list[Run]:
+    """``runs`` with the derived channels among ``channels`` appended as the node derives them:
+    ``run_curve`` (needs the bundle's characteristic curve ``fleet``) and the engine history
+    (``HISTORY_CHANNELS``: ``runs`` are one engine's, see ``with_history``)."""
+    if RUN_CURVE in channels:
+        if fleet is None:
+            raise OrdervibError("the model takes run_curve but has no characteristic curve")
+        runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
+    if any(c in HISTORY_CHANNELS for c in channels):
+        runs = with_history(runs, schedule, config)
+    return runs
+
+
 def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedule,
                      target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
                      config: RuntimeConfig | None = None) -> list[SegmentPrediction]:
@@ -55,12 +69,7 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
     out = []
     hist = int(config.history_s * FS)
     inputs_needed = sorted({c for r in by_oc.values() for c in r.inputs})
-    if RUN_CURVE in inputs_needed:
-        if fleet is None:
-            raise OrdervibError("the model takes run_curve but has no characteristic curve")
-        runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
-    if any(c in HISTORY_CHANNELS for c in inputs_needed):
-        runs = with_history(runs, schedule, config)
+    runs = derived_runs(runs, schedule, target, inputs_needed, fleet, config)
     arrays = [run_arrays(run, target, inputs_needed) for run in runs]
     vectors = [target_vectors(run, target) for run in runs]
     for s in segment_runs(runs, schedule):
@@ -113,4 +122,32 @@ def baseline_eps(train_runs: list[Run], test_runs: list[Run], schedule: Schedule
         pairs = [(te[s.run].y[s.start:s.stop], cc.predict(te[s.run].U[s.start:s.stop, 0]))
                  for s in segs if s.oc == j]
         out.append(pooled_eps(pairs) if pairs else float("nan"))
+    return out
+
+
+def curve_predictions(curve: tuple[np.ndarray, np.ndarray], runs: list[Run],
+                      preds: list[SegmentPrediction], switch: str, target: str) -> list[np.ndarray]:
+    """A bundle's characteristic curve ``(speeds, means)`` over each prediction's segment, at the
+    switch speed the run measured there: one (K,) array per prediction."""
+    cc = CharacteristicCurve()
+    cc.centres_, cc.means_ = curve
+    arrays = [run_arrays(r, target, [switch]) for r in runs]
+    out = []
+    for p in preds:
+        k0 = int(np.searchsorted(runs[p.run].t, p.t[0]))
+        out.append(cc.predict(arrays[p.run].U[k0:k0 + p.t.size, 0]))
+    return out
+
+
+def curve_eps(curve: tuple[np.ndarray, np.ndarray], runs: list[Run], preds: list[SegmentPrediction],
+              schedule: Schedule, target: str) -> list[float]:
+    """Per OC (schedule order) the eps_td of a bundle's characteristic curve over the segments of
+    ``preds`` (the same samples as the model's, see ``curve_predictions``); nan where none."""
+    base = curve_predictions(curve, runs, preds, schedule.switch, target)
+    out = []
+    for j in range(len(schedule.names)):
+        mine = [(p.measured, b) for p, b in zip(preds, base) if p.oc == j]
+        num = sum(float(np.sum((m - b) ** 2)) for m, b in mine)
+        den = sum(float(np.sum(m ** 2)) for m, _ in mine)
+        out.append(float(np.sqrt(num / den)) if den else float("nan"))
     return out
