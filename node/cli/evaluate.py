@@ -89,35 +89,13 @@ def _f(x: float) -> str:
 
 
 def _plot(bundle: Bundle, preds: list[SegmentPrediction], png: Path) -> bool:
-    """Predicted against measured per OC, written to png; False without matplotlib."""
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        log.warning("matplotlib not installed: no plot")
-        return False
-    names = bundle.schedule.names
-    present = sorted({p.oc for p in preds})
-    if not present:
+    """Predicted against measured per OC, written to png; False when no OC was found."""
+    from replay.report.figures import segments_figure
+
+    fig = segments_figure(bundle.schedule.names, preds, bundle.target)
+    if fig is None:
         log.warning("no OC of the model in the recordings: no plot")
         return False
-    cols = 3
-    rows = -(-len(present) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 2.6 * rows), squeeze=False)
-    for ax, oc in zip(axes.ravel(), present):
-        for p in [q for q in preds if q.oc == oc]:
-            t = p.t - p.t[0]
-            line, = ax.plot(t, p.measured, lw=1.0)
-            ax.plot(t, p.predicted, "--", lw=1.0, color=line.get_color())
-        ax.set_title(f"{names[oc]} (solid measured, dashed predicted)", fontsize=9)
-        ax.set_xlabel("s since the OC switch", fontsize=8)
-        ax.set_ylabel(f"{bundle.target} (mm/s)", fontsize=8)
-        ax.tick_params(labelsize=7)
-    for ax in axes.ravel()[len(present):]:
-        ax.axis("off")
-    fig.tight_layout()
     with replacing(str(png)) as tmp:  # an existing plot is replaced only by a complete one
         fig.savefig(tmp, dpi=90, format="png")
-    plt.close(fig)
     return True

@@ -1,0 +1,67 @@
+"""The engineer's report of pass-off runs: the four panels, per target, as one HTML page.
+
+``build_report`` returns the page (``replay.report.document``); ``ordervib report`` checks the
+files and writes it. Each panel has a stable id (``PANELS``) and a heading numbered I-IV;
+with several targets, each panel holds one part per target.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+
+from node import __version__
+from node.models.bundle import Model
+from replay.offline import NodeAlarms, node_alarms
+from replay.report.document import Block, Heading, Panel, render_document
+from replay.report.panels import RunSet, context_panel, parameters_panel, prediction_panel, validation_panel
+
+log = logging.getLogger(__name__)
+
+PANELS: tuple[tuple[str, str], ...] = (
+    ("panel-context", "I. Contextual characteristic curve"),
+    ("panel-parameters", "II. Parameter extraction"),
+    ("panel-validation", "III. Validation"),
+    ("panel-prediction", "IV. Prediction"),
+)
+
+
+def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets: Sequence[str],
+                 model_name: str = "", alarms: NodeAlarms | None = None) -> str:
+    """The report's HTML page of ``runs`` (read from ``recordings``) for ``targets`` of ``model``.
+
+    alarms: the node's alarms over the recordings (default: replayed here, ``node_alarms``).
+    """
+    t0 = time.perf_counter()
+    if alarms is None:
+        log.info("report: replaying the node over %d recording(s) for its alarms", len(recordings))
+        alarms = node_alarms(list(recordings), model)
+    schedule = model.schedule
+    makers: list[Callable[[str], list[Block]]] = [
+        lambda t: context_panel(model[t], runs, schedule, t),
+        lambda t: parameters_panel(model[t], runs, schedule, t),
+        lambda t: validation_panel(model[t], runs, schedule, t, alarms),
+        lambda t: prediction_panel(model[t], runs, schedule, t),
+    ]
+    panels = []
+    for (pid, title), make in zip(PANELS, makers):
+        log.info("report: %s", title)
+        blocks: list[Block] = []
+        for t in targets:
+            if len(targets) > 1:
+                blocks.append(Heading(f"target {t}"))
+            blocks += make(t)
+        panels.append(Panel(pid, title, blocks))
+    meta = [
+        ("model", f"{model_name} ({model.bundles[0].method}; targets {', '.join(model.targets)})"),
+        ("recordings", ", ".join(recordings)),
+        ("runs", f"{len(runs.runs)}: {', '.join(runs.labels)}"),
+        ("schedule", f"{len(schedule.ocs)} OCs on {schedule.switch}: {', '.join(schedule.names)}"),
+        ("targets shown", ", ".join(targets)),
+        ("made by", f"ordervib {__version__}"),
+    ]
+    page = render_document(f"ordervib report: {', '.join(targets)}", panels, meta)
+    log.info("report: %d panels in %.1f s (%.1f MB)", len(panels), time.perf_counter() - t0,
+             len(page) / 1e6)
+    return page

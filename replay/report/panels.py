@@ -1,0 +1,275 @@
+"""The four panels of the engineer's report, each as the blocks of one target.
+
+``context_panel`` (I) and ``prediction_panel`` (IV) show what exists today (the speed-binned
+characteristic curve; the model's prediction of each recorded run against what it measured)
+and are meant to be replaced by the mixture clusters and the prediction for a planned profile;
+``parameters_panel`` (II) and ``validation_panel`` (III) are complete. Every panel function
+takes the target's bundle, the runs, the schedule and the target, and returns its blocks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from node.contract import parse_monitor_key
+from node.contract.schedule import Schedule
+from node.mcap import Run
+from node.models.baseline import CharacteristicCurve
+from node.models.bundle import Bundle
+from node.runtime.history import HISTORY_CHANNELS
+from node.sysid.metrics import pooled_eps, pooled_r2
+from node.training.dataset import Segment, segment_runs
+from node.training.evaluation import curve_predictions, derived_runs, evaluate, predict_segments
+from replay.offline import NodeAlarms
+from replay.report.document import Block, Figure, Heading, Paragraph, Table
+from replay.report.figures import (
+    curve_figure,
+    parallel_figure,
+    run_colours,
+    runs_figure,
+    score_figure,
+    segments_figure,
+)
+
+MAX_EPISODES = 50  # alarm episodes listed one by one; the rest are counted
+R2_FLOOR = -1.0  # R^2 bars below this are cut (a wild OC would flatten the others)
+
+
+@dataclass(frozen=True)
+class RunSet:
+    """The report's runs, in the order read, each with a label (``REC #i``, i from 1 per file).
+
+    >>> RunSet.label("data/engine1_runs.mcap", 0)
+    'engine1_runs #1'
+    """
+
+    runs: list[Run]
+    labels: list[str]
+
+    @staticmethod
+    def label(recording: str, i: int) -> str:
+        """The label of the i-th run (from 0) of ``recording``: its file name without ``.mcap``."""
+        name = recording.replace("\\", "/").rsplit("/", 1)[-1]
+        return f"{name.removesuffix('.mcap')} #{i + 1}"
+
+
+def _f(x: float, digits: int = 3) -> str:
+    return f"{x:.{digits}f}" if np.isfinite(x) else "-"
+
+
+def _g(x: float) -> str:
+    return f"{x:.5g}" if np.isfinite(x) else "-"
+
+
+def fleet_curve(bundle: Bundle, runs: Sequence[Run], switch: str, target: str
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The bundle's characteristic curve (speeds, means); fitted on ``runs`` when it has none."""
+    if bundle.curve is not None:
+        return bundle.curve
+    ok = [r for r in runs if switch in r.channels and target in r.channels]
+    cc = CharacteristicCurve().fit(np.concatenate([r.column(switch) for r in ok]),
+                                   np.concatenate([r.column(target) for r in ok]))
+    return cc.centres_, cc.means_
+
+
+def _plateaus(runs: Sequence[Run], segs: list[Segment], target: str) -> dict[tuple[int, int], float]:
+    """The target's mean over each segment's plateau (steady samples), by (run, OC)."""
+    out = {}
+    for s in segs:
+        if s.steady_start < s.stop and target in runs[s.run].channels:
+            y = runs[s.run].column(target)[s.steady_start:s.stop]
+            if np.isfinite(y).any():
+                out[(s.run, s.oc)] = float(np.nanmean(y))
+    return out
+
+
+def context_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
+    """I (for now): the characteristic curve with every run on it, and each OC's plateau levels.
+
+    To be replaced by the mixture clusters on the temperatures and their Gibbs posteriors."""
+    sw = schedule.switch
+    curve = fleet_curve(bundle, runs.runs, sw, target)
+    fig = curve_figure(runs.runs, runs.labels, sw, target, curve,
+                       [(oc.name, oc.speed) for oc in schedule.ocs])
+    level = _plateaus(runs.runs, segment_runs(runs.runs, schedule), target)
+    rows = []
+    for j, oc in enumerate(schedule.ocs):
+        vals = np.array([v for (_, o), v in level.items() if o == j])
+        at = float(np.interp(oc.speed, curve[0], curve[1]))
+        rows.append([oc.name, f"{oc.speed:.0f}", _f(at), str(vals.size),
+                     *(_f(f(vals)) if vals.size else "-" for f in (np.mean, np.std, np.min, np.max))])
+    src = "the model's" if bundle.curve is not None else "fitted on these runs (the model has none)"
+    return [
+        Figure.of(fig, f"{target} against {sw}, one line per run; black: the characteristic curve ({src}); "
+                  "dotted: the OCs' nominal speeds"),
+        Table(["OC", f"{sw} (rpm)", "curve (mm/s)", "runs", "plateau mean", "spread (std)", "min", "max"],
+              rows, f"{target} on each OC's plateau across the runs (mm/s)"),
+        Paragraph("mixture clusters: pending (the Dirichlet-process mixture on the temperatures and "
+                  "the Gibbs posteriors of each cluster's mean and spread come here)", note=True),
+    ]
+
+
+def _oc_parameters(bundle: Bundle, runs: list[Run], schedule: Schedule, target: str
+                   ) -> list[tuple[str, list[str], list[str], np.ndarray]]:
+    """Per OC with a model: (OC name, its inputs, axis names, values (runs, axes)): each input at
+    the OC switch and its plateau mean, then the engine-history parameters at the switch (NaN
+    where a run does not reach the OC)."""
+    inputs = sorted({c for r in bundle.ocs if r.model is not None for c in r.inputs})
+    full = derived_runs(runs, schedule, target, [*inputs, *HISTORY_CHANNELS], bundle.curve,
+                        bundle.config)
+    segs = segment_runs(full, schedule)
+    out = []
+    for res in bundle.ocs:
+        if res.model is None:
+            continue
+        j = schedule.index(res.name)
+        hist = [h for h in HISTORY_CHANNELS if h not in res.inputs]
+        names = [n for c in res.inputs for n in (f"{c} at switch", f"{c} plateau")]
+        names += [f"{h} at switch" for h in hist]
+        values = np.full((len(runs), len(names)), np.nan)
+        for s in (s for s in segs if s.oc == j):
+            run = full[s.run]
+            row = []
+            for c in res.inputs:
+                x = run.column(c)
+                plateau = x[s.steady_start:s.stop]
+                row += [x[s.start], float(np.nanmean(plateau)) if np.isfinite(plateau).any() else np.nan]
+            row += [run.column(h)[s.start] for h in hist]
+            values[s.run] = row  # a run's first segment of this OC (a second visit overwrites)
+        out.append((res.name, res.inputs, names, values))
+    return out
+
+
+def parameters_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
+    """II: per OC, the model's inputs for every run (at the OC switch and their plateau means)
+    and the engine-history parameters at the switch, as parallel coordinates and tables."""
+    params = _oc_parameters(bundle, runs.runs, schedule, target)
+    if not params:
+        return [Paragraph(f"the model of {target} has no trained OC: no parameters to show", note=True)]
+    fig = parallel_figure([(f"{n} ({target})", names, v) for n, _, names, v in params], runs.labels)
+    blocks: list[Block] = []
+    if fig is not None:
+        blocks.append(Figure.of(fig, "Per OC, one line per run (colour as in the other panels): each "
+                                "axis scaled to the runs' range, its minimum and maximum at its ends. "
+                                "History: hist_energy rpm min, hist_rate rpm, hist_shutdown h, "
+                                "hist_thermal degC (appendix A.2.5)."))
+    for name, inputs, names, values in params:
+        rows = [[label, *map(_g, row)] for label, row in zip(runs.labels, values)
+                if np.isfinite(row).any()]
+        blocks.append(Table(["run", *names], rows, f"{name}: inputs {', '.join(inputs)}"))
+    return blocks
+
+
+def _locate(runs: Sequence[Run], segs: list[Segment], names: Sequence[str], bed: str, t: float
+            ) -> tuple[int | None, float, str]:
+    """The run of bed ``bed`` holding time t (s since the epoch), the seconds into it, its OC there."""
+    for i, run in enumerate(runs):
+        if run.bed == bed and run.t.size and run.t[0] - 1.0 <= t <= run.t[-1] + 1.0:
+            k = int(np.searchsorted(run.t, t))
+            oc = next((names[s.oc] for s in segs if s.run == i and s.start <= k < s.stop), "-")
+            return i, t - float(run.t[0]), oc
+    return None, float("nan"), "-"
+
+
+def _alarm_blocks(alarms: NodeAlarms, runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
+    """The node's alarm episodes on ``target``: a summary line, by reason, one by one."""
+    mine = [e for e in alarms.episodes if (parse_monitor_key(e["key"]) or ("", ""))[1] == target]
+    hours = alarms.hours
+    rate = len(mine) / hours if hours else 0.0
+    reasons: dict[str, int] = {}
+    for e in mine:
+        reasons[str(e["reason"])] = reasons.get(str(e["reason"]), 0) + 1
+    blocks: list[Block] = [
+        Heading("Alarms of the node", 4),
+        Paragraph("The node replayed offline over each recording "
+                  f"({', '.join(r for r, _, _ in alarms.per_file)}; "
+                  f"each from a cold engine): {len(mine)} alarm episode(s) on {target} in "
+                  f"{hours * 60:.1f} min of data, {rate:.2f} per hour; by reason: "
+                  + (", ".join(f"{k} {v}" for k, v in sorted(reasons.items())) or "none") + "."),
+    ]
+    if mine:
+        segs = segment_runs(runs.runs, schedule)
+        rows = []
+        for e in mine[:MAX_EPISODES]:
+            bed = (parse_monitor_key(e["key"]) or ("", ""))[0]
+            i, into, oc = _locate(runs.runs, segs, schedule.names, bed, float(e["start"]))
+            rows.append([runs.labels[i] if i is not None else bed, oc, _f(into, 1),
+                         _f(float(e["end"]) - float(e["start"]), 1), str(e["reason"])])
+        more = f" (the first {MAX_EPISODES} of {len(mine)})" if len(mine) > MAX_EPISODES else ""
+        blocks.append(Table(["run", "OC", "start (s into the run)", "duration (s)", "reason"], rows,
+                            f"alarm episodes on {target}{more}"))
+    return blocks
+
+
+def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str,
+                     alarms: NodeAlarms) -> list[Block]:
+    """III: per OC, held-out eps_td and R^2 of the model beside the characteristic curve's, the
+    measured and predicted segments of every run, and the node's alarms with their reasons."""
+    evals, preds = evaluate(bundle.ocs, runs.runs, schedule, target, bundle.curve, bundle.config)
+    curve = fleet_curve(bundle, runs.runs, schedule.switch, target)
+    base = curve_predictions(curve, runs.runs, preds, schedule.switch, target)
+    names = schedule.names
+    rows, m_eps, c_eps, m_r2, c_r2 = [], [], [], [], []
+    for j, e in enumerate(evals):
+        res = bundle.oc(e.name)
+        pairs = [(p.measured, p.predicted) for p in preds if p.oc == j]
+        curve_pairs = [(p.measured, b) for p, b in zip(preds, base) if p.oc == j]
+        r2 = pooled_r2(pairs) if pairs else float("nan")
+        ce = pooled_eps(curve_pairs) if curve_pairs else float("nan")
+        cr2 = pooled_r2(curve_pairs) if curve_pairs else float("nan")
+        m_eps.append(e.eps)
+        c_eps.append(ce)
+        m_r2.append(r2)
+        c_r2.append(cr2)
+        rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps), _f(r2), _f(ce), _f(cr2),
+                     _f(res.cv_eps if res else float("nan")), str(e.alarm_samples)])
+    blocks: list[Block] = [
+        Figure.of(score_figure(names, [("held-out eps_td", m_eps, c_eps, None),
+                                     ("R\u00b2", m_r2, c_r2, R2_FLOOR)]),
+                  f"{target}: per OC, the model (blue) and the characteristic curve (grey) over the "
+                  "same samples: relative error eps_td (lower is better) and R\u00b2 (1 is a perfect fit; "
+                  f"below {R2_FLOOR:g} cut, its value written)"),
+        Table(["OC", "model", "segments", "eps_td", "R\u00b2", "curve eps_td", "curve R\u00b2", "CV eps_td",
+               "alarm samples"], rows,
+              f"{target}: every run's OC segments, pooled (free run from the OC switch, seeded "
+              "from the measured past, as the node runs it)"),
+    ]
+    seg_fig = segments_figure(names, preds, target, run_colours(len(runs.runs)))
+    if seg_fig is not None:
+        blocks.append(Figure.of(seg_fig, f"{target} measured (solid) and predicted (dashed) per OC, "
+                                "a colour per run"))
+    else:
+        blocks.append(Paragraph(f"no OC of the model of {target} was found in these runs", note=True))
+    return blocks + _alarm_blocks(alarms, runs, schedule, target)
+
+
+def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
+    """IV (for now): the model's prediction of each recorded run, from its own profile and history,
+    against what it measured; eps_td per OC and run.
+
+    To be replaced by the prediction for a planned profile and a stated engine history."""
+    preds = predict_segments(bundle.ocs, runs.runs, schedule, target, bundle.curve, bundle.config)
+    blocks: list[Block] = []
+    fig = runs_figure(runs.runs, runs.labels, preds, schedule.switch, target)
+    if fig is not None:
+        blocks.append(Figure.of(fig, f"Per run: {target} measured (grey) and predicted for each OC "
+                                f"(colour), {schedule.switch} (orange, right axis)"))
+    present = sorted({p.oc for p in preds})
+    rows = []
+    for i, label in enumerate(runs.labels):
+        mine = [p for p in preds if p.run == i]
+        cells = []
+        for j in present:
+            pairs = [(p.measured, p.predicted) for p in mine if p.oc == j]
+            cells.append(_f(pooled_eps(pairs)) if pairs else "-")
+        total = pooled_eps([(p.measured, p.predicted) for p in mine]) if mine else float("nan")
+        rows.append([label, *cells, _f(total)])
+    blocks.append(Table(["run", *(schedule.names[j] for j in present), "all OCs"], rows,
+                        f"{target}: eps_td of the prediction per OC and run (all OCs: the run's OCs pooled)"))
+    blocks.append(Paragraph("prediction for a planned profile and engine history: pending (the "
+                            "expected amplitude for a planned RPM profile, with the history "
+                            "parameters of appendix A.2.5, comes here)", note=True))
+    return blocks

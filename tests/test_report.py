@@ -1,0 +1,147 @@
+"""``ordervib report``: the committed recordings' report has its four panels, renders in a
+browser, and bad inputs leave no file."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from html.parser import HTMLParser
+from pathlib import Path
+
+import pytest
+from conftest import small_campaign
+
+from node.cli import main
+from replay.report.build import PANELS
+
+ROOT = Path(__file__).resolve().parents[1]
+RECORDINGS = [str(ROOT / "recordings" / "engine1_runs.mcap"), str(ROOT / "recordings" / "engine1_fault.mcap")]
+
+
+class _Panels(HTMLParser):
+    """Sections by id: their h2 heading, their image count; every src and href seen."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.sections: dict[str, dict] = {}
+        self.current: str | None = None
+        self.in_h2 = False
+        self.links: list[str] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        a = dict(attrs)
+        self.links += [v for k, v in attrs if k in ("src", "href") and v is not None]
+        if tag == "section":
+            self.current = a.get("id")
+            self.sections[self.current or ""] = {"title": "", "images": 0}
+        elif tag == "h2" and self.current:
+            self.in_h2 = True
+        elif tag == "img" and self.current and (a.get("src") or "").startswith("data:image/png;base64,"):
+            self.sections[self.current]["images"] += 1
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag == "h2":
+            self.in_h2 = False
+        elif tag == "section":
+            self.current = None
+
+    def handle_data(self, data: str) -> None:
+        if self.in_h2 and self.current:
+            self.sections[self.current]["title"] += data
+
+
+def _panels(html: str) -> _Panels:
+    p = _Panels()
+    p.feed(html)
+    return p
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A small model (conftest's campaign: Lasso of yB on nB, tF) and the report of the committed
+    recordings with it."""
+    d = small_campaign(tmp_path_factory.mktemp("report"), 5)
+    out = d / "report.html"
+    assert main(["report", *RECORDINGS, "--model", str(d / "m"), "--out", str(out), "--quiet"]) == 0
+    return d, out
+
+
+def test_report_has_four_panels_each_with_a_figure_and_nothing_external(made: tuple[Path, Path]) -> None:
+    _, out = made
+    html = out.read_text(encoding="utf-8")
+    p = _panels(html)
+    assert list(p.sections) == [pid for pid, _ in PANELS]
+    for (pid, title), numeral in zip(PANELS, ("I.", "II.", "III.", "IV.")):
+        assert p.sections[pid]["title"] == title and title.startswith(numeral + " ")
+        assert p.sections[pid]["images"] >= 1, pid
+    assert all(link.startswith(("data:", "#")) for link in p.links)  # no server, no network
+    assert "http://" not in html and "https://" not in html and "<script" not in html
+    assert "engine1_fault #1" in html and "OC10" in html  # the runs and OCs are named
+    assert "mixture clusters: pending" in html  # panel I's placeholder, until it is wired in
+
+
+def test_report_renders_in_headless_chromium(made: tuple[Path, Path]) -> None:
+    chromium = shutil.which("chromium")
+    if chromium is None:
+        pytest.skip("no chromium on this machine")
+    d, out = made
+    base = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+            f"--user-data-dir={d / 'chromium'}"]
+    dom = subprocess.run([*base, "--dump-dom", out.as_uri()], capture_output=True, text=True,
+                         timeout=60, check=True).stdout
+    p = _panels(dom)
+    assert [pid for pid in p.sections] == [pid for pid, _ in PANELS]
+    assert all(s["images"] >= 1 for s in p.sections.values())
+    shot = d / "shot.png"
+    subprocess.run([*base, "--window-size=1200,1600", f"--screenshot={shot}", out.as_uri()],
+                   capture_output=True, timeout=60, check=True)
+    from PIL import Image
+    with Image.open(shot) as im:
+        assert im.size == (1200, 1600)
+        colours = im.convert("RGB").resize((120, 160)).getcolors(maxcolors=120 * 160)
+    assert colours is not None and len(colours) > 20  # text and plots, not a blank page
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], argv: list[str], message: str) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("case, message", [
+    ("missing recording", "no-such.mcap"),
+    ("not a model", "not an ordervib model bundle"),
+    ("missing folder", "output directory does not exist"),
+    ("wrong suffix", "must name a .html file"),
+    ("unknown target", "the model's targets are yB"),
+])
+def test_bad_inputs_are_one_line_and_leave_no_file(made: tuple[Path, Path], tmp_path: Path, case: str,
+                                                   message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    d, _ = made
+    model, out, recs, extra = str(d / "m"), tmp_path / "r.html", list(RECORDINGS), []
+    if case == "missing recording":
+        recs.append(str(tmp_path / "no-such.mcap"))
+    elif case == "not a model":
+        (tmp_path / "folder").mkdir()
+        (tmp_path / "folder" / "notes.txt").write_text("x")
+        model = str(tmp_path / "folder")
+    elif case == "missing folder":
+        out = tmp_path / "nowhere" / "r.html"
+    elif case == "wrong suffix":
+        out = tmp_path / "r.pdf"
+    else:
+        extra = ["--target", "yA"]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    _one_line_error(capsys, ["report", *recs, "--model", model, "--out", str(out), *extra], message)
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_output_that_is_an_input_is_refused_and_left_as_it_was(made: tuple[Path, Path], tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    d, _ = made
+    rec = tmp_path / "rec.html"  # a recording under a name the report could take
+    shutil.copy(d / "test.mcap", rec)
+    data = rec.read_bytes()
+    _one_line_error(capsys, ["report", str(rec), "--model", str(d / "m"), "--out", str(rec)],
+                    "must differ from the input")
+    assert rec.read_bytes() == data and sorted(p.name for p in tmp_path.iterdir()) == ["rec.html"]
