@@ -145,3 +145,29 @@ def test_output_that_is_an_input_is_refused_and_left_as_it_was(made: tuple[Path,
     _one_line_error(capsys, ["report", str(rec), "--model", str(d / "m"), "--out", str(rec)],
                     "must differ from the input")
     assert rec.read_bytes() == data and sorted(p.name for p in tmp_path.iterdir()) == ["rec.html"]
+
+
+def test_several_targets_give_a_part_per_target_in_every_panel(made: tuple[Path, Path]) -> None:
+    """A format-3 model of two targets (here the same per-OC models, named for yA and yB): each
+    panel holds a part per target, in the order asked."""
+    import dataclasses
+
+    from node.cli.train import load_runs
+    from node.models.bundle import Model, load_bundle
+    from replay.offline import NodeAlarms
+    from replay.report.build import build_report
+    from replay.report.panels import RunSet
+
+    d, _ = made
+    b = load_bundle(d / "m")
+    model = Model((dataclasses.replace(b, target="yA"), b))
+    runs = load_runs([RECORDINGS[1]], quiet=True)
+    page = build_report(model, RunSet(runs, [RunSet.label(RECORDINGS[1], 0)]), RECORDINGS[1:],
+                        ["yB", "yA"], "m", alarms=NodeAlarms([], 0))
+    p = _panels(page)
+    assert list(p.sections) == [pid for pid, _ in PANELS]
+    for pid, _ in PANELS:
+        body = page[page.index(f'<section id="{pid}">'):]
+        body = body[:body.index("</section>")]
+        assert 0 < body.index("<h3>target yB</h3>") < body.index("<h3>target yA</h3>")
+        assert p.sections[pid]["images"] >= 2

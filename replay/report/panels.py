@@ -9,6 +9,7 @@ takes the target's bundle, the runs, the schedule and the target, and returns it
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -179,9 +180,7 @@ def _alarm_blocks(alarms: NodeAlarms, runs: RunSet, schedule: Schedule, target: 
     mine = [e for e in alarms.episodes if (parse_monitor_key(e["key"]) or ("", ""))[1] == target]
     hours = alarms.hours
     rate = len(mine) / hours if hours else 0.0
-    reasons: dict[str, int] = {}
-    for e in mine:
-        reasons[str(e["reason"])] = reasons.get(str(e["reason"]), 0) + 1
+    reasons = Counter(str(e["reason"]) for e in mine)
     blocks: list[Block] = [
         Heading("Alarms of the node", 4),
         Paragraph("The node replayed offline over each recording "
@@ -240,7 +239,7 @@ def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     seg_fig = segments_figure(names, preds, target, run_colours(len(runs.runs)))
     if seg_fig is not None:
         blocks.append(Figure.of(seg_fig, f"{target} measured (solid) and predicted (dashed) per OC, "
-                                "a colour per run"))
+                                "from each OC switch; a colour per run, as in panels I and II"))
     else:
         blocks.append(Paragraph(f"no OC of the model of {target} was found in these runs", note=True))
     return blocks + _alarm_blocks(alarms, runs, schedule, target)
