@@ -57,6 +57,7 @@ class ReplayReport:
     alarm_episodes: list[dict] = field(default_factory=list)
     beds: dict[str, dict[str, Any]] = field(default_factory=dict)
     workers: int = 0
+    engines: dict = field(default_factory=dict)  # each bed's engine history at the end (EngineState)
 
 
 class _Logic:
@@ -78,7 +79,7 @@ class _Logic:
         final = self._outputs(self.core.finish())
         c = self.core
         report = {"published": c.published, "malformed": c.malformed, "foreign": c.foreign,
-                  "alarm_episodes": c.alarm_log.episodes,
+                  "alarm_episodes": c.alarm_log.episodes, "engines": c.engine_states(),
                   "beds": {name: {"received": b.received, "malformed": b.malformed,
                                   "samples": b.aligner.stats.samples, "alarm_samples": b.alarm_samples,
                                   "late": b.aligner.stats.late, "duplicates": b.aligner.stats.duplicates,
@@ -271,10 +272,11 @@ def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int
 
 @dataclass
 class NodeAlarms:
-    """The node's alarm episodes over recordings, each replayed alone (its first run a cold start).
+    """The node's alarm episodes over recordings (``node_alarms``).
 
     episodes: ``EpisodeLog`` dicts {"key", "start", "end", "reason"}; samples: every bed's
-    samples; per_file: (recording, its episodes, its samples) in the order given.
+    samples; per_file: (recording, its episodes, its samples) in the order given; carried: the
+    engine history went on from one recording to the next (else each started cold).
 
     >>> NodeAlarms([{"key": "k", "start": 0.0, "end": 1.0, "reason": "step"}], 144000).line()
     'node alarms (ordervib replay): 1 episode(s) in 60.0 min of data = 1.00 per hour; by rule: step 1'
@@ -283,6 +285,7 @@ class NodeAlarms:
     episodes: list[dict]
     samples: int
     per_file: list[tuple[str, int, int]] = field(default_factory=list)
+    carried: bool = False
 
     @property
     def hours(self) -> float:
@@ -299,11 +302,18 @@ class NodeAlarms:
                 f"{self.hours * 60:.1f} min of data = {rate:.2f} per hour; by rule: {by_rule}")
 
 
-def node_alarms(recordings: list[str], model: Bundle | Model, workers: int | None = None) -> NodeAlarms:
-    """Replay the node over each recording alone (no output file) and gather its alarm episodes."""
-    out = NodeAlarms([], 0)
+def node_alarms(recordings: list[str], model: Bundle | Model, workers: int | None = None,
+                carry: bool = False) -> NodeAlarms:
+    """Replay the node over each recording (no output file) and gather its alarm episodes.
+
+    carry: each recording starts with the engine histories the previous one ended with (one
+    engine's recordings in time order, as a live node's state file carries them); else each
+    starts from a cold engine."""
+    out = NodeAlarms([], 0, carried=carry)
+    engines: dict | None = None
     for rec in recordings:
-        r = replay(rec, model, None, workers)
+        r = replay(rec, model, None, workers, engines if carry else None)
+        engines = r.engines
         samples = sum(b["samples"] for b in r.beds.values())
         out.episodes += r.alarm_episodes
         out.samples += samples

@@ -171,3 +171,43 @@ def test_several_targets_give_a_part_per_target_in_every_panel(made: tuple[Path,
         body = body[:body.index("</section>")]
         assert 0 < body.index("<h3>target yB</h3>") < body.index("<h3>target yA</h3>")
         assert p.sections[pid]["images"] >= 2
+
+
+def test_the_node_carries_the_engine_history_from_one_recording_to_the_next(made: tuple[Path, Path],
+                                                                           tmp_path: Path) -> None:
+    """Panels II-IV derive one engine's history through all the recordings; the alarms' replay
+    (``node_alarms(carry=True)``) hands each recording the engine state the previous one ended
+    with, so the node predicts what the report's evaluation predicts (a cold start would not)."""
+    import json
+
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from node.cli.train import load_runs
+    from node.contract import monitor_key
+    from node.models.bundle import load_model
+    from node.training.evaluation import predict_segments
+    from replay.offline import node_alarms, replay
+
+    d, _ = made
+    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"), "--out",
+                 str(tmp_path / "mh"), "--method", "lasso", "--inputs", "nB,hist_shutdown,hist_energy",
+                 "--no-curve-candidates", "--history", "--quiet", "--workers", "1"]) == 0
+    model = load_model(tmp_path / "mh")
+    b = model.bundles[0]
+    recs = [str(d / "train.mcap"), str(d / "test.mcap")]
+    runs = load_runs(recs, quiet=True)
+    want = [p for p in predict_segments(b.ocs, runs, b.schedule, b.target, b.curve, b.config)
+            if p.run == len(runs) - 1]
+    first = replay(recs[0], model, None, workers=0)
+    gap = {}
+    for engines in (None, first.engines):
+        out = tmp_path / "node.mcap"
+        replay(recs[1], model, str(out), workers=0, engines=engines)
+        with open(out, "rb") as f:
+            node = {round(json.loads(m.data)["t"], 6): json.loads(m.data)["predicted"]
+                    for _, _, m in make_reader(f).iter_messages(topics=[monitor_key(runs[-1].bed, b.target)])}
+        got = np.array([node[round(float(t), 6)] for p in want for t in p.t], float)
+        gap[engines is None] = float(np.max(np.abs(got - np.concatenate([p.predicted for p in want]))))
+    assert gap[False] < 1e-9 < gap[True]  # carried: the report's numbers; cold: others
+    assert node_alarms(recs, model, workers=0, carry=True).carried

@@ -31,12 +31,13 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
                  model_name: str = "", alarms: NodeAlarms | None = None) -> str:
     """The report's HTML page of ``runs`` (read from ``recordings``) for ``targets`` of ``model``.
 
-    alarms: the node's alarms over the recordings (default: replayed here, ``node_alarms``).
+    alarms: the node's alarms over the recordings (default: replayed here, ``node_alarms``, the
+    engine history carried through the recordings in the order given, as panels II-IV derive it).
     """
     t0 = time.perf_counter()
     if alarms is None:
         log.info("report: replaying the node over %d recording(s) for its alarms", len(recordings))
-        alarms = node_alarms(list(recordings), model)
+        alarms = node_alarms(list(recordings), model, carry=True)
     schedule = model.schedule
     makers: list[Callable[[str], list[Block]]] = [
         lambda t: context_panel(model[t], runs, schedule, t),

@@ -183,9 +183,11 @@ def _alarm_blocks(alarms: NodeAlarms, runs: RunSet, schedule: Schedule, target: 
     reasons = Counter(str(e["reason"]) for e in mine)
     blocks: list[Block] = [
         Heading("Alarms of the node", 4),
-        Paragraph("The node replayed offline over each recording "
+        Paragraph("The node replayed offline over the recordings "
                   f"({', '.join(r for r, _, _ in alarms.per_file)}; "
-                  f"each from a cold engine): {len(mine)} alarm episode(s) on {target} in "
+                  + ("one engine's in this order, its history carried from one to the next"
+                     if alarms.carried else "each from a cold engine")
+                  + f"): {len(mine)} alarm episode(s) on {target} in "
                   f"{hours * 60:.1f} min of data, {rate:.2f} per hour; by reason: "
                   + (", ".join(f"{k} {v}" for k, v in sorted(reasons.items())) or "none") + "."),
     ]
