@@ -122,18 +122,20 @@ def score_figure(names: Sequence[str],
     fig, axes = _grid(len(scores), 2, 5.6, 3.2)
     x = np.arange(len(names))
     for ax, (metric, model, curve, floor) in zip(axes, scores):
+        any_cut = False
         for dx, values, label, colour in ((-0.2, model, "model", "tab:blue"),
                                           (0.2, curve, "characteristic curve", "tab:grey")):
             v = np.asarray(values, float)
             cut = np.zeros(v.shape, bool) if floor is None else v < floor
             shown = np.where(cut, floor if floor is not None else 0.0, v)
             bars = ax.bar(x + dx, shown, 0.4, label=label, color=colour)
+            any_cut |= bool(cut.any())
             for bar, value, c in zip(bars, v, cut):
                 if c:
                     ax.text(bar.get_x() + bar.get_width() / 2, float(floor or 0.0), f"{value:.3g}",
                             rotation=90, ha="center", va="bottom", fontsize=6,
                             bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5})
-        if floor is not None:
+        if any_cut:
             ax.set_ylim(bottom=floor)
         ax.set_xticks(x, list(names), rotation=45, ha="right", fontsize=7)
         ax.set_ylabel(metric)

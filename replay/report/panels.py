@@ -139,7 +139,7 @@ def _oc_parameters(bundle: Bundle, runs: list[Run], schedule: Schedule, target: 
                 plateau = x[s.steady_start:s.stop]
                 row += [x[s.start], float(np.nanmean(plateau)) if np.isfinite(plateau).any() else np.nan]
             row += [run.column(h)[s.start] for h in hist]
-            values[s.run] = row  # a run's first segment of this OC (a second visit overwrites)
+            values[s.run] = row  # a run that visits the OC twice: its last visit
         out.append((res.name, res.inputs, names, values))
     return out
 
