@@ -156,3 +156,28 @@ def test_the_node_runs_a_parametric_model_as_training_predicts_it(tmp_path):
         unknown = Trajectory(t.y, np.column_stack([t.U[:, 0], np.full(len(t.y), np.nan)]), t.start)
         rms, rms_mean = (float(np.sqrt(np.mean((model.predict(x) - t.seg_y) ** 2))) for x in (t, unknown))
         assert rms < 0.5 * rms_mean
+
+
+def test_two_parameters_pick_the_model_by_both():
+    """The time constant set by two history parameters: a = 0.90 + 0.05 p1 + 0.03 p2; the
+    least-squares plane through six runs recovers it between them; the stepper follows."""
+    rng = np.random.default_rng(9)
+    grid = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.0), (0.0, 0.5)]
+    trajs = []
+    for p1, p2 in grid:
+        speed = 3000.0 + np.repeat(rng.uniform(-300.0, 300.0, 21), 60)[:1200]
+        a = 0.90 + 0.05 * p1 + 0.03 * p2
+        y = np.zeros(speed.size)
+        for k in range(speed.size - 1):
+            y[k + 1] = a * y[k] + (1.0 - a) * (speed[k] - 3000.0) / 1000.0
+        X = np.column_stack([speed, np.full(speed.size, p1), np.full(speed.size, p2)])
+        trajs.append(Trajectory(y + rng.normal(0.0, 1e-4, y.size), X, HIST))
+    params = {**PROM_CANDIDATES[0], "param": "hist_thermal,hist_energy", "weights": "regress"}
+    m = ParametricOCModel.fit(ParametricOCModel.method, params, trajs)
+    assert m.rom.params_.shape == (6, 2)
+    assert float(m.at([0.5, 0.5]).poles().real.max()) == pytest.approx(0.94, abs=3e-3)
+    assert float(m.at([1.0, 0.0]).poles().real.max()) == pytest.approx(0.95, abs=3e-3)
+    t = trajs[3]
+    rt = model_from_arrays("prom", params, m.arrays()).runtime()
+    rt.start(t.y[:t.start], t.U[:t.start])
+    np.testing.assert_allclose([rt.step(u) for u in t.seg_U], m.predict(t), rtol=1e-10, atol=1e-12)

@@ -4,10 +4,11 @@ pole-residue form (:class:`node.sysid.ParametricROM`) to the current run's value
 starts.
 
 Inputs (``Trajectory.U`` columns, the node's ``inputs`` of the OC): the switch speed, then the
-history parameter (``params["param"]``, a channel of ``node.runtime.history``). The model is
-driven by the standardised speed and the constant 1; the parameter is read once, at the
-switch (the last sample before the OC), and picks the model. Where it is unknown (no past,
-NaN) the samples' models are weighted equally. The state is fitted on the last
+history parameter(s) (``params["param"]``: channels of ``node.runtime.history``, one or
+several joined by commas; :func:`param_channels`). The model is driven by the standardised
+speed and the constant 1; the parameters are read once, at the switch (the last sample before
+the OC), and pick the model. Where one is unknown (no past, NaN) the samples' models are
+weighted equally. The state is fitted on the last
 ``params["seed"]`` samples of measured past around the model's equilibrium there.
 """
 
@@ -74,9 +75,19 @@ def _segment_model(levels: int, rcond: float, t: Trajectory) -> StateSpace:
     return ss
 
 
-def _switch_value(U_hist: np.ndarray) -> float:
-    """The parameter at the switch: the last past sample's second input (NaN: unknown)."""
-    return float(U_hist[-1, 1]) if len(U_hist) else math.nan
+def param_channels(params: Mapping) -> list[str]:
+    """The history channels a parametric model is parametrised by (its inputs after the speed).
+
+    >>> param_channels({"param": "hist_thermal,hist_energy"})
+    ['hist_thermal', 'hist_energy']
+    """
+    return str(params["param"]).split(",")
+
+
+def _switch_values(U: np.ndarray, start: int) -> np.ndarray:
+    """The parameters at the switch (q,): the inputs after the speed at the last sample before
+    ``start`` (NaN: unknown, no past)."""
+    return np.asarray(U[start - 1, 1:], float) if start > 0 else np.full(U.shape[1] - 1, math.nan)
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,7 +95,7 @@ class ParametricOCModel:
     """A library of per-segment WDMD models interpolated to the run's history parameter.
 
     Attributes:
-        params: levels (WDMD), param (the history channel), seed (samples of past the state
+        params: levels (WDMD), param (the history channel(s)), seed (samples of past the state
             is fitted on), and the ROM's weights, pairs, real, scheme.
         scaling: the speed's standardisation (one column; ``SPEED_SCALING``).
         rom: the fitted (or restored) :class:`ParametricROM` over the segments.
@@ -123,20 +134,21 @@ class ParametricOCModel:
         values repeat for interpolating weights, or no mode matches)."""
         if len(trajs) < 2:
             raise ValueError("a parametric model needs at least 2 segments")
-        values = np.array([t.U[t.start - 1, 1] if t.start > 0 else math.nan for t in trajs])
+        values = np.array([_switch_values(t.U, t.start) for t in trajs])
         if not np.isfinite(values).all():
-            raise ValueError("the parameter is unknown at some segment's switch")
+            raise ValueError("a parameter is unknown at some segment's switch")
         rom = _rom(params)
-        if rom.weights in ("linear", "lagrange") and np.unique(values).size < values.size:
+        if rom.weights in ("linear", "lagrange") and np.unique(values, axis=0).shape[0] < len(values):
             raise ValueError("repeated parameter values: no interpolation through them")
         models = [_segment_model(int(params["levels"]), float(params.get("rcond", 1e-8)), t) for t in trajs]
         with np.errstate(all="ignore"):
             rom.fit_models(models, values)
         return cls(dict(params), SPEED_SCALING, rom)
 
-    def at(self, value: float) -> StateSpace:
-        """The state space at parameter ``value`` (inputs: standardised speed, 1)."""
-        w = self.rom.weights_at(value) if math.isfinite(value) else \
+    def at(self, value: float | Sequence[float] | np.ndarray) -> StateSpace:
+        """The state space at parameter value(s) (q,) (inputs: standardised speed, 1)."""
+        x = np.asarray(value, float).reshape(-1)
+        w = self.rom.weights_at(x) if np.isfinite(x).all() else \
             np.full(len(self.rom.params_), 1.0 / len(self.rom.params_))
         return self.rom.at_weights(w).model_
 
@@ -152,7 +164,7 @@ class ParametricOCModel:
 
     def predict(self, traj: Trajectory) -> np.ndarray:
         """Free run over the OC samples of ``traj`` of the model at its parameter value: (K_seg,)."""
-        ss = self.at(_switch_value(traj.U[:traj.start]))
+        ss = self.at(_switch_values(traj.U, traj.start))
         Un = self.scaling.apply(traj.U[:, :1])
         x0 = self.seed(ss, traj.y[:traj.start], Un[:traj.start])
         return ss.simulate(Un[traj.start:], x0)[:, 0]
@@ -175,7 +187,7 @@ class ParametricOCModel:
 class ParametricRuntime:
     """Online stepper of a :class:`ParametricOCModel`: ``start`` interpolates the model at the
     parameter's value at the switch and seeds it; ``step`` is one matrix-vector product (the
-    speed's scaling folded in). Memory: z (n + 2,)."""
+    speed's scaling folded in; the parameters are not read again). Memory: z (n + 2,)."""
 
     def __init__(self, model: ParametricOCModel) -> None:
         self._model = model
@@ -185,10 +197,11 @@ class ParametricRuntime:
         self._n = 0
 
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
-        """Seed from the measured past: y_hist (K1,), U_hist (K1, 2) (K1 may be 0)."""
+        """Seed from the measured past: y_hist (K1,), U_hist (K1, 1 + q) (K1 may be 0)."""
         m = self._model
-        U_hist = np.asarray(U_hist, float).reshape(-1, 2)
-        ss = m.at(_switch_value(U_hist))
+        U_hist = np.asarray(U_hist, float).reshape(len(y_hist), -1) if len(y_hist) else \
+            np.zeros((0, 1 + m.rom.params_.shape[1]))
+        ss = m.at(_switch_values(U_hist, len(U_hist)))
         Un = m.scaling.apply(U_hist[:, :1])
         x0 = m.seed(ss, y_hist, Un)
         n = ss.n_states
@@ -199,8 +212,8 @@ class ParametricRuntime:
         self._n = n
 
     def step(self, u: Sequence[float] | np.ndarray) -> float:
-        """Prediction for this sample from its raw inputs u (2,): the speed, then the parameter
-        (read at the switch only); advances the state."""
+        """Prediction for this sample from its raw inputs u (1 + q,): the speed, then the
+        parameters (read at the switch only); advances the state."""
         z, n = self._z, self._n
         z[n] = u[0]
         out = self._G @ z

@@ -26,6 +26,7 @@ from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
 from node.models.kinds import fit_oc_model
 from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory, Variant
+from node.models.prom import param_channels
 from node.models.result import EWMA_ALPHA, Calibration, OCResult
 from node.runtime.history import HISTORY_CHANNELS, estimate_cooling
 from node.runtime.ocdetect import OCDetector
@@ -87,7 +88,8 @@ CURVE_MARGIN = 0.5
 # The parametric candidates of every OC's CV (``ParametricOCModel`` params, dissertation section
 # 6.4): a WDMD per training segment, interpolated in pole-residue form to the run's engine-history
 # parameter at the switch (one of three), with the least-squares line through the samples
-# (``regress``) or piecewise-linear interpolation (``linear``); one real mode, interpolated as
+# (``regress``) or piecewise-linear interpolation (``linear``), or to two of them (the
+# least-squares plane); one real mode, interpolated as
 # it is (``direct``), the static gain kept; seeded on the last 10 samples (0.25 s) of past.
 # The settings are those ``bench prom-engine`` chose most often by leave-one-run-out CV on the
 # development engines 23-25 (docs/prom_engine_study.md); like the grid's models, a parametric
@@ -96,6 +98,10 @@ PROM_PARAMS = ("hist_thermal", "hist_shutdown", "hist_energy")
 PROM_CANDIDATES: list[dict] = [
     {"param": p, "levels": lv, "weights": w, "pairs": 0, "real": 1, "scheme": "direct", "seed": 10}
     for p in PROM_PARAMS for lv in (1, 2) for w in ("regress", "linear")
+] + [  # two parameters: the least-squares plane (thin-plate interpolation through scattered
+    # runs extrapolated wildly in the study: one OC at eps_td 2e7)
+    {"param": f"{p},{q}", "levels": lv, "weights": "regress", "pairs": 0, "real": 1, "scheme": "direct",
+     "seed": 10} for p, q in itertools.combinations(PROM_PARAMS, 2) for lv in (1, 2)
 ]
 
 
@@ -208,7 +214,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     all_rows = list(range(len(d.runs)))
     chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs)
     for prom in d.proms:  # the parametric models, on the same folds: the lowest CV of all models
-        prom_inputs = [d.switch, prom["param"]]
+        prom_inputs = [d.switch, *param_channels(prom)]
         if any(c not in d.candidates for c in prom_inputs):
             continue
         score, pairs_all = _cross_validate(d, folds, Method.PROM, prom, dict.fromkeys(folds, prom_inputs))
