@@ -169,7 +169,8 @@ class OCContext:
     plateau, in [0, 1)), speed (rpm), y (the target, mm/s), X (N, c) the temperature channels
     (``channels``, °C) and labels (N,) the cluster of each, 0..k-1 ordered by mean tau.
     Per cluster (k): centres (k, c) its mean in temperature space (°C), weights (k,) its share
-    of the samples, posteriors its (mu, sigma) posterior (``gibbs_student_t``).
+    of the samples, posteriors its (mu, sigma) posterior (``gibbs_student_t``); target: the
+    amplitude's channel.
     """
 
     name: str
@@ -186,6 +187,7 @@ class OCContext:
     centres: np.ndarray
     weights: np.ndarray
     posteriors: list[Posterior]
+    target: str = ""
 
     @property
     def n_clusters(self) -> int:
@@ -299,7 +301,7 @@ def context_curves(runs: list[Run], schedule: Schedule, target: str,
                  for c in range(len(weights))]
         out.append(OCContext(schedule.names[oc], oc, tuple(channels), d["run"].astype(np.int64), d["t"],
                              d["elapsed"], d["tau"], d["speed"], d["y"], d["X"], labels, centres,
-                             weights, posts))
+                             weights, posts, target))
     return out
 
 
