@@ -52,7 +52,7 @@ def fig_prediction(preds: Sequence[Prediction] | RecordedPrediction, unit: str =
     preds: predictions over the same profile (one per stated history), or one recorded run's
     prediction against its measurement."""
     recorded = preds if isinstance(preds, RecordedPrediction) else None
-    ps = [recorded.prediction] if recorded is not None else list(preds)
+    ps = [preds.prediction] if isinstance(preds, RecordedPrediction) else list(preds)
     if not ps:
         raise ValueError("no prediction to draw")
     first = ps[0]
