@@ -78,3 +78,13 @@ def test_clusters_follow_one_another_in_time_within_an_oc():
     several = [c.name for c in ctx if any(len(set(c.labels[c.run == r].tolist())) >= 2
                                           for r in range(len(runs)))]
     assert len(several) >= len(ctx) // 2, several
+    # the figures of panel I draw them (3 panels per OC; mu and sigma per OC)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from replay.context_plots import fig_context_clusters, fig_context_violins
+    fig = fig_context_clusters(ctx[:2])
+    assert len(fig.axes) == 6 and fig.axes[0].get_title(loc="left").startswith("OC2a")
+    FigureCanvasAgg(fig).draw()
+    fig = fig_context_violins(ctx)
+    assert sum(bool(ax.collections) for ax in fig.axes) == 2 * len(ctx)
+    FigureCanvasAgg(fig).draw()

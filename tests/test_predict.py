@@ -147,7 +147,45 @@ def test_held_out_run_predicted_from_its_own_profile_against_its_measurement(mod
     np.testing.assert_array_equal(chained.measured[:, 0], run.column("yB"))
     p = chained.prediction
     assert p.filled == () and p.t.size == run.t.size and set(p.oc.tolist()) == set(range(-1, 12))
+    from replay.prediction_plots import fig_prediction
+    fig = fig_prediction(chained)  # panel IV: speed, then measured and predicted yB with eps in the title
+    assert len(fig.axes) == 2 and "eps_td" in fig.axes[1].get_title(loc="left")
     # a stated shutdown reaches the history channels the node derives
     stated = predict_recorded_run(bundle, run, stated_history(float(run.t[0]), 1.5, 0.0))
     shutdown = stated.prediction.history[:, HISTORY_CHANNELS.index("hist_shutdown")]
     assert shutdown[p.oc >= 0] == pytest.approx(1.5, abs=0.01)
+
+
+def test_engine_state_file_needs_its_bed_named_when_it_holds_several(model, tmp_path, capsys):
+    from node.live.engine_file import save_engine_states
+    from node.runtime.history import EngineState
+    state = tmp_path / "engine.json"
+    save_engine_states(state, {"b1": EngineState(0.0, 1000.0), "b2": EngineState()})
+    prof = tmp_path / "p.csv"
+    prof.write_text("t,nB\n0,0\n10,3900\n")
+    argv = ["predict", "--model", str(model), "--profile", str(prof), "--out", str(tmp_path / "o.csv"),
+            "--engine-state", str(state)]
+    assert main(argv) == 2
+    assert "name one with --bed" in capsys.readouterr().err
+    assert main([*argv, "--bed", "b3"]) == 2
+    assert "no bed 'b3'" in capsys.readouterr().err
+
+
+def test_a_gap_in_the_profile_is_a_shutdown_the_history_sees(model, train_runs):
+    """Two engine runs 30 minutes apart in one profile: the second starts a new run for the
+    node, and its hist_shutdown is the half hour the engine stood."""
+    from node.training.prediction import Profile
+    bundle = load_model(model)
+    one = schedule_profile(bundle.schedule, plateau_s=8.0)
+    gap = one.t[-1] + 1800.0
+    prof = Profile(np.r_[one.t, gap + one.t], np.r_[one.data, one.data], one.channels)
+    runs = prof.runs()
+    assert len(runs) == 2 and runs[1].shutdown_before == pytest.approx(1800.0, abs=0.1)
+    p = predict_runs(bundle, runs, fill=InputFill.fit(train_runs, bundle.schedule, ["tF", "tI", "tH"]))
+    shutdown = p.history[:, HISTORY_CHANNELS.index("hist_shutdown")]
+    second = (p.run == 1) & (p.oc >= 0)
+    on = 0.05 * max(oc.speed for oc in bundle.schedule.ocs)  # the engine runs from here
+    ran = [r.t[r.column("nB") >= on] for r in runs]
+    stood_h = (ran[1][0] - ran[0][-1]) / 3600.0  # from the last sample it ran to the next
+    assert second.sum() > 1000 and shutdown[second] == pytest.approx(stood_h, abs=1e-4)
+    assert np.isfinite(p.predicted[second]).any()

@@ -89,6 +89,9 @@ def run(args: argparse.Namespace) -> int:
         state = stated_history(start, h, args.energy, engine)
         label = "" if h is None else f"{h:g}"
         preds.append(predict_profile(model, profile, state, fill, args.seed, label))
+        if not preds[-1].per_oc():
+            log.warning("the node found no OC of the schedule in the profile: nothing is predicted "
+                        "(does it hold each plateau for some seconds, within the schedule's tolerance?)")
         if not args.quiet:
             log.info("predicted %d samples%s", preds[-1].t.size,
                      f" for {h:g} h stood" if h is not None else "")

@@ -162,7 +162,8 @@ def schedule_profile(schedule: Schedule, plateau_s: float = 60.0, ramp_rpm_s: fl
                      idle_s: float = 10.0) -> Profile:
     """A profile through the schedule's plateaus in order: from standstill, each OC's speed
     reached at ``ramp_rpm_s`` and held ``plateau_s``, then down to standstill; ``idle_s`` of
-    standstill before and after.
+    standstill before and after. The node's OC detector finds the first OC once the speed
+    has held ``detector_settle_s`` (5 s): shorter plateaus are not found.
 
     >>> from node.contract.schedule import OperatingCondition
     >>> p = schedule_profile(Schedule((OperatingCondition("A", 1000.0),)), 5.0, 500.0, 1.0)
