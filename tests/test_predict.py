@@ -189,3 +189,18 @@ def test_a_gap_in_the_profile_is_a_shutdown_the_history_sees(model, train_runs):
     stood_h = (ran[1][0] - ran[0][-1]) / 3600.0  # from the last sample it ran to the next
     assert second.sum() > 1000 and shutdown[second] == pytest.approx(stood_h, abs=1e-4)
     assert np.isfinite(p.predicted[second]).any()
+
+
+def test_recorded_runs_each_with_the_history_the_runs_before_leave(model, train_runs):
+    from node.training.prediction import predict_recorded_runs, recorded_eps
+    bundle = load_model(model)
+    runs = train_runs[:2]
+    recs = predict_recorded_runs(bundle, runs)
+    assert recs[0].prediction.engine == stated_history(0.0)  # unknown before the first: cold
+    assert recs[1].prediction.engine == history_after(runs[:1], bundle)
+    np.testing.assert_array_equal(recs[1].eps, predict_recorded_run(bundle, runs[1],
+                                                                     history_after(runs[:1], bundle)).eps)
+    pooled = recorded_eps(recs)
+    assert pooled.shape == (1, 12) and np.isfinite(pooled).all()
+    lo, hi = np.minimum(recs[0].eps, recs[1].eps), np.maximum(recs[0].eps, recs[1].eps)
+    assert (pooled >= lo - 1e-12).all() and (pooled <= hi + 1e-12).all()  # pooled lies between

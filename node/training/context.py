@@ -241,12 +241,14 @@ def _plateau_samples(runs: list[Run], schedule: Schedule, target: str, channels:
 
 
 def cluster_temperatures(X: np.ndarray, tau: np.ndarray, max_components: int = 5,
-                         min_weight: float = 0.05, seed: int = 0
+                         min_weight: float = 0.05, seed: int = 0, concentration: float | None = None
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dirichlet-process Gaussian mixture on the standardised X (N, c): (labels (N,), centres
     (k, c) in X's units, weights (k,)), the clusters ordered by the mean of tau (N,) (their
     time within the plateau). Components holding less than ``min_weight`` of the samples
-    are dropped, their samples given to the likeliest kept one."""
+    are dropped, their samples given to the likeliest kept one. concentration: the Dirichlet
+    process's (scikit-learn's ``weight_concentration_prior``; default 1 / max_components;
+    smaller favours fewer clusters)."""
     from sklearn.mixture import BayesianGaussianMixture
 
     X = np.asarray(X, float)
@@ -257,7 +259,8 @@ def cluster_temperatures(X: np.ndarray, tau: np.ndarray, max_components: int = 5
     k = max(1, min(max_components, N // 2))
     gmm = BayesianGaussianMixture(n_components=k, weight_concentration_prior_type="dirichlet_process",
                                   covariance_type="full", max_iter=500, n_init=1, reg_covar=1e-4,
-                                  random_state=seed, init_params="kmeans")
+                                  random_state=seed, init_params="kmeans",
+                                  weight_concentration_prior=concentration)
     gmm.fit(Z)
     proba = gmm.predict_proba(Z)
     share = np.bincount(proba.argmax(axis=1), minlength=k) / N
@@ -277,7 +280,7 @@ def context_curves(runs: list[Run], schedule: Schedule, target: str,
                    channels: tuple[str, ...] = TEMPERATURES, every: int = int(FS) // 4,
                    max_components: int = 5, min_weight: float = 0.05, min_samples: int = 10,
                    nu: float = 4.0, n_iter: int = 3000, burn: int = 500, thin: int = 2,
-                   seed: int = 0) -> list[OCContext]:
+                   seed: int = 0, concentration: float | None = None) -> list[OCContext]:
     """The contextual characteristic curve of every OC the runs reach (in schedule order).
 
     runs: recorded runs (``node.mcap.read_runs``) holding the switch, the target and
@@ -285,7 +288,8 @@ def context_curves(runs: list[Run], schedule: Schedule, target: str,
     cuts them) are taken every ``every`` samples (default 10: 4 Hz, which keeps the mixture fast;
     40, 1 Hz, makes the samples nearly independent for the sampler, and suits full-length
     plateaus). OCs with fewer than ``min_samples`` are
-    left out. The mixture: ``cluster_temperatures``; per cluster ``gibbs_student_t`` (nu,
+    left out. The mixture: ``cluster_temperatures`` (max_components, min_weight,
+    concentration); per cluster ``gibbs_student_t`` (nu,
     n_iter, burn, thin) on its amplitudes, the chains seeded from ``seed`` (reproducible).
     A missing channel is a ValueError naming it.
     """
@@ -296,7 +300,8 @@ def context_curves(runs: list[Run], schedule: Schedule, target: str,
             log.debug("%s: %d plateau samples, too few for a contextual curve",
                       schedule.names[oc], d["y"].size)
             continue
-        labels, centres, weights = cluster_temperatures(d["X"], d["tau"], max_components, min_weight, seed)
+        labels, centres, weights = cluster_temperatures(d["X"], d["tau"], max_components, min_weight, seed,
+                                                        concentration)
         posts = [gibbs_student_t(d["y"][labels == c], nu, None, n_iter, burn, thin, rng)
                  for c in range(len(weights))]
         out.append(OCContext(schedule.names[oc], oc, tuple(channels), d["run"].astype(np.int64), d["t"],

@@ -68,7 +68,7 @@ from node.runtime.ocdetect import OCDetector
 from node.runtime.pipeline import MonitorPipeline
 from node.runtime.runcurve import hold_last
 from node.sysid.metrics import pooled_eps
-from node.training.dataset import segment_runs, time_order
+from node.training.dataset import Segment, segment_runs, time_order
 
 log = logging.getLogger(__name__)
 
@@ -443,14 +443,42 @@ def predict_profile(model: Bundle | Model, profile: Profile, engine: EngineState
 class RecordedPrediction:
     """A recorded run's prediction from its own inputs against what it measured.
 
-    measured (K, n) per target, mm/s; eps (n, OCs): eps_td per target and OC (schedule
-    order), pooled over the OC's segments of the run where both are finite; NaN where the
-    run does not reach the OC or no model predicted it.
+    measured (K, n) per target, mm/s; segments: the run's OC segments (``segment_runs``, as
+    training cuts them; their ``run`` is 0); eps (n, OCs): eps_td per target and OC
+    (schedule order), pooled over the OC's segments where both are finite; NaN where the run
+    does not reach the OC or no model predicted it (``recorded_eps`` pools several runs).
     """
 
     prediction: Prediction
     measured: np.ndarray
-    eps: np.ndarray
+    segments: list[Segment]
+    eps: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
+
+    def __post_init__(self) -> None:
+        if not self.eps.size:
+            self.eps = recorded_eps([self])
+
+
+def recorded_eps(recs: Sequence[RecordedPrediction]) -> np.ndarray:
+    """eps_td (n targets, OCs) pooled over the OC segments of every run in ``recs`` (NaN where
+    none has a prediction and a measurement)."""
+    first = recs[0].prediction
+    eps = np.full((len(first.targets), len(first.oc_names)), _NAN)
+    for j in range(len(first.targets)):
+        for oc in range(len(first.oc_names)):
+            pairs = []
+            for rec in recs:
+                for s in rec.segments:
+                    if s.oc != oc:
+                        continue
+                    y = rec.measured[s.start:s.stop, j]
+                    p = rec.prediction.predicted[s.start:s.stop, j]
+                    ok = np.isfinite(y) & np.isfinite(p)
+                    if ok.any():
+                        pairs.append((y[ok], p[ok]))
+            if pairs:
+                eps[j, oc] = pooled_eps(pairs)
+    return eps
 
 
 def predict_recorded_run(model: Bundle | Model, run: Run, engine: EngineState | None = None,
@@ -461,24 +489,23 @@ def predict_recorded_run(model: Bundle | Model, run: Run, engine: EngineState | 
     targets it measured (eps_td, ``node.sysid.metrics``)."""
     m = as_model(model)
     pred = predict_runs(m, [run], engine, None, seed, label)
-    targets = pred.targets
     measured = np.column_stack([run.column(tg) if tg in run.channels else np.full(len(run.t), _NAN)
-                                for tg in targets])
-    eps = np.full((len(targets), len(m.schedule.ocs)), _NAN)
-    segs = segment_runs([run], m.schedule)
-    for j in range(len(targets)):
-        for oc in range(len(m.schedule.ocs)):
-            pairs = []
-            for s in segs:
-                if s.oc != oc:
-                    continue
-                y, p = measured[s.start:s.stop, j], pred.predicted[s.start:s.stop, j]
-                ok = np.isfinite(y) & np.isfinite(p)
-                if ok.any():
-                    pairs.append((y[ok], p[ok]))
-            if pairs:
-                eps[j, oc] = pooled_eps(pairs)
-    return RecordedPrediction(pred, measured, eps)
+                                for tg in pred.targets])
+    return RecordedPrediction(pred, measured, segment_runs([run], m.schedule))
+
+
+def predict_recorded_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | None = None,
+                          seed: Seed = "chain") -> list[RecordedPrediction]:
+    """``predict_recorded_run`` of each of one engine's ``runs`` (returned in the order given),
+    each with the history the runs before it (in time order) leave, from ``engine`` (the
+    history before the first: default unknown, a cold engine); ``recorded_eps`` pools them."""
+    m = as_model(model)
+    out: dict[int, RecordedPrediction] = {}
+    state = engine
+    for i in time_order(runs):
+        out[i] = predict_recorded_run(m, runs[i], state, seed, f"run {i + 1}")
+        state = history_after([runs[i]], m, state)
+    return [out[i] for i in range(len(runs))]
 
 
 # -- output ---------------------------------------------------------------------------------------
