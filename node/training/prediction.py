@@ -114,7 +114,7 @@ def read_profile(path: str, switch: str) -> Profile:
     repeated one, an empty cell, NaN or a non-number, a time that does not increase, fewer
     than two rows."""
     try:
-        with open(path, newline="") as f:
+        with open(path, newline="", encoding="utf-8-sig") as f:  # (a spreadsheet's byte-order mark)
             rows = list(csv.reader(f))
     except FileNotFoundError:
         raise OrdervibError(f"profile {path}: not found") from None
@@ -230,8 +230,7 @@ class InputFill:
                 ok = np.isfinite(x)
                 n = np.bincount(sec[ok], minlength=int(sec[-1]) + 1)
                 tot = np.bincount(sec[ok], weights=x[ok], minlength=int(sec[-1]) + 1)
-                with np.errstate(invalid="ignore"):
-                    sums.setdefault(s.oc, []).append(np.where(n > 0, tot / np.maximum(n, 1), np.nan))
+                sums.setdefault(s.oc, []).append(np.where(n > 0, tot / np.maximum(n, 1), np.nan))
             tracks[c] = {oc: _mean_track(parts) for oc, parts in sums.items()}
         return cls(sw, curves, tracks)
 
