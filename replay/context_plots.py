@@ -5,6 +5,8 @@ matplotlib Figures on no canvas, no pyplot, no file I/O: ``replay.phase_plots.sa
   channels, the third as the marker size), (b) carried onto the speed profile over time
   since the plateau start, a line per run, (c) onto the characteristic curve (speed against
   amplitude), each cluster's posterior mean of the amplitude marked.
+- ``fig_context_timeline``: figure 3.5 (b): every OC's clusters over the plateau's normalised
+  time, a row per run.
 - ``fig_context_violins``: figure 3.6 (b): per OC, violins of the posterior of each cluster's
   mean amplitude mu, and below those of its standard deviation sigma.
 """
@@ -66,6 +68,34 @@ def fig_context_clusters(ctxs: Sequence[OCContext], unit: str = "mm/s") -> Figur
         cc.set_title("(c) onto the characteristic curve (dashed: posterior mean)", fontsize=9, loc="left")
         for ax in row:
             ax.tick_params(labelsize=7)
+    return fig
+
+
+def fig_context_timeline(ctxs: Sequence[OCContext]) -> Figure:
+    """Figure 3.5 (b): every OC's clusters over the plateau's normalised time (0 its start, 1
+    its end), a thin row per run within each OC's band: the clusters following one another."""
+    if not ctxs:
+        raise ValueError("no OC to draw")
+    fig = Figure(figsize=(9, 0.45 * len(ctxs) + 1.2), layout="constrained")
+    ax = fig.subplots()
+    for i, c in enumerate(ctxs):
+        runs = np.unique(c.run).tolist()
+        h = 0.8 / len(runs)
+        for j, r in enumerate(runs):
+            mine = np.flatnonzero(c.run == r)
+            mine = mine[np.argsort(c.tau[mine], kind="stable")]
+            tau, lab = c.tau[mine], c.labels[mine]
+            ends = np.r_[tau[1:], 1.0]  # each sample's bar reaches the next sample
+            cut = np.flatnonzero(np.diff(lab) != 0) + 1
+            for lo, hi in zip(np.r_[0, cut], np.r_[cut, lab.size]):  # one bar per stretch of a cluster
+                ax.broken_barh([(tau[lo], ends[hi - 1] - tau[lo])], (i - 0.4 + j * h, 0.9 * h),
+                               color=_color(int(lab[lo])), lw=0)
+    ax.set_yticks(range(len(ctxs)), [c.name for c in ctxs], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlim(0, 1)
+    ax.set_xlabel("time within the plateau (fraction of its length); a row per run", fontsize=8)
+    ax.set_title("clusters over time, per OC (colours: cluster 1, 2, ... in time order)", fontsize=9,
+                 loc="left")
     return fig
 
 

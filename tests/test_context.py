@@ -81,9 +81,12 @@ def test_clusters_follow_one_another_in_time_within_an_oc():
     # the figures of panel I draw them (3 panels per OC; mu and sigma per OC)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from replay.context_plots import fig_context_clusters, fig_context_violins
+    from replay.context_plots import fig_context_clusters, fig_context_timeline, fig_context_violins
     fig = fig_context_clusters(ctx[:2])
     assert len(fig.axes) == 6 and fig.axes[0].get_title(loc="left").startswith("OC2a")
+    FigureCanvasAgg(fig).draw()
+    fig = fig_context_timeline(ctx)
+    assert len(fig.axes[0].collections) >= sum(len(np.unique(c.run)) for c in ctx)  # a bar per stretch
     FigureCanvasAgg(fig).draw()
     fig = fig_context_violins(ctx)
     assert sum(bool(ax.collections) for ax in fig.axes) == 2 * len(ctx)
