@@ -88,6 +88,9 @@ def test_planned_profile_gives_a_prediction_per_oc_and_history(model, tmp_path, 
     CSV has a row per 40 Hz sample and stated history, every OC gets a finite prediction."""
     bundle = load_model(model)
     plan = schedule_profile(bundle.schedule, plateau_s=20.0)
+    # a plateau is two rows 20 s apart: the engine runs through them, one engine run
+    running = [r for r in plan.runs(off=100.0) if r.column("nB").max() > 100.0]
+    assert len(running) == 1 and running[0].column("nB").max() == max(oc.speed for oc in bundle.schedule.ocs)
     prof = tmp_path / "plan.csv"
     prof.write_text("t,nB\n" + "".join(f"{t:g},{v:g}\n" for t, v in zip(plan.t, plan.data[:, 0])))
     out, png, hist = tmp_path / "pred.csv", tmp_path / "pred.png", tmp_path / "hist.png"

@@ -30,7 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", required=True, metavar="PROFILE",
                    help="planned profile: a CSV with columns t (s) and the switch speed (nB, rpm), "
                         "optionally any other sensor channel (breakpoints, interpolated linearly to "
-                        "40 Hz; a step in t of 5 s or more starts a new engine run); or a schedule "
+                        "40 Hz; a step in t of 5 s or more between two rows with the engine off starts "
+                        "a new engine run); or a schedule "
                         "(.toml): its plateaus in order, each held --plateau-s")
     p.add_argument("--out", required=True, metavar="OUT.csv",
                    help="the prediction at 40 Hz: history, t, oc, each target, the engine-history "
@@ -60,6 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from node.models.bundle import load_model
+    from node.runtime.ocdetect import OCDetector
     from node.training.prediction import predict_profile, stated_history
 
     model = load_model(args.model)
@@ -82,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     if args.png and args.history_png and os.path.abspath(args.png) == os.path.abspath(args.history_png):
         raise OrdervibError("--png and --history-png must differ")
     fill = _fill(args, model, profile)
-    runs = profile.runs()
+    runs = profile.runs(OCDetector(model.schedule, model.config).off_level)
     start = _first_on(runs, model)
     preds = []
     for h in hours:

@@ -82,21 +82,27 @@ _NAN = math.nan
 class Profile:
     """A planned (or recorded) profile: t (K,) s, strictly increasing; data (K, c) finite, one
     column per channel (the switch speed, rpm, and any other sensor channel). Breakpoints
-    need not be on the 40 Hz grid: ``runs`` interpolates them linearly; a step in t of
-    ``RUN_GAP`` or more starts a new engine run (the engine stood in between)."""
+    need not be on the 40 Hz grid: ``runs`` interpolates them linearly (a plateau is two
+    rows); a step in t of ``RUN_GAP`` or more between two rows where the switch speed
+    (``switch``; the first column when empty) is at or below ``runs``' ``off`` starts a new
+    engine run (the engine stood in between)."""
 
     t: np.ndarray
     data: np.ndarray
     channels: tuple[str, ...]
+    switch: str = ""
 
-    def runs(self) -> list[Run]:
-        """The profile on the 40 Hz grid, one ``Run`` per engine run.
+    def runs(self, off: float = 0.0) -> list[Run]:
+        """The profile on the 40 Hz grid, one ``Run`` per engine run (``off``: the speed, rpm,
+        at or below which the engine stands; the OC detector's off level).
 
         >>> p = Profile(np.array([0.0, 1.0]), np.array([[0.0], [4000.0]]), ("nB",))
         >>> r = p.runs()[0]; r.t.size, float(r.column("nB")[20])
         (41, 2000.0)
         """
-        cut = np.flatnonzero(np.diff(self.t) >= RUN_GAP) + 1
+        speed = self.data[:, self.channels.index(self.switch) if self.switch in self.channels else 0]
+        stood = (speed[:-1] <= off) & (speed[1:] <= off)
+        cut = np.flatnonzero((np.diff(self.t) >= RUN_GAP) & stood) + 1
         out: list[Run] = []
         for lo, hi in zip(np.r_[0, cut], np.r_[cut, self.t.size]):
             t = self.t[lo:hi]
@@ -155,7 +161,7 @@ def read_profile(path: str, switch: str) -> Profile:
         raise OrdervibError(f"profile {path} line {k + 2}: time {t[k]:g} s does not increase "
                             f"(the row before has {t[k - 1]:g} s)")
     cols = [j for j, c in enumerate(header) if c != "t"]
-    return Profile(t, values[:, cols], tuple(header[j] for j in cols))
+    return Profile(t, values[:, cols], tuple(header[j] for j in cols), switch)
 
 
 def schedule_profile(schedule: Schedule, plateau_s: float = 60.0, ramp_rpm_s: float = 250.0,
@@ -186,7 +192,7 @@ def schedule_profile(schedule: Schedule, plateau_s: float = 60.0, ramp_rpm_s: fl
         t.append(t[-1] + idle_s)
         v.append(0.0)
     keep = np.r_[True, np.diff(t) > 0]
-    return Profile(np.array(t)[keep], np.array(v)[keep, None], (schedule.switch,))
+    return Profile(np.array(t)[keep], np.array(v)[keep, None], (schedule.switch,), schedule.switch)
 
 
 # -- filling inputs the profile lacks ------------------------------------------------------------
@@ -435,7 +441,9 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
 def predict_profile(model: Bundle | Model, profile: Profile, engine: EngineState | None = None,
                     fill: InputFill | None = None, seed: Seed = "chain", label: str = "") -> Prediction:
     """The expected orders over a planned profile (``read_profile``, ``schedule_profile``)."""
-    return predict_runs(model, profile.runs(), engine, fill, seed, label)
+    m = as_model(model)
+    runs = profile.runs(OCDetector(m.schedule, m.config).off_level)
+    return predict_runs(m, runs, engine, fill, seed, label)
 
 
 @dataclass
