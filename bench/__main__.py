@@ -9,6 +9,7 @@ BENCHMARKS = {
     "beam": "bench.beam",
     "parametric": "bench.parametric",
     "prom-engine": "bench.prom_engine",
+    "prom-table": "bench.prom_table",
     "faults": "bench.faults",
     "generalise": "bench.generalise",
     "read-speed": "bench.read_speed",

@@ -8,8 +8,8 @@ B: ``harness/schedules/passoff_b.toml``, 9 OCs at other speeds, in another order
 plateaus) and one of two noise levels (x1, x2.5): 8 training runs, then 10 held-out runs
 of the same engine. Per engine and OC it prints the mean held-out eps_td of
 
-* ``today``: ``ordervib train --no-curve-candidates --no-history`` (WDMD with run_curve,
-  the defaults before issue 13),
+* ``today``: ``ordervib train --no-curve-candidates --no-history --no-prom`` (WDMD with
+  run_curve, the defaults before issue 13),
 * ``no phase``: ``ordervib train --no-phase``: this version's defaults on the amplitudes alone,
 * ``default``: ``ordervib train`` with this version's defaults (and which kind won the OC),
   which use the order's phase (the recordings carry it: ``yB_ph``),
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         train, test = simulate(e, work)
         schedule = train.with_suffix(".schedule.toml")
         scores = {}
-        for name, extra in (("today", ["--no-curve-candidates", "--no-history"]),
+        for name, extra in (("today", ["--no-curve-candidates", "--no-history", "--no-prom"]),
                             ("no-phase", ["--no-phase"]), ("default", [])):
             model = work / f"{e.name}-{name}"
             with contextlib.redirect_stdout(io.StringIO()):

@@ -7,6 +7,7 @@ import pytest
 
 from node.contract.schedule import OperatingCondition, Schedule
 from node.models.bundle import Bundle, load_bundle, save_bundle
+from node.models.kinds import fit_oc_model, model_from_arrays
 from node.models.ocmodel import (
     RUN_CURVE,
     CurveModel,
@@ -14,8 +15,6 @@ from node.models.ocmodel import (
     StateSpaceModel,
     Trajectory,
     Variant,
-    fit_oc_model,
-    model_from_arrays,
 )
 from node.training.train import CURVE_CANDIDATES, OCData, train_oc
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from node.models.ocmodel import InputForm, Method, StateSpaceModel, Trajectory, model_from_arrays
+from node.models.kinds import model_from_arrays
+from node.models.ocmodel import InputForm, Method, StateSpaceModel, Trajectory
 from node.sysid.lstsq import truncated_lstsq
 
 

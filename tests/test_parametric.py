@@ -157,3 +157,49 @@ def test_real_poles_are_kept_and_interpolated_when_asked():
     assert m.is_stable() and m.n_states == 7
     err = eps_fd(lagged(0.8).frequency_response(FREQS), m.frequency_response(FREQS))
     assert err < 1e-2, err
+
+
+def test_regress_and_mean_weights_sum_to_one_and_regress_reproduces_a_line(rom):
+    r = ParametricROM(base(), n_pairs=3, weights="regress").fit_models(
+        [system(freqs_hz(p)) for p in PS], PS)
+    for p in (-1.0, 0.3, 1.7, 3.0):
+        w = r.weights_at(p)
+        assert w.sum() == pytest.approx(1.0, abs=1e-12)
+        assert w @ np.array(PS) == pytest.approx(p, abs=1e-12)  # the line through (p_i, p_i)
+    m = ParametricROM(base(), n_pairs=3, weights="mean").fit_models([system(freqs_hz(p)) for p in PS], PS)
+    np.testing.assert_allclose(m.weights_at(0.7), np.full(len(PS), 0.2), atol=0, rtol=0)
+
+
+def test_static_and_clip_keep_the_library_s_gain_and_range():
+    """A quasi-static library (one slow real pole near 1 carrying most of the gain, a fast one
+    dropped by the truncation): ``static`` keeps the weighted static gain; ``clip`` keeps the
+    parameter and the poles inside the library's range under extrapolating weights."""
+    def quasi_static(p: float) -> StateSpace:
+        A = np.diag([0.995 - 0.002 * p, 0.3])
+        return StateSpace(A, np.array([[0.01, 0.0], [1.0, 0.5]]), np.array([[1.0, 1.0]]),
+                          np.array([[0.2, 0.1]]), DT)
+
+    from node.sysid.parametric import static_gain
+    lib = [quasi_static(p) for p in PS]
+    kept = ParametricROM(None, n_pairs=0, n_real=1, weights="regress", static=True, clip=True)
+    kept.fit_models(lib, PS)
+    bare = ParametricROM(None, n_pairs=0, n_real=1, weights="regress").fit_models(lib, PS)
+    for p in (0.25, 1.0, 1.75):
+        want = kept.weights_at(p) @ np.stack([static_gain(ss) for ss in lib]).reshape(len(PS), -1)
+        np.testing.assert_allclose(static_gain(kept.at(p).model_).ravel(), want, rtol=1e-9)
+        assert np.max(np.abs(static_gain(bare.at(p).model_).ravel() - want)) > 0.1
+    far = kept.at(50.0).model_.poles().real  # the parameter clipped: the model at the last sample
+    np.testing.assert_allclose(far, kept.at(PS[-1]).model_.poles().real, rtol=1e-12)
+    assert far.max() <= max(ss.poles().real.max() for ss in lib) + 1e-12
+
+
+def test_arrays_round_trip_gives_the_same_models(rom):
+    again = ParametricROM.from_arrays(rom.to_arrays(), **{k: v for k, v in rom.get_params(deep=False).items()
+                                                          if k != "base_estimator"})
+    for p in (0.2, 1.3):
+        a, b = rom.at(p).model_, again.at(p).model_
+        for x, y in ((a.A, b.A), (a.B, b.B), (a.C, b.C), (a.D, b.D)):
+            np.testing.assert_array_equal(x, y)
+    bad = {**rom.to_arrays(), "rom_format": np.array([99])}
+    with pytest.raises(ValueError, match="format 99"):
+        ParametricROM.from_arrays(bad)

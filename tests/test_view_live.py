@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -80,7 +79,8 @@ def test_view_connect_streams_a_running_bed_into_a_rerun_file(node_rec: Path, tm
         pubs: dict[str, zenoh.Publisher] = {}
         for topic, data in _messages(node_rec):
             if topic not in pubs:
-                pubs[topic] = session.declare_publisher(topic, congestion_control=zenoh.CongestionControl.BLOCK)
+                pubs[topic] = session.declare_publisher(
+                    topic, congestion_control=zenoh.CongestionControl.BLOCK)
             pubs[topic].put(data)
         viewer.join(30.0)
         listener.undeclare()

@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "node.cli.simulate",
     "node.cli.train",
     "node.cli.evaluate",
+    "node.cli.predict",
     "node.cli.report",
     "node.cli.schedule",
     "node.cli.replay",

@@ -32,8 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--target", default=None, metavar="LIST",
                    help="modelled channel(s), comma-separated: several targets in one model "
                         "(default: every tracked order, yA, yB, yC, that all the recordings hold)")
-    p.add_argument("--method", default="wdmd", choices=["wdmd", "delay-dmd", "lasso"],
-                   help="per-OC model (default wdmd)")
+    p.add_argument("--method", default="wdmd", choices=["wdmd", "delay-dmd", "lasso", "prom"],
+                   help="per-OC model (default wdmd); prom: the parametric models alone (with the "
+                        "curves unless --no-curve-candidates)")
     p.add_argument("--estimator", default=None, choices=["ls", "oe", "pem"],
                    help="state-space estimator (default oe; pem also refines the poles, slower)")
     p.add_argument("--rcond-grid", default=None, metavar="LIST",
@@ -61,6 +62,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the engine-history inputs (hist_energy, hist_rate, hist_shutdown, "
                         "hist_thermal; appendix A.2.5) are candidates like any channel; the "
                         "recordings are then one engine's, in time order (default: off)")
+    p.add_argument("--prom", action=argparse.BooleanOptionalAction, default=True,
+                   help="parametric models compete in each OC's cross-validation: a WDMD per "
+                        "training run interpolated in pole-residue form to the run's engine-history "
+                        "value at the switch (dissertation section 6.4); the recordings are then one "
+                        "engine's, in time order (default: on)")
     p.add_argument("--phase", action=argparse.BooleanOptionalAction, default=True,
                    help="use the orders' phase channels (yA_ph..yC_ph) where every recording has the "
                         "target's: the vector rule watches the 1x vector; --no-phase: an amplitude-only "
@@ -161,7 +167,15 @@ def run(args: argparse.Namespace) -> int:
     from node.models.bundle import Bundle, Model, save_model, sha256_file
     from node.models.config import RuntimeConfig
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
-    from node.training.train import DEFAULT_GRIDS, Method, fleet_curve, history_config, train
+    from node.training.train import (
+        CURVE_CANDIDATES,
+        DEFAULT_GRIDS,
+        PROM_CANDIDATES,
+        Method,
+        fleet_curve,
+        history_config,
+        train,
+    )
 
     check_output_dir(args.out, "--out", inputs=[*args.recordings, args.schedule])
     if args.workers is not None and args.workers < 1:
@@ -180,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
     runs = load_runs(args.recordings, args.quiet)
     inputs = None if args.inputs == "auto" else [c.strip() for c in args.inputs.split(",") if c.strip()]
     grid = dict(DEFAULT_GRIDS[Method(args.method)])
-    if args.method != "lasso":
+    if args.method in ("wdmd", "delay-dmd"):
         grid["estimator"] = [args.estimator] if args.estimator else ["oe"]
         if args.rcond_grid:
             try:
@@ -192,15 +206,18 @@ def run(args: argparse.Namespace) -> int:
                 raise OrdervibError("--rcond-grid values must lie in (0, 1)")
     targets = resolve_targets(args.target, runs)
     config = RuntimeConfig()
-    if args.history:
+    if args.history or args.prom or args.method == "prom":  # (the engine history's cooling)
         config = history_config(runs, schedule, config)
         log.info("engine history: cooling %.3g rpm min per hour of shutdown%s", config.history_cooling,
                  "" if config.history_cooling != RuntimeConfig().history_cooling
                  else " (the text's value: too few runs after a known one to estimate it)")
     trained: list[tuple[str, list[OCResult], tuple[np.ndarray, np.ndarray], dict]] = []
+    use_prom = args.prom or args.method == "prom"
+    n_models = (_count(grid) if grid else 0) + (len(PROM_CANDIDATES) if use_prom else 0)
     for target in targets:
-        log.info("training %s for %s on %d run(s), %d OCs, leave-one-run-out CV over %d candidates "
-                 "per OC", args.method, target, len(runs), len(schedule.ocs), _count(grid))
+        log.info("training %s for %s on %d run(s), %d OCs, leave-one-run-out CV over %d model candidates "
+                 "per OC%s", args.method, target, len(runs), len(schedule.ocs), n_models,
+                 f" and up to {len(CURVE_CANDIDATES)} curves" if args.curves else "")
 
         def progress(r: OCResult, done: int, total: int) -> None:
             cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
@@ -211,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
                         n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
                         false_alarms_per_hour=per_rule, cv_undercoverage=under,
                         fleet=curve, curves=args.curves, config=config, history=args.history,
-                        phase=args.phase)
+                        phase=args.phase, prom=use_prom)
         if not any(r.model is not None for r in results) and not args.allow_empty:
             notes = sorted({r.note for r in results if r.note})
             which = f"target {target}: " if len(targets) > 1 else ""

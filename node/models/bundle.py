@@ -27,7 +27,8 @@ from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.models.config import V1_SETTINGS, RuntimeConfig
-from node.models.ocmodel import RUN_CURVE, model_from_arrays
+from node.models.kinds import model_from_arrays
+from node.models.ocmodel import RUN_CURVE
 from node.models.result import Calibration, OCResult
 
 FORMAT = "ordervib-model"

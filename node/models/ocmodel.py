@@ -10,7 +10,7 @@ Three kinds, one class each, behind the small protocol :class:`OCModel`:
   the derived ``run_curve`` input itself: the baseline every other kind must beat.
 
 Each is a frozen dataclass built complete by its ``fit`` (training) or its
-``from_arrays`` (the bundle loader); ``KINDS`` maps a method to its class.
+``from_arrays`` (the bundle loader); ``node.models.kinds`` maps a method to its class.
 ``model.runtime()`` gives the online stepper the node runs (:class:`OCRuntime`):
 ``start`` once at the switch, then one ``step`` per sample, with bounded memory
 and no I/O. Inputs are standardised per OC and a constant input (1) is
@@ -57,6 +57,7 @@ class Method(StrEnum):
     DELAY_DMD = "delay-dmd"
     LASSO = "lasso"
     CURVE = "curve"
+    PROM = "prom"  # a parametric model (node.models.prom)
 
 
 def _readonly(a: np.ndarray, dtype: type = float) -> np.ndarray:
@@ -250,6 +251,45 @@ def _stabilise(ss: StateSpace, radius: float = 0.999) -> tuple[StateSpace, int]:
     return StateSpace(A, ss.B, ss.C, ss.D, ss.dt), int(bad.sum())
 
 
+def lifted_pair(t: Trajectory, scaling: InputScaling, need: int) -> tuple[np.ndarray, np.ndarray]:
+    """A trajectory's target (K', 1) and standardised inputs (K', m + 1) from ``need`` samples
+    before its OC on (the first held where it has less past: the lifting's own edge rule)."""
+    lo = max(0, t.start - need)
+    y, U = t.y[lo:], scaling.apply(t.U[lo:])
+    pad = need - (t.start - lo)
+    if pad:
+        y = np.concatenate([np.repeat(y[:1], pad), y])
+        U = np.vstack([np.repeat(U[:1], pad, axis=0), U])
+    return y[:, None], U
+
+
+def stable_fit(dmd: LinearDMD, Ys: list[np.ndarray], Us: list[np.ndarray],
+               need: int) -> tuple[StateSpace, int]:
+    """Fit ``dmd`` on trajectories whose first ``need`` samples warm the lifting; poles on or
+    beyond the unit circle are moved onto radius 0.999 and B, D refitted to the data given
+    A and C (the gain a moved pole carried, put back). Returns the model and the poles moved."""
+    dmd.warmup = need
+    dmd.fit(Ys, Us)
+    ss, moved = _stabilise(dmd.model_)
+    if moved:
+        from node.sysid.refine import refit_bd
+        x0s = [dmd._project(dmd._lift(y, u)[need]) for y, u in zip(Ys, Us)]
+        bd = refit_bd(ss.A, ss.C, [y[need:] for y in Ys], [u[need:] for u in Us], x0s)
+        if bd is not None:
+            ss = StateSpace(ss.A, bd[0], ss.C, bd[1], ss.dt)
+    return ss, moved
+
+
+def stepper_matrix(ss: StateSpace, scaling: InputScaling) -> np.ndarray:
+    """G = [[C, D], [A, B]] (first output only) acting on z = [x; u; 1] with raw inputs u (m,):
+    ``ss`` takes the m standardised inputs and the constant 1, the scaling is folded in."""
+    inv, shift = scaling.folded()
+    k = inv.size
+    top = np.hstack([ss.C[:1], ss.D[:1, :k] * inv, ss.D[:1, k:] + ss.D[:1, :k] @ shift[:, None]])
+    low = np.hstack([ss.A, ss.B[:, :k] * inv, ss.B[:, k:] + ss.B[:, :k] @ shift[:, None]])
+    return np.ascontiguousarray(np.vstack([top, low]))
+
+
 @dataclass(frozen=True, eq=False)
 class StateSpaceModel:
     """A state-space OC model (``wdmd`` or ``delay-dmd``) on standardised inputs.
@@ -304,23 +344,10 @@ class StateSpaceModel:
         need = dmd.memory()
         Ys, Us = [], []
         for t in trajs:
-            lo = max(0, t.start - need)
-            y, U = t.y[lo:], scaling.apply(t.U[lo:])
-            pad = need - (t.start - lo)
-            if pad:  # not enough past: hold the first value (the lifting's own edge rule)
-                y = np.concatenate([np.repeat(y[:1], pad), y])
-                U = np.vstack([np.repeat(U[:1], pad, axis=0), U])
-            Ys.append(y[:, None])
+            y, U = lifted_pair(t, scaling, need)
+            Ys.append(y)
             Us.append(U)
-        dmd.warmup = need
-        dmd.fit(Ys, Us)
-        ss, moved = _stabilise(dmd.model_)
-        if moved:
-            from node.sysid.refine import refit_bd
-            x0s = [dmd._project(dmd._lift(y, u)[need]) for y, u in zip(Ys, Us)]
-            bd = refit_bd(ss.A, ss.C, [y[need:] for y in Ys], [u[need:] for u in Us], x0s)
-            if bd is not None:
-                ss = StateSpace(ss.A, bd[0], ss.C, bd[1], ss.dt)
+        ss, moved = stable_fit(dmd, Ys, Us, need)
         return cls(method, dict(params), scaling, ss, moved)
 
     def predict(self, traj: Trajectory) -> np.ndarray:
@@ -364,13 +391,8 @@ class StateSpaceRuntime:
 
     def __init__(self, model: StateSpaceModel) -> None:
         self._model = model
-        inv, shift = model.scaling.folded()
-        k = inv.size
-        ss = model.ss
-        n = ss.n_states
-        top = np.hstack([ss.C[:1], ss.D[:1, :k] * inv, ss.D[:1, k:] + ss.D[:1, :k] @ shift[:, None]])
-        low = np.hstack([ss.A, ss.B[:, :k] * inv, ss.B[:, k:] + ss.B[:, :k] @ shift[:, None]])
-        self._G = np.ascontiguousarray(np.vstack([top, low]))
+        self._G = stepper_matrix(model.ss, model.scaling)
+        n, k = model.ss.n_states, model.scaling.mean.size
         self._z = np.zeros(n + k + 1)
         self._z[-1] = 1.0
         self._n = n
@@ -947,22 +969,3 @@ def _mean(values: list[complex]) -> complex:
     if all(isinstance(v, float) for v in values):
         return re
     return complex(re, math.fsum(v.imag for v in values) / len(values))
-
-
-KINDS: dict[Method, OCModelKind] = {
-    Method.WDMD: StateSpaceModel, Method.DELAY_DMD: StateSpaceModel, Method.LASSO: RegressionModel,
-    Method.CURVE: CurveModel,
-}
-
-
-def fit_oc_model(method: str, params: dict, trajs: Sequence[Trajectory]) -> OCModel:
-    """Fit one OC's model of ``method`` on its trajectories."""
-    meth = Method(method)
-    return KINDS[meth].fit(meth, params, trajs)
-
-
-def model_from_arrays(method: str, params: dict, arrays: Mapping[str, np.ndarray],
-                      repaired: int = 0) -> OCModel:
-    """A model as a bundle stored it (``model.arrays()``)."""
-    meth = Method(method)
-    return KINDS[meth].from_arrays(meth, params, arrays, repaired)

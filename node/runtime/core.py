@@ -141,6 +141,13 @@ class NodeCore:
             done.sort(key=lambda x: x[0])  # each bed's aligner is independent; outputs in message order
         return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done])
 
+    def handle_aligned(self, bed: str, samples: Sequence[AlignedSample]) -> list[Output]:
+        """Samples already on the 40 Hz grid (a planned profile, a synthetic stream): the bed's
+        pipelines step on them as on the aligner's samples (the aligner and its counters are
+        left out); returns the outputs in order."""
+        self._bed(bed)
+        return self._run(bed, list(samples))
+
     def finish(self) -> list[Output]:
         """End of stream: emit every sample still waiting for late channels."""
         out: list[Output] = []

@@ -240,6 +240,17 @@ def add_history(runs: list, switch: str, on_speed: float, cooling: float,
     return out
 
 
+def state_after(runs: list, switch: str, on_speed: float, cooling: float,
+                state: EngineState | None = None) -> EngineState:
+    """The engine's history at the end of ``runs`` (``node.mcap.Run``, in time order, one
+    engine), stepped through them as the node steps it from ``state`` (default: unknown)."""
+    tracker = HistoryTracker(on_speed, cooling, state)
+    for run in runs:
+        if switch in run.channels:
+            history_columns(*_run_inputs(run, switch), tracker)
+    return dataclasses.replace(tracker.state)
+
+
 def estimate_cooling(runs: list, switch: str, on_speed: float, min_runs: int = 3) -> float | None:
     """The cooling rate (rpm min per hour of shutdown) that makes ``hist_energy`` at light-off
     follow the thermal state measured then, over training runs (in time order, one engine).

@@ -15,7 +15,9 @@ s-plane a stiffness-like parameter moves the physical quantities w^2 = |s|^2 and
 from __future__ import annotations
 
 import copy
+import hashlib
 import logging
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,7 +33,8 @@ from node.sysid.validation import as_matrix
 log = logging.getLogger(__name__)
 
 SCHEMES = ("modal", "direct")
-WEIGHTS = ("auto", "lagrange", "linear", "rbf")
+WEIGHTS = ("auto", "lagrange", "linear", "rbf", "regress", "mean")
+FORMAT = 1  # version of ``to_arrays``
 
 
 @dataclass(frozen=True)
@@ -70,6 +73,34 @@ def _pole_residue(ss: StateSpace, fast: float = 0.05, points: int = 8) -> PoleRe
         R[i] = sum(radius * w * (ss.C @ np.linalg.solve((z + radius * w) * eye - ss.A, ss.B))
                    for w in ring) / points
     return PoleResidue(P, R, ss.D.astype(complex), ss.dt)
+
+
+def static_gain(ss: StateSpace) -> np.ndarray:
+    """Static gain (p, m) of a discrete model: C (I - A)^-1 B + D (inf where A has a pole at 1)."""
+    try:
+        return np.asarray(ss.C @ np.linalg.solve(np.eye(ss.n_states) - ss.A, ss.B) + ss.D)
+    except np.linalg.LinAlgError:
+        return np.full(ss.D.shape, np.inf)
+
+
+_FORMS: OrderedDict[bytes, tuple[PoleResidue, np.ndarray]] = OrderedDict()
+_FORMS_SIZE = 512
+
+
+def _modal_form(ss: StateSpace) -> tuple[PoleResidue, np.ndarray]:
+    """``_pole_residue`` and ``static_gain`` of ``ss``, memoised on its matrices: a
+    leave-one-run-out CV builds a ROM per fold from the same library models."""
+    h = hashlib.blake2b(np.array([ss.dt, *ss.A.shape, *ss.B.shape, *ss.C.shape], float).tobytes(),
+                        digest_size=20)
+    for M in (ss.A, ss.B, ss.C, ss.D):
+        h.update(np.ascontiguousarray(M, float).tobytes())
+    key = h.digest()
+    if key not in _FORMS:
+        _FORMS[key] = (_pole_residue(ss), static_gain(ss))
+        if len(_FORMS) > _FORMS_SIZE:
+            _FORMS.popitem(last=False)
+    _FORMS.move_to_end(key)
+    return _FORMS[key]
 
 
 def _modes(pr: PoleResidue, real: bool) -> _Modes:
@@ -117,6 +148,11 @@ def _tree(P: np.ndarray) -> list[tuple[int, int]]:
         edges.append((rest[c], done[r]))
         done.append(rest[c])
     return edges
+
+
+def _model_of(est: Any) -> StateSpace:
+    """A fitted estimator's state space (``model_``, else its A, B, C, D, dt)."""
+    return est.model_ if hasattr(est, "model_") else StateSpace(est.A, est.B, est.C, est.D, est.dt)
 
 
 def _as_pairs(sample: Any) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -180,16 +216,32 @@ class ParametricROM(BaseEstimator):
         weights: ``"lagrange"`` (polynomial through the samples, one parameter), ``"linear"``
             (piecewise linear, one parameter, linear beyond the ends), ``"rbf"`` (thin-plate
             spline with a linear term over range-scaled parameters, any number of them);
-            ``"auto"``: Lagrange for one parameter, RBF for several.
+            ``"auto"``: Lagrange for one parameter, RBF for several. ``"regress"``: the
+            least-squares line (plane) through the samples evaluated at p, w = [1, x] pinv([1, P]):
+            weights that sum to 1 and smooth run-to-run scatter of identified models instead of
+            interpolating it (any number of parameters); ``"mean"``: equal weights (the
+            parameter ignored: the control that tells what the parameter adds).
         mac_weight: weight of 1 - MAC(output directions) MAC(input directions) beside the
             relative pole distance |s_a - s_b| / max(|s_a|, |s_b|) in the matching cost.
         tol: largest matching cost accepted; a kept mode whose match costs more at some sample
             is left out of the model and listed in ``unmatched_`` (with a logged warning).
+        static: keep the static gain: ``at`` sets D so that the model's static gain is the
+            weighted sum of the samples' full static gains (modal truncation with static
+            correction). Identified quasi-static models carry most of their gain in D and a slow
+            real pole near z = 1 (R / (1 - z)): the kept modes alone lose it, and interpolating
+            R and z apart scrambles it (engine OCs, ``bench prom-engine``: eps_td 1.37 -> 0.06).
+        clip: keep to the library's range: the parameter is clipped to the samples' range per
+            parameter, each interpolated pole's Re s and Im s to the range of its mode over the
+            samples. Weights with negative entries (Lagrange, regress, RBF) otherwise move a slow
+            real pole onto z = 1 and extrapolate a plane beyond the samples' hull (engine OCs:
+            held-out eps_td 1e6-1e8 without).
 
     Learned attributes: ``estimators_`` (the fitted copies), ``params_`` (n, q), ``poles_``
     (n, r) complex discrete-time poles of the matched modes (the pairs by their upper-half-plane
     pole, then the real poles), ``residues_`` (n, r, p, m) discrete residues, ``D_`` (n, p, m),
-    ``dt_`` (s), ``unmatched_`` (list of (sample index, pole at its parent sample, cost)).
+    ``dt_`` (s), ``unmatched_`` (list of (sample index, pole at its parent sample, cost)),
+    ``dc_`` (n, p, m) the samples' full static gains. ``to_arrays`` / ``from_arrays`` store and
+    restore what ``at`` needs (no estimators, no pickle).
 
     Three oscillators seen through different mode shapes; the first one's stiffness grows
     with p so that its frequency passes the second's (the matching follows the mode shapes):
@@ -217,7 +269,8 @@ class ParametricROM(BaseEstimator):
     """
 
     def __init__(self, base_estimator: Any, n_pairs: int = 4, n_real: int = 0, scheme: str = "modal",
-                 weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5) -> None:
+                 weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5,
+                 static: bool = False, clip: bool = False) -> None:
         self.base_estimator = base_estimator
         self.n_pairs = n_pairs
         self.n_real = n_real
@@ -225,6 +278,8 @@ class ParametricROM(BaseEstimator):
         self.weights = weights
         self.mac_weight = mac_weight
         self.tol = tol
+        self.static = static
+        self.clip = clip
 
     # --- fit ------------------------------------------------------------------------------
     def _check_params(self) -> None:
@@ -248,23 +303,36 @@ class ParametricROM(BaseEstimator):
     def fit(self, samples: Any, params: Any) -> ParametricROM:
         """Fit a model per sample: ``samples`` a list (one per sample) of (Y, U) pairs or lists of
         pairs (Y (K, p), U (K, m)); ``params`` (n,) or (n, q). Returns self."""
-        self._check_params()
-        P = np.asarray(params, dtype=float)
-        P = P[:, None] if P.ndim == 1 else P
         samples = list(samples)
-        if P.ndim != 2 or len(P) != len(samples) or len(P) < 2:
-            raise ValueError(f"need params (n,) or (n, q) for n >= 2 samples; got {P.shape} for "
-                             f"{len(samples)} samples")
-        if self.weights in ("lagrange", "linear") and P.shape[1] > 1:
-            raise ValueError(f"weights={self.weights!r} takes one parameter; use 'rbf' for {P.shape[1]}")
+        P = self._check_samples(params, len(samples))
         self.estimators_ = []
-        prs = []
         for sample in samples:
             Ys, Us = _as_pairs(sample)
             est = self._copy().fit(Ys if len(Ys) > 1 else Ys[0], Us if len(Us) > 1 else Us[0])
             self.estimators_.append(est)
-            ss = est.model_ if hasattr(est, "model_") else StateSpace(est.A, est.B, est.C, est.D, est.dt)
-            prs.append(_pole_residue(ss))
+        return self.fit_models([_model_of(est) for est in self.estimators_], P)
+
+    def _check_samples(self, params: Any, n: int) -> np.ndarray:
+        self._check_params()
+        P = np.asarray(params, dtype=float)
+        P = P[:, None] if P.ndim == 1 else P
+        if P.ndim != 2 or len(P) != n or len(P) < 2:
+            raise ValueError(f"need params (n,) or (n, q) for n >= 2 samples; got {P.shape} for "
+                             f"{n} samples")
+        if self.weights in ("lagrange", "linear") and P.shape[1] > 1:
+            raise ValueError(f"weights={self.weights!r} takes one parameter; use 'rbf' for {P.shape[1]}")
+        return P
+
+    def fit_models(self, models: Any, params: Any) -> ParametricROM:
+        """Build from models identified beforehand (a list of :class:`StateSpace`, one per
+        sample) instead of fitting the base estimator: ``fit`` without its first step. Returns self."""
+        models = list(models)
+        P = self._check_samples(params, len(models))
+        if not hasattr(self, "estimators_") or len(self.estimators_) != len(models):
+            self.estimators_ = []
+        forms = [_modal_form(ss) for ss in models]
+        prs = [f[0] for f in forms]
+        self.dc_ = np.stack([f[1] for f in forms])
         self.params_ = P
         self.dt_ = float(prs[0].dt)
         self._scale = np.where(np.ptp(P, axis=0) > 0, np.ptp(P, axis=0), 1.0)
@@ -340,8 +408,15 @@ class ParametricROM(BaseEstimator):
         x = np.asarray(p, dtype=float).reshape(-1)
         if x.size != P.shape[1]:
             raise ValueError(f"the model has {P.shape[1]} parameter(s), got {x.size} value(s)")
+        if self.clip:
+            x = np.clip(x, P.min(axis=0), P.max(axis=0))
         kind = self.weights if self.weights != "auto" else ("lagrange" if P.shape[1] == 1 else "rbf")
         n = len(P)
+        if kind == "mean":
+            return np.full(n, 1.0 / n)
+        if kind == "regress":
+            X = np.column_stack([np.ones(n), P / self._scale])
+            return np.asarray(np.r_[1.0, x / self._scale] @ np.linalg.pinv(X))
         if kind == "rbf":
             from scipy.interpolate import RBFInterpolator
             rbf = RBFInterpolator(P / self._scale, np.eye(n), kernel="thin_plate_spline", degree=1)
@@ -379,6 +454,9 @@ class ParametricROM(BaseEstimator):
             si = w @ s
             si = np.minimum(si.real, -tiny) + 1j * np.where(np.arange(s.shape[1]) < k, si.imag, 0.0)
             Ri = np.einsum("i,ijpm->jpm", w, R)
+        if self.clip:
+            si = np.clip(si.real, s.real.min(axis=0), s.real.max(axis=0)) + \
+                1j * np.clip(si.imag, s.imag.min(axis=0), s.imag.max(axis=0))
         return si, Ri
 
     def _statespace(self, s: np.ndarray, R: np.ndarray, D: np.ndarray) -> StateSpace:
@@ -391,9 +469,46 @@ class ParametricROM(BaseEstimator):
 
     def at(self, p: Any) -> ParametricModel:
         """The model at parameter value ``p`` (scalar or (q,)): real, stable, discrete-time."""
-        w = self.weights_at(p)
-        s, R = self._interpolate(w)
-        return ParametricModel(self._statespace(s, R, np.einsum("i,ipm->pm", w, self.D_)))
+        return self.at_weights(self.weights_at(p))
+
+    def at_weights(self, w: np.ndarray) -> ParametricModel:
+        """The model for sample weights w (n,) (``weights_at`` gives them for a parameter value)."""
+        self._require_fit()
+        s, R = self._interpolate(np.asarray(w, float))
+        D = np.einsum("i,ipm->pm", w, self.D_)
+        if self.static:
+            D = np.einsum("i,ipm->pm", w, self.dc_) - static_gain(self._statespace(s, R, np.zeros_like(D)))
+        return ParametricModel(self._statespace(s, R, D))
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """What ``at`` needs, as real arrays (``from_arrays`` restores it): no estimators."""
+        self._require_fit()
+        return {"rom_format": np.array([FORMAT]), "rom_s_re": self._s.real, "rom_s_im": self._s.imag,
+                "rom_R_re": self._R.real, "rom_R_im": self._R.imag, "rom_D": self.D_, "rom_dc": self.dc_,
+                "rom_params": self.params_, "rom_scale": self._scale,
+                "rom_meta": np.array([self.dt_, float(self._n_pairs_kept)])}
+
+    @classmethod
+    def from_arrays(cls, arrays: Any, **params: Any) -> ParametricROM:
+        """A fitted ROM from ``to_arrays``' output and the constructor's parameters (no base
+        estimator: it cannot be refitted, only evaluated)."""
+        if int(np.asarray(arrays["rom_format"])[0]) != FORMAT:
+            raise ValueError(f"parametric model arrays of format {int(arrays['rom_format'][0])}; "
+                             f"this version reads {FORMAT}")
+        rom = cls(None, **params)
+        rom._s = np.asarray(arrays["rom_s_re"]) + 1j * np.asarray(arrays["rom_s_im"])
+        rom._R = np.asarray(arrays["rom_R_re"]) + 1j * np.asarray(arrays["rom_R_im"])
+        rom.D_ = np.asarray(arrays["rom_D"], float)
+        rom.dc_ = np.asarray(arrays["rom_dc"], float)
+        rom.params_ = np.asarray(arrays["rom_params"], float)
+        rom._scale = np.asarray(arrays["rom_scale"], float)
+        rom.dt_ = float(arrays["rom_meta"][0])
+        rom._n_pairs_kept = int(arrays["rom_meta"][1])
+        rom.unmatched_ = []
+        z = np.exp(rom._s * rom.dt_)
+        rom.residues_ = rom._R * ((z - 1.0) / rom._s)[:, :, None, None]
+        rom.poles_ = z
+        return rom
 
     def library_model(self, i: int) -> StateSpace:
         """The matched modes of sample ``i`` alone, as a state space (what ``at`` reproduces there)."""

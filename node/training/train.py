@@ -24,9 +24,11 @@ from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory, Variant, fit_oc_model
+from node.models.kinds import fit_oc_model
+from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory, Variant
+from node.models.prom import param_channels
 from node.models.result import EWMA_ALPHA, Calibration, OCResult
-from node.runtime.history import estimate_cooling
+from node.runtime.history import HISTORY_CHANNELS, estimate_cooling
 from node.runtime.ocdetect import OCDetector
 from node.runtime.runcurve import add_run_curve
 from node.sysid.metrics import pooled_eps
@@ -38,6 +40,7 @@ DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
     Method.WDMD: {"levels": [1, 2, 3, 4, 5], "rcond": [1e-8]},
     Method.DELAY_DMD: {"delays": [1, 2, 4, 8, 16], "rcond": [1e-8]},
     Method.LASSO: {"alpha": [1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0]},
+    Method.PROM: {},  # the parametric models alone: PROM_CANDIDATES
 }
 
 
@@ -82,6 +85,25 @@ CURVE_CANDIDATES: list[dict] = [
 # the default every figure of session 6 was measured with.
 CURVE_MARGIN = 0.5
 
+# The parametric candidates of every OC's CV (``ParametricOCModel`` params, dissertation section
+# 6.4): a WDMD per training segment, interpolated in pole-residue form to the run's engine-history
+# parameter at the switch (one of three), with the least-squares line through the samples
+# (``regress``) or piecewise-linear interpolation (``linear``), or to two of them (the
+# least-squares plane); one real mode, interpolated as
+# it is (``direct``), the static gain kept; seeded on the last 10 samples (0.25 s) of past.
+# The settings are those ``bench prom-engine`` chose most often by leave-one-run-out CV on the
+# development engines 23-25 (docs/prom_engine_study.md); like the grid's models, a parametric
+# model keeps an OC only when its CV eps beats the best curve's by ``CURVE_MARGIN``.
+PROM_PARAMS = ("hist_thermal", "hist_shutdown", "hist_energy")
+PROM_CANDIDATES: list[dict] = [
+    {"param": p, "levels": lv, "weights": w, "pairs": 0, "real": 1, "scheme": "direct", "seed": 10}
+    for p in PROM_PARAMS for lv in (1, 2) for w in ("regress", "linear")
+] + [  # two parameters: the least-squares plane (thin-plate interpolation through scattered
+    # runs extrapolated wildly in the study: one OC at eps_td 2e7)
+    {"param": f"{p},{q}", "levels": lv, "weights": "regress", "pairs": 0, "real": 1, "scheme": "direct",
+     "seed": 10} for p, q in itertools.combinations(PROM_PARAMS, 2) for lv in (1, 2)
+]
+
 
 def grid_points(grid: dict[str, list]) -> list[dict]:
     keys = sorted(grid)
@@ -105,17 +127,20 @@ class OCData:
     switch: str = ""  # the schedule's switch channel
     curves: list[dict] = field(default_factory=list)  # curve candidates (CurveModel params)
     z: list[np.ndarray] = field(default_factory=list)  # the target's 1x vectors, y's rows (empty: no phase)
+    proms: list[dict] = field(default_factory=list)  # parametric candidates (ParametricOCModel params)
+    unranked: list[str] = field(default_factory=list)  # candidates only the parametric models take
 
 
 def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int
                    ) -> tuple[list[str], list[tuple[str, float]]]:
     if inputs is not None:
         return inputs, []
-    segs = [np.column_stack([d.y[i], d.X[i]])[d.start[i]:] for i in rows]
+    cols = [j for j, c in enumerate(d.candidates) if c not in d.unranked]
+    segs = [np.column_stack([d.y[i], d.X[i][:, cols]])[d.start[i]:] for i in rows]
     score = rank_inputs(segs, 0)[1:]
     order = np.argsort(-score)
-    ranking = [(d.candidates[j], float(score[j])) for j in order]
-    return [d.candidates[j] for j in order[:k]], ranking
+    ranking = [(d.candidates[cols[j]], float(score[j])) for j in order]
+    return [d.candidates[cols[j]] for j in order[:k]], ranking
 
 
 def _trajs(d: OCData, rows: list[int], inputs: list[str]) -> list[Trajectory]:
@@ -178,16 +203,24 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         fold_inputs[f] = _choose_inputs(d, rows, inputs, n_inputs)[0]
     cv_scores = []
     best: tuple[float, dict, list[tuple[np.ndarray, np.ndarray]]] | None = None
-    for params in grid_points(grid):
+    for params in grid_points(grid) if grid else []:
         score, pairs_all = _cross_validate(d, folds, method, params, fold_inputs)
         cv_scores.append((params, score))
         if best is None or score < best[0]:
             best = (score, params, pairs_all)
-    if best is None:
+    if best is None and not (d.proms and Method(method) is Method.PROM):
         raise ValueError("empty hyper-parameter grid")
-    cv_eps, params, pairs = best
+    cv_eps, params, pairs = best or (float("inf"), {}, [])
     all_rows = list(range(len(d.runs)))
     chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs)
+    for prom in d.proms:  # the parametric models, on the same folds: the lowest CV of all models
+        prom_inputs = [d.switch, *param_channels(prom)]
+        if any(c not in d.candidates for c in prom_inputs):
+            continue
+        score, pairs_all = _cross_validate(d, folds, Method.PROM, prom, dict.fromkeys(folds, prom_inputs))
+        cv_scores.append(({"method": Method.PROM.value, **prom}, score))
+        if score < cv_eps:
+            method, cv_eps, params, pairs, chosen = Method.PROM, score, prom, pairs_all, prom_inputs
     best_curve: tuple[float, dict, list[tuple[np.ndarray, np.ndarray]], list[str]] | None = None
     for curve in d.curves:  # the characteristic curves, on the same folds
         curve_inputs = _curve_inputs(d, curve)
@@ -201,6 +234,9 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
             not cv_eps < (1.0 - CURVE_MARGIN) * best_curve[0]:
         method = Method.CURVE
         cv_eps, params, pairs, chosen = best_curve
+    if Method(method) is Method.PROM and not np.isfinite(cv_eps):
+        return OCResult(d.name, None, [], {}, len(folds), float("nan"), float("nan"), None, ranking,
+                        cv_scores, note="no parametric model in cross-validation")
     trajs = _trajs(d, all_rows, chosen)
     model = fit_oc_model(method, params, trajs)
     train_eps = pooled_eps(_predict_pairs(model, trajs))
@@ -224,11 +260,13 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
 def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: list[str],
                 segments: list[Segment] | None = None,
                 history_s: float = RuntimeConfig().history_s,
-                curves: list[dict] | None = None, phase: bool = True) -> list[OCData]:
+                curves: list[dict] | None = None, phase: bool = True,
+                proms: list[dict] | None = None, unranked: list[str] | None = None) -> list[OCData]:
     """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it.
 
     curves: each OC's curve candidates (``CURVE_CANDIDATES``; None: none). phase: the target's
-    1x vectors too (``OCData.z``) when every run holds its phase channel.
+    1x vectors too (``OCData.z``) when every run holds its phase channel. proms: the parametric
+    candidates (``PROM_CANDIDATES``); unranked: candidates MS-DPCCA leaves out (their inputs).
     """
     segments = segment_runs(runs, schedule) if segments is None else segments
     arrays = [run_arrays(run, target, candidates) for run in runs]
@@ -240,7 +278,8 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
     out = []
     for j, name in enumerate(schedule.names):
         d = OCData(name, target, list(candidates), [], [], [], [], switch=schedule.switch,
-                   curves=[dict(c) for c in curves or []])
+                   curves=[dict(c) for c in curves or []], proms=[dict(c) for c in proms or []],
+                   unranked=list(unranked or []))
         for s in segments:
             if s.oc != j:
                 continue
@@ -334,7 +373,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           cv_undercoverage: float = CV_UNDERCOVERAGE,
           fleet: tuple[np.ndarray, np.ndarray] | None = None,
           config: RuntimeConfig | None = None, curves: bool = True,
-          history: bool = False, phase: bool = True) -> list[OCResult]:
+          history: bool = False, phase: bool = True, prom: bool = True) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
@@ -353,30 +392,39 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     the grid's best beats it by ``CURVE_MARGIN`` (see ``train_oc``); with ``phase`` and the
     target's phase channel in every run, the vector curves too.
 
+    prom: per OC, also cross-validate the parametric models (``PROM_CANDIDATES``; with
+    ``method="prom"`` they alone, beside the curves) on the
+    engine-history parameters (computed for them when ``history`` is off, then only they take
+    them as inputs); ``runs`` are then one engine's.
+
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
     """
     meth = Method(method)
+    prom = prom or meth is Method.PROM
     if not runs:
         raise OrdervibError("no runs to train on")
     if any(target not in r.channels for r in runs):
         raise OrdervibError(f"target channel {target!r} is missing from some run")
     if fleet is not None:
         runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
-    if history:
+    if history or prom:
         runs = with_history(runs, schedule, config or RuntimeConfig())
     candidates = candidate_channels(runs, target, schedule.switch)
+    unranked = [c for c in candidates if c in HISTORY_CHANNELS] if not history and inputs is None else []
     if inputs is not None:
         missing = [c for c in inputs if c not in candidates]
         if missing:
             raise OrdervibError(f"input channel(s) {missing} missing or mostly empty in the recordings")
-        candidates = list(inputs)
-    if not candidates:
+        extra = [c for c in PROM_PARAMS if prom and c in candidates and c not in inputs]
+        candidates, unranked = list(inputs) + extra, extra
+    if len(candidates) == len(unranked):
         raise OrdervibError("no usable input channel in the recordings")
     grid = grid or DEFAULT_GRIDS[meth]
     datas = oc_datasets(runs, schedule, target, candidates,
                         history_s=(config or RuntimeConfig()).history_s,
-                        curves=CURVE_CANDIDATES if curves else None, phase=phase)
+                        curves=CURVE_CANDIDATES if curves else None, phase=phase,
+                        proms=PROM_CANDIDATES if prom else None, unranked=unranked)
     workers = workers or min(2, os.cpu_count() or 1)
     jobs = [(d, method, grid, inputs, n_inputs) for d in datas]
     results: list[OCResult | None] = [None] * len(jobs)

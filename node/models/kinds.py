@@ -1,0 +1,37 @@
+"""Which class each OC model method is, for training (``fit_oc_model``) and for the bundle
+loader (``model_from_arrays``)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from node.models.ocmodel import (
+    CurveModel,
+    Method,
+    OCModel,
+    OCModelKind,
+    RegressionModel,
+    StateSpaceModel,
+    Trajectory,
+)
+from node.models.prom import ParametricOCModel
+
+KINDS: dict[Method, OCModelKind] = {
+    Method.WDMD: StateSpaceModel, Method.DELAY_DMD: StateSpaceModel, Method.LASSO: RegressionModel,
+    Method.CURVE: CurveModel, Method.PROM: ParametricOCModel,
+}
+
+
+def fit_oc_model(method: str, params: dict, trajs: Sequence[Trajectory]) -> OCModel:
+    """Fit one OC's model of ``method`` on its trajectories."""
+    meth = Method(method)
+    return KINDS[meth].fit(meth, params, trajs)
+
+
+def model_from_arrays(method: str, params: dict, arrays: Mapping[str, np.ndarray],
+                      repaired: int = 0) -> OCModel:
+    """A model as a bundle stored it (``model.arrays()``)."""
+    meth = Method(method)
+    return KINDS[meth].from_arrays(meth, params, arrays, repaired)

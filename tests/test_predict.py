@@ -1,0 +1,209 @@
+"""``ordervib predict`` and the prediction behind it: a planned profile's expected orders,
+one-line errors for bad profiles, and a held-out run's prediction against its measurement."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from node.cli import main
+from node.contract import OrdervibError
+from node.mcap import read_runs
+from node.models.bundle import load_model
+from node.runtime.history import HISTORY_CHANNELS
+from node.training.prediction import (
+    InputFill,
+    history_after,
+    predict_recorded_run,
+    predict_runs,
+    schedule_profile,
+    stated_history,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+RUNS = ROOT / "recordings" / "engine1_runs.mcap"
+FAULT = ROOT / "recordings" / "engine1_fault.mcap"
+SCHEDULE = ROOT / "recordings" / "engine1_runs.schedule.toml"
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory) -> Path:
+    """A state-space model (wdmd) on the speed, a temperature and the engine history."""
+    out = tmp_path_factory.mktemp("predict") / "m"
+    assert main(["train", str(RUNS), "--schedule", str(SCHEDULE), "--out", str(out), "--method", "wdmd",
+                 "--inputs", "nB,tF,hist_energy", "--history", "--no-curve-candidates", "--target", "yB",
+                 "--quiet", "--workers", "1"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def train_runs():
+    return read_runs(str(RUNS))
+
+
+@pytest.mark.parametrize("text, message", [
+    (None, "not found"),
+    ("", "empty"),
+    ("t,nA\n0,1\n1,2\n", "no column 'nB'"),
+    ("t,nB,nB\n0,1,1\n1,2,2\n", "repeated"),
+    ("t,nB\n0,0\n", "at least two"),
+    ("t,nB\n0,0\n1,abc\n", "line 3: nB 'abc' is not a number"),
+    ("t,nB\n0,0\n1,nan\n", "line 3: nB is nan"),
+    ("t,nB\n0,0\n1,\n", "line 3: nB '' is not a number"),
+    ("t,nB\n0,0\n1\n", "line 3: 1 values for 2 columns"),
+    ("t,nB\n0,0\n2,100\n2,200\n", "line 4: time 2 s does not increase"),
+])
+def test_bad_profiles_are_one_line_errors_before_any_output(model, tmp_path, capsys, text, message):
+    prof = tmp_path / "p.csv"
+    if text is not None:
+        prof.write_text(text)
+    out = tmp_path / "out.csv"
+    assert main(["predict", "--model", str(model), "--profile", str(prof), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("ordervib predict: ") and message in err and "\n" not in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--shutdown-hours", "-1"], "--shutdown-hours"),
+    (["--energy", "nan"], "--energy"),
+    (["--bed", "b1"], "--bed"),
+    (["--png", "x.jpg"], "--png must name a .png"),
+])
+def test_bad_options_are_one_line_errors(model, tmp_path, capsys, extra, message):
+    prof = tmp_path / "p.csv"
+    prof.write_text("t,nB\n0,0\n10,3900\n")
+    assert main(["predict", "--model", str(model), "--profile", str(prof), "--out",
+                 str(tmp_path / "o.csv"), *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err, err
+
+
+def test_planned_profile_gives_a_prediction_per_oc_and_history(model, tmp_path, capsys):
+    """A CSV of breakpoints (t, nB only) through every plateau of the schedule, two stated
+    shutdowns: the temperature the model takes is filled from its training recordings, the
+    CSV has a row per 40 Hz sample and stated history, every OC gets a finite prediction."""
+    bundle = load_model(model)
+    plan = schedule_profile(bundle.schedule, plateau_s=20.0)
+    # a plateau is two rows 20 s apart: the engine runs through them, one engine run
+    running = [r for r in plan.runs(off=100.0) if r.column("nB").max() > 100.0]
+    assert len(running) == 1 and running[0].column("nB").max() == max(oc.speed for oc in bundle.schedule.ocs)
+    prof = tmp_path / "plan.csv"
+    prof.write_text("t,nB\n" + "".join(f"{t:g},{v:g}\n" for t, v in zip(plan.t, plan.data[:, 0])))
+    out, png, hist = tmp_path / "pred.csv", tmp_path / "pred.png", tmp_path / "hist.png"
+    assert main(["predict", "--model", str(model), "--profile", str(prof), "--out", str(out),
+                 "--png", str(png), "--history-png", str(hist), "--shutdown-hours", "0.5", "24",
+                 "--energy", "40000", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "OC13" in text and "prediction written to" in text
+    with open(out, newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["history", "t", "oc", "yB", *HISTORY_CHANNELS, "nB", "tF", "tH", "tI"]
+    assert {r["history"] for r in rows} == {"0.5", "24"}
+    n = int(round((plan.t[-1] - plan.t[0]) * 40)) + 1
+    assert len(rows) == 2 * n
+    for h in ("0.5", "24"):
+        mine = [r for r in rows if r["history"] == h]
+        for oc in bundle.schedule.names:
+            y = [float(r["yB"]) for r in mine if r["oc"] == oc and r["yB"]]
+            assert y and np.isfinite(y).all(), (h, oc)
+        assert all(r["tF"] for r in mine)  # filled
+    # the stated history: the energy carried fades with the hours stood (cooling per hour)
+    on = 0.05 * max(oc.speed for oc in bundle.schedule.ocs)  # the engine runs from here
+    e0 = {h: float(next(r for r in rows if r["history"] == h and float(r["nB"]) >= on)["hist_energy"])
+          for h in ("0.5", "24")}
+    cooling = bundle.config.history_cooling
+    assert e0["0.5"] == pytest.approx(max(0.0, 40000 - 0.5 * cooling), abs=1.0)
+    assert e0["24"] == pytest.approx(max(0.0, 40000 - 24 * cooling), abs=1.0) and e0["24"] < e0["0.5"]
+    assert png.stat().st_size > 10_000 and hist.stat().st_size > 10_000
+    # a schedule's plateaus directly
+    assert main(["predict", "--model", str(model), "--profile", str(SCHEDULE), "--plateau-s", "5",
+                 "--out", str(tmp_path / "s.csv"), "--quiet"]) == 0
+
+
+def test_a_missing_input_without_training_runs_is_one_line(model, train_runs):
+    bundle = load_model(model)
+    plan = schedule_profile(bundle.schedule, plateau_s=5.0)
+    with pytest.raises(OrdervibError, match="'tF'"):
+        predict_runs(bundle, plan.runs())
+    fill = InputFill.fit(train_runs, bundle.schedule, ["tF", "tI", "tH", "zZ"])
+    assert fill.channels == ("tF", "tI", "tH")  # what the runs hold
+    assert np.isfinite(predict_runs(bundle, plan.runs(), fill=fill).predicted).any()
+
+
+def test_held_out_run_predicted_from_its_own_profile_against_its_measurement(model, train_runs):
+    """The fault run (run 5 of the engine) from its own inputs and the history of runs 1-4:
+    eps_td per OC is finite for every OC; chaining the prediction (each OC seeded from the
+    prediction before) does better than the node's models started from rest."""
+    bundle = load_model(model)
+    run = read_runs(str(FAULT))[0]
+    engine = history_after(train_runs, bundle)
+    assert engine.last_on_t is not None and train_runs[-1].t[0] < engine.last_on_t <= train_runs[-1].t[-1]
+    chained = predict_recorded_run(bundle, run, engine)
+    assert chained.eps.shape == (1, len(bundle.schedule.ocs))
+    assert np.isfinite(chained.eps).all() and (chained.eps > 0).all()
+    absent = predict_recorded_run(bundle, run, engine, seed="absent")
+    assert np.mean(chained.eps) < np.mean(absent.eps)
+    np.testing.assert_array_equal(chained.measured[:, 0], run.column("yB"))
+    p = chained.prediction
+    assert p.filled == () and p.t.size == run.t.size and set(p.oc.tolist()) == set(range(-1, 12))
+    from replay.prediction_plots import fig_prediction
+    fig = fig_prediction(chained)  # panel IV: speed, then measured and predicted yB with eps in the title
+    assert len(fig.axes) == 2 and "eps_td" in fig.axes[1].get_title(loc="left")
+    # a stated shutdown reaches the history channels the node derives
+    stated = predict_recorded_run(bundle, run, stated_history(float(run.t[0]), 1.5, 0.0))
+    shutdown = stated.prediction.history[:, HISTORY_CHANNELS.index("hist_shutdown")]
+    assert shutdown[p.oc >= 0] == pytest.approx(1.5, abs=0.01)
+
+
+def test_engine_state_file_needs_its_bed_named_when_it_holds_several(model, tmp_path, capsys):
+    from node.live.engine_file import save_engine_states
+    from node.runtime.history import EngineState
+    state = tmp_path / "engine.json"
+    save_engine_states(state, {"b1": EngineState(0.0, 1000.0), "b2": EngineState()})
+    prof = tmp_path / "p.csv"
+    prof.write_text("t,nB\n0,0\n10,3900\n")
+    argv = ["predict", "--model", str(model), "--profile", str(prof), "--out", str(tmp_path / "o.csv"),
+            "--engine-state", str(state)]
+    assert main(argv) == 2
+    assert "name one with --bed" in capsys.readouterr().err
+    assert main([*argv, "--bed", "b3"]) == 2
+    assert "no bed 'b3'" in capsys.readouterr().err
+
+
+def test_a_gap_in_the_profile_is_a_shutdown_the_history_sees(model, train_runs):
+    """Two engine runs 30 minutes apart in one profile: the second starts a new run for the
+    node, and its hist_shutdown is the half hour the engine stood."""
+    from node.training.prediction import Profile
+    bundle = load_model(model)
+    one = schedule_profile(bundle.schedule, plateau_s=8.0)
+    gap = one.t[-1] + 1800.0
+    prof = Profile(np.r_[one.t, gap + one.t], np.r_[one.data, one.data], one.channels)
+    runs = prof.runs()
+    assert len(runs) == 2 and runs[1].shutdown_before == pytest.approx(1800.0, abs=0.1)
+    p = predict_runs(bundle, runs, fill=InputFill.fit(train_runs, bundle.schedule, ["tF", "tI", "tH"]))
+    shutdown = p.history[:, HISTORY_CHANNELS.index("hist_shutdown")]
+    second = (p.run == 1) & (p.oc >= 0)
+    on = 0.05 * max(oc.speed for oc in bundle.schedule.ocs)  # the engine runs from here
+    ran = [r.t[r.column("nB") >= on] for r in runs]
+    stood_h = (ran[1][0] - ran[0][-1]) / 3600.0  # from the last sample it ran to the next
+    assert second.sum() > 1000 and shutdown[second] == pytest.approx(stood_h, abs=1e-4)
+    assert np.isfinite(p.predicted[second]).any()
+
+
+def test_recorded_runs_each_with_the_history_the_runs_before_leave(model, train_runs):
+    from node.training.prediction import predict_recorded_runs, recorded_eps
+    bundle = load_model(model)
+    runs = train_runs[:2]
+    recs = predict_recorded_runs(bundle, runs)
+    assert recs[0].prediction.engine == stated_history(0.0)  # unknown before the first: cold
+    assert recs[1].prediction.engine == history_after(runs[:1], bundle)
+    np.testing.assert_array_equal(recs[1].eps, predict_recorded_run(bundle, runs[1],
+                                                                     history_after(runs[:1], bundle)).eps)
+    pooled = recorded_eps(recs)
+    assert pooled.shape == (1, 12) and np.isfinite(pooled).all()
+    lo, hi = np.minimum(recs[0].eps, recs[1].eps), np.maximum(recs[0].eps, recs[1].eps)
+    assert (pooled >= lo - 1e-12).all() and (pooled <= hi + 1e-12).all()  # pooled lies between
