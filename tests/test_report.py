@@ -77,7 +77,11 @@ def test_report_has_four_panels_each_with_a_figure_and_nothing_external(made: tu
     assert all(link.startswith(("data:", "#")) for link in p.links)  # no server, no network
     assert "http://" not in html and "https://" not in html and "<script" not in html
     assert "engine1_fault #1" in html and "OC10" in html  # the runs and OCs are named
-    assert "mixture clusters: pending" in html  # panel I's placeholder, until it is wired in
+    assert "pending" not in html
+    ctx = html[html.index('id="panel-context"'):html.index('id="panel-parameters"')]
+    assert "Contextual characteristic curves" in ctx and ctx.count("<img") >= 4  # curve, timeline, clusters, violins
+    pred = html[html.index('id="panel-prediction"'):]
+    assert "A planned pass-off" in pred and pred.count("<img") >= 3  # a run, the plan, figure A.5
 
 
 def test_report_renders_in_headless_chromium(made: tuple[Path, Path]) -> None:

@@ -235,6 +235,8 @@ class ParametricROM(BaseEstimator):
             samples. Weights with negative entries (Lagrange, regress, RBF) otherwise move a slow
             real pole onto z = 1 and extrapolate a plane beyond the samples' hull (engine OCs:
             held-out eps_td 1e6-1e8 without).
+        verbose: a mode left out is a logged warning (False: a debug message, for callers
+            that try many settings and read ``unmatched_`` themselves).
 
     Learned attributes: ``estimators_`` (the fitted copies), ``params_`` (n, q), ``poles_``
     (n, r) complex discrete-time poles of the matched modes (the pairs by their upper-half-plane
@@ -270,7 +272,7 @@ class ParametricROM(BaseEstimator):
 
     def __init__(self, base_estimator: Any, n_pairs: int = 4, n_real: int = 0, scheme: str = "modal",
                  weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5,
-                 static: bool = False, clip: bool = False) -> None:
+                 static: bool = False, clip: bool = False, verbose: bool = True) -> None:
         self.base_estimator = base_estimator
         self.n_pairs = n_pairs
         self.n_real = n_real
@@ -280,6 +282,7 @@ class ParametricROM(BaseEstimator):
         self.tol = tol
         self.static = static
         self.clip = clip
+        self.verbose = verbose
 
     # --- fit ------------------------------------------------------------------------------
     def _check_params(self) -> None:
@@ -386,9 +389,9 @@ class ParametricROM(BaseEstimator):
             if j in broke:
                 pole = complex(np.exp(modes[root].s[j] * self.dt_))
                 self.unmatched_.append((broke[j][0], pole, broke[j][1]))
-                log.warning("the mode at z = %.5g%+.5gj of sample %d has no match within tol %.3g at "
-                            "sample %d (cost %.3g): left out", pole.real, pole.imag, root, self.tol,
-                            *broke[j])
+                log.log(logging.WARNING if self.verbose else logging.DEBUG,
+                        "the mode at z = %.5g%+.5gj of sample %d has no match within tol %.3g at "
+                        "sample %d (cost %.3g): left out", pole.real, pole.imag, root, self.tol, *broke[j])
         good = [j for j in ranked if j not in broke]
         p, m = modes[root].R.shape[1:]
         s = np.array([[modes[i].s[track[i, j]] for j in good] for i in range(n)], dtype=complex)

@@ -9,6 +9,7 @@ takes the target's bundle, the runs, the schedule and the target, and returns it
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -23,14 +24,13 @@ from node.models.bundle import Bundle
 from node.runtime.history import HISTORY_CHANNELS
 from node.sysid.metrics import pooled_eps, pooled_r2
 from node.training.dataset import Segment, segment_runs
-from node.training.evaluation import curve_predictions, derived_runs, evaluate, predict_segments
+from node.training.evaluation import curve_predictions, derived_runs, evaluate
 from replay.offline import NodeAlarms
 from replay.report.document import Block, Figure, Heading, Paragraph, Table
 from replay.report.figures import (
     curve_figure,
     parallel_figure,
     run_colours,
-    runs_figure,
     score_figure,
     segments_figure,
 )
@@ -88,9 +88,10 @@ def _plateaus(runs: Sequence[Run], segs: list[Segment], target: str) -> dict[tup
 
 
 def context_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
-    """I (for now): the characteristic curve with every run on it, and each OC's plateau levels.
-
-    To be replaced by the mixture clusters on the temperatures and their Gibbs posteriors."""
+    """I: the characteristic curve with every run on it, each OC's plateau levels, and the
+    contextual curves (section 3.4): per OC a Dirichlet-process mixture on the temperatures,
+    its clusters carried onto the speed profile and the curve, and each cluster's posterior
+    of the amplitude's mean and spread (Gibbs sampling, Student-t likelihood; figure 3.6)."""
     sw = schedule.switch
     curve = fleet_curve(bundle, runs.runs, sw, target)
     fig = curve_figure(runs.runs, runs.labels, sw, target, curve,
@@ -103,15 +104,51 @@ def context_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str)
         rows.append([oc.name, f"{oc.speed:.0f}", _f(at), str(vals.size),
                      *(_f(f(vals)) if vals.size else "-" for f in (np.mean, np.std, np.min, np.max))])
     src = "the model's" if bundle.curve is not None else "fitted on these runs (the model has none)"
-    return [
+    blocks: list[Block] = [
         Figure.of(fig, f"{target} against {sw}, one line per run; black: the characteristic curve ({src}); "
                   "dotted: the OCs' nominal speeds"),
         Table(["OC", f"{sw} (rpm)", "curve (mm/s)", "runs", "plateau mean", "spread (std)", "min", "max"],
               rows, f"{target} on each OC's plateau across the runs (mm/s)"),
-        Paragraph("mixture clusters: pending (the Dirichlet-process mixture on the temperatures and "
-                  "the Gibbs posteriors of each cluster's mean and spread come here)", note=True),
     ]
+    return blocks + _context_blocks(runs.runs, schedule, target)
 
+
+def _context_blocks(runs: list[Run], schedule: Schedule, target: str) -> list[Block]:
+    """The mixture clusters on the temperatures and their posteriors (or why there are none)."""
+    from node.training.context import TEMPERATURES, context_curves
+    from replay.context_plots import fig_context_clusters, fig_context_timeline, fig_context_violins
+
+    missing = [c for c in TEMPERATURES if any(c not in r.channels for r in runs)]
+    if missing:
+        return [Paragraph(f"contextual curves: the recordings lack {', '.join(missing)} (the mixture "
+                          f"clusters are taken on {', '.join(TEMPERATURES)})", note=True)]
+    ctxs = [c for c in context_curves(runs, schedule, target) if c.n_clusters]
+    if not ctxs:
+        return [Paragraph("contextual curves: no OC has enough plateau samples for clusters", note=True)]
+    rows = []
+    for c in ctxs:
+        for k, post in enumerate(c.posteriors):
+            lo, mid, hi = np.percentile(post.mu, [5, 50, 95])
+            at = [f"{x:.1f}" for x in c.centres[k]]
+            rows.append([c.name, str(k + 1), str(post.n), f"{c.weights[k]:.2f}", ", ".join(at),
+                         f"{mid:.3f} [{lo:.3f}, {hi:.3f}]", _f(float(np.median(post.sigma)))])
+    busiest = sorted(ctxs, key=lambda c: -float(np.ptp([np.median(p.mu) for p in c.posteriors])))[:2]
+    return [
+        Heading("Contextual characteristic curves (section 3.4)"),
+        Paragraph(f"Per OC, a Dirichlet-process Gaussian mixture (scikit-learn BayesianGaussianMixture) "
+                  f"on the standardised plateau temperatures {', '.join(ctxs[0].channels)}: each cluster "
+                  f"a thermal context. Its {target} mean and spread by Gibbs sampling with a Student-t "
+                  f"likelihood (nu = {ctxs[0].posteriors[0].nu:g}: a few outliers do not move them)."),
+        Figure.of(fig_context_timeline(ctxs), "Figure 3.5 (b): each OC's clusters over the plateau's "
+                  "normalised time, a row per run: the clusters follow one another in time"),
+        Figure.of(fig_context_clusters(busiest), "Figures 3.4 / 3.5: the two OCs whose clusters' means "
+                  "differ most: the clusters in temperature space, on the speed profile and on the curve"),
+        Figure.of(fig_context_violins(ctxs), f"Figure 3.6: posterior of each cluster's {target} mean (mu) "
+                  "and spread (sigma), per OC"),
+        Table(["OC", "cluster", "samples", "weight", f"centre ({', '.join(ctxs[0].channels)})",
+               "mu: median [5 %, 95 %]", "sigma: median"], rows,
+              f"{target} per thermal context (mm/s; 4 plateau samples a second)"),
+    ]
 
 def _oc_parameters(bundle: Bundle, runs: list[Run], schedule: Schedule, target: str
                    ) -> list[tuple[str, list[str], list[str], np.ndarray]]:
@@ -248,29 +285,62 @@ def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
 
 
 def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
-    """IV (for now): the model's prediction of each recorded run, from its own profile and history,
-    against what it measured; eps_td per OC and run.
+    """IV: the prediction from the profile and the engine history alone (no measured order: the
+    node's models chained through the OCs, ``node.training.prediction``): each recorded run's
+    against what it measured, eps_td per OC; then the schedule as a planned profile after these
+    runs and after a cold start, with the history parameters of appendix A.2.5 (figure A.5)."""
+    from node.contract import OrdervibError
+    from node.training.prediction import (
+        InputFill,
+        RecordedPrediction,
+        history_after,
+        needed_channels,
+        predict_profile,
+        predict_recorded_runs,
+        recorded_eps,
+        schedule_profile,
+        stated_history,
+    )
+    from replay.prediction_plots import fig_history, fig_prediction
 
-    To be replaced by the prediction for a planned profile and a stated engine history."""
-    preds = predict_segments(bundle.ocs, runs.runs, schedule, target, bundle.curve, bundle.config)
     blocks: list[Block] = []
-    fig = runs_figure(runs.runs, runs.labels, preds, schedule.switch, target)
-    if fig is not None:
-        blocks.append(Figure.of(fig, f"Per run: {target} measured (grey) and predicted for each OC "
-                                f"(colour), {schedule.switch} (orange, right axis)"))
-    present = sorted({p.oc for p in preds})
+    try:
+        recs = predict_recorded_runs(bundle, runs.runs)
+    except OrdervibError as exc:
+        return [Paragraph(f"prediction: {exc}", note=True)]
+    eps = recorded_eps(recs)[0]
+    cc = CharacteristicCurve()
+    cc.centres_, cc.means_ = fleet_curve(bundle, runs.runs, schedule.switch, target)
+    base = recorded_eps([RecordedPrediction(  # the characteristic curve on the very samples
+        dataclasses.replace(r.prediction, predicted=cc.predict(np.nan_to_num(r.prediction.speed))[:, None]),
+        r.measured, r.segments) for r in recs])[0]
+    present = [j for j in range(len(schedule.names)) if np.isfinite(eps[j])]
     rows = []
-    for i, label in enumerate(runs.labels):
-        mine = [p for p in preds if p.run == i]
-        cells = []
-        for j in present:
-            pairs = [(p.measured, p.predicted) for p in mine if p.oc == j]
-            cells.append(_f(pooled_eps(pairs)) if pairs else "-")
-        total = pooled_eps([(p.measured, p.predicted) for p in mine]) if mine else float("nan")
-        rows.append([label, *cells, _f(total)])
-    blocks.append(Table(["run", *(schedule.names[j] for j in present), "all OCs"], rows,
-                        f"{target}: eps_td of the prediction per OC and run (all OCs: the run's OCs pooled)"))
-    blocks.append(Paragraph("prediction for a planned profile and engine history: pending (the "
-                            "expected amplitude for a planned RPM profile, with the history "
-                            "parameters of appendix A.2.5, comes here)", note=True))
+    for label, rec in zip(runs.labels, recs):
+        rows.append([label, *(_f(float(rec.eps[0, j])) for j in present)])
+    rows.append(["all runs", *(_f(float(eps[j])) for j in present)])
+    rows.append(["curve", *(_f(float(base[j])) for j in present)])
+    blocks += [
+        Paragraph(f"{target} predicted from each run's own speed profile, inputs and engine history, "
+                  "without its measured order (each OC's model seeded from the prediction of the OC "
+                  "before it; the first from the fleet level), against what the run measured."),
+        Figure.of(fig_prediction(recs[0]), f"{runs.labels[0]}: predicted against measured"),
+        Table(["run", *(schedule.names[j] for j in present)], rows,
+              f"{target}: eps_td of the prediction per OC (all runs: pooled; curve: the characteristic "
+              "curve on the same samples)"),
+    ]
+    fill = InputFill.fit(runs.runs, schedule, needed_channels(bundle))
+    plan = schedule_profile(schedule)
+    start = float(plan.t[0])
+    preds = [predict_profile(bundle, plan, history_after(runs.runs, bundle), fill, label="after these runs"),
+             predict_profile(bundle, plan, stated_history(start, 24.0), fill, label="cold (24 h)")]
+    blocks += [
+        Heading("A planned pass-off"),
+        Paragraph(f"The schedule's plateaus in order ({len(schedule.names)} OCs, 60 s each, ramps at 250 "
+                  "rpm/s); inputs the profile lacks filled from these runs; the engine's history as these "
+                  "runs leave it, and after 24 h standing."),
+        Figure.of(fig_prediction(preds), f"expected {target} over the planned profile"),
+        Figure.of(fig_history(preds), "Figure A.5: the speed profile, the cumulative energy (hist_energy, "
+                  "rpm min) and the cumulative rate of change of speed (hist_rate, rpm)"),
+    ]
     return blocks
