@@ -56,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     targets = _targets(args.target, model.targets)
     check_output(args.out, "--out", suffix=".html", inputs=[args.model, *args.recordings])
 
+    from node.cli.logs import Progress
     from replay.report.build import build_report
     from replay.report.panels import RunSet
 
@@ -70,7 +71,8 @@ def run(args: argparse.Namespace) -> int:
         if missing:
             raise OrdervibError(f"run {labels[i]} has no channel {', '.join(missing)} "
                                 f"(the schedule's switch and the targets are needed)")
-    page = build_report(model, RunSet(runs, labels), args.recordings, targets, args.model)
+    page = build_report(model, RunSet(runs, labels), args.recordings, targets, args.model,
+                        progress=Progress("report", log))
     with replacing(args.out) as tmp:  # an existing report is replaced only by a complete one
         with open(tmp, "w", encoding="utf-8") as f:
             f.write(page)

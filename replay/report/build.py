@@ -28,16 +28,29 @@ PANELS: tuple[tuple[str, str], ...] = (
 
 
 def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets: Sequence[str],
-                 model_name: str = "", alarms: NodeAlarms | None = None) -> str:
+                 model_name: str = "", alarms: NodeAlarms | None = None,
+                 progress: Callable[[float], None] | None = None) -> str:
     """The report's HTML page of ``runs`` (read from ``recordings``) for ``targets`` of ``model``.
 
     alarms: the node's alarms over the recordings (default: replayed here, ``node_alarms``, the
     engine history carried through the recordings in the order given, as panels II-IV derive it).
+    progress: called with the fraction done (0..1) after each step (the replay, then each panel
+    of each target).
     """
     t0 = time.perf_counter()
+    steps = 1 + len(PANELS) * len(targets)
+    done = 0
+
+    def step() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done / steps)
+
     if alarms is None:
         log.info("report: replaying the node over %d recording(s) for its alarms", len(recordings))
         alarms = node_alarms(list(recordings), model, carry=True)
+    step()
     schedule = model.schedule
     makers: list[Callable[[str], list[Block]]] = [
         lambda t: context_panel(model[t], runs, schedule, t),
@@ -53,6 +66,7 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
             if len(targets) > 1:
                 blocks.append(Heading(f"target {t}"))
             blocks += make(t)
+            step()
         panels.append(Panel(pid, title, blocks))
     meta = [
         ("model", f"{model_name} ({model.bundles[0].method}; targets {', '.join(model.targets)})"),
