@@ -185,3 +185,32 @@ def test_train_with_history_stores_the_cooling_and_the_node_replays_it(tmp_path,
     pairs = [(node.get(round(float(t), 6)), p) for s in preds for t, p in zip(s.t, s.predicted)]
     assert pairs and all(a is not None for a, _ in pairs)  # the node predicted every sample
     np.testing.assert_allclose([a for a, _ in pairs], [b for _, b in pairs], rtol=1e-9, atol=1e-9)
+
+
+def test_fold_rankings_from_shared_segment_terms_equal_ranking_each_fold_afresh():
+    """Leave-one-run-out CV ranks the inputs of every fold from per-segment MS-DPCCA terms
+    computed once: each fold's scores equal rank_inputs over its own segments to the last bit."""
+    from node.training.features import rank_inputs
+    from node.training.train import OCData, _choose_inputs, _ranking_terms
+
+    rng = np.random.default_rng(4)
+    d = OCData("OC1", "yB", ["nB", "tF", "tI", "hist_energy"], [], [], [], [], switch="nB",
+               unranked=["hist_energy"])
+    for r in range(6):
+        K = int(rng.integers(300, 600))
+        X = np.cumsum(rng.normal(size=(K, 4)), axis=0)
+        X[:, 2] = 5.0 if r == 3 else X[:, 2]  # a channel constant in one segment
+        d.runs.append(r)
+        d.y.append(X[:, 0] * 0.3 + X[:, 1] * 0.1 + rng.normal(size=K))
+        d.X.append(X)
+        d.start.append(50)
+        d.at.append(50)
+    terms = _ranking_terms(d)
+    for f in range(6):
+        rows = [i for i in range(6) if i != f]
+        segs = [np.column_stack([d.y[i], d.X[i][:, [0, 1, 2]]])[d.start[i]:] for i in rows]  # (as training)
+        want = rank_inputs(segs, 0)[1:]
+        got = _choose_inputs(d, rows, None, 2, terms)[1]
+        order = np.argsort(-want)
+        assert [c for c, _ in got] == [d.candidates[j] for j in order]  # never the unranked one
+        np.testing.assert_array_equal([s for _, s in got], want[order])

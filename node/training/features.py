@@ -55,6 +55,43 @@ def dpcca(X: np.ndarray, s: int) -> np.ndarray:
     return np.clip(out, -1.0, 1.0)
 
 
+Term = tuple[np.ndarray, np.ndarray, int]  # one segment's share of rank_inputs: (cols, K x score, K)
+
+
+def segment_term(X: np.ndarray, target_col: int, scales: tuple[int, ...] = DEFAULT_SCALES) -> Term | None:
+    """One segment's share of :func:`rank_inputs`: the columns that vary in it, their mean
+    |rho_DPCCA| with the target over the usable scales times the segment's length, and the
+    length; None when the target is constant or no scale fits. Per segment and independent of
+    the others, so cross-validation folds share them (``combine_terms``)."""
+    sd = X.std(axis=0)
+    live = sd > 1e-12 * (np.abs(X).max(axis=0) + 1e-300)
+    if not live[target_col] or live.sum() < 2:
+        return None
+    cols = np.flatnonzero(live)
+    Xl = (X[:, cols] - X[:, cols].mean(axis=0)) / sd[cols]
+    t = int(np.flatnonzero(cols == target_col)[0])
+    usable = [s for s in scales if 2 <= s < X.shape[0] // 4]
+    if not usable:
+        return None
+    score = np.mean([np.abs(dpcca(Xl, s)[t]) for s in usable], axis=0)
+    return cols, X.shape[0] * score, X.shape[0]
+
+
+def combine_terms(terms: list[Term | None], n_channels: int, target_col: int) -> np.ndarray:
+    """:func:`rank_inputs` from its segments' terms, summed in the order given: (N,) scores."""
+    total = np.zeros(n_channels)
+    weight = 0.0
+    for term in terms:
+        if term is None:
+            continue
+        cols, score, k = term
+        total[cols] += score
+        weight += k
+    out = total / weight if weight else total
+    out[target_col] = -np.inf
+    return out
+
+
 def rank_inputs(segments: list[np.ndarray], target_col: int,
                 scales: tuple[int, ...] = DEFAULT_SCALES) -> np.ndarray:
     """Mean |rho_DPCCA(target, j)| over scales and segments, weighted by segment length.
@@ -63,23 +100,5 @@ def rank_inputs(segments: list[np.ndarray], target_col: int,
     Returns (N,) scores (the target's own score is set to -inf). Channels that
     are constant in every segment score 0.
     """
-    N = segments[0].shape[1]
-    total = np.zeros(N)
-    weight = 0.0
-    for X in segments:
-        sd = X.std(axis=0)
-        live = sd > 1e-12 * (np.abs(X).max(axis=0) + 1e-300)
-        if not live[target_col] or live.sum() < 2:
-            continue
-        cols = np.flatnonzero(live)
-        Xl = (X[:, cols] - X[:, cols].mean(axis=0)) / sd[cols]
-        t = int(np.flatnonzero(cols == target_col)[0])
-        usable = [s for s in scales if 2 <= s < X.shape[0] // 4]
-        if not usable:
-            continue
-        score = np.mean([np.abs(dpcca(Xl, s)[t]) for s in usable], axis=0)
-        total[cols] += X.shape[0] * score
-        weight += X.shape[0]
-    out = total / weight if weight else total
-    out[target_col] = -np.inf
-    return out
+    return combine_terms([segment_term(X, target_col, scales) for X in segments], segments[0].shape[1],
+                         target_col)

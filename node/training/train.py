@@ -34,7 +34,7 @@ from node.runtime.runcurve import add_run_curve
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, peak_score, set_thresholds
 from node.training.dataset import Segment, run_arrays, segment_runs, target_vectors, time_order, with_history
-from node.training.features import rank_inputs
+from node.training.features import Term, combine_terms, segment_term
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
     Method.WDMD: {"levels": [1, 2, 3, 4, 5], "rcond": [1e-8]},
@@ -131,13 +131,26 @@ class OCData:
     unranked: list[str] = field(default_factory=list)  # candidates only the parametric models take
 
 
-def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int
-                   ) -> tuple[list[str], list[tuple[str, float]]]:
+def _ranking_terms(d: OCData) -> list[Term | None]:
+    """Each segment's MS-DPCCA term (``segment_term``) on the ranked candidates: computed once,
+    shared by every fold (a fold's ranking sums its rows' terms in row order, exactly as
+    ``rank_inputs`` over its segments would)."""
+    cols = _ranked_columns(d)
+    return [segment_term(np.column_stack([d.y[i], d.X[i][:, cols]])[d.start[i]:], 0)
+            for i in range(len(d.runs))]
+
+
+def _ranked_columns(d: OCData) -> list[int]:
+    return [j for j, c in enumerate(d.candidates) if c not in d.unranked]
+
+
+def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int,
+                   terms: list[Term | None] | None = None) -> tuple[list[str], list[tuple[str, float]]]:
     if inputs is not None:
         return inputs, []
-    cols = [j for j, c in enumerate(d.candidates) if c not in d.unranked]
-    segs = [np.column_stack([d.y[i], d.X[i][:, cols]])[d.start[i]:] for i in rows]
-    score = rank_inputs(segs, 0)[1:]
+    cols = _ranked_columns(d)
+    terms = terms if terms is not None else _ranking_terms(d)
+    score = combine_terms([terms[i] for i in rows], len(cols) + 1, 0)[1:]
     order = np.argsort(-score)
     ranking = [(d.candidates[cols[j]], float(score[j])) for j in order]
     return [d.candidates[cols[j]] for j in order[:k]], ranking
@@ -198,9 +211,10 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         return OCResult(d.name, None, [], {}, len(folds), float("nan"), float("nan"), None,
                         note=f"seen in {len(folds)} run(s); at least 2 are needed")
     fold_inputs = {}
+    terms = _ranking_terms(d) if inputs is None else None
     for f in folds:
         rows = [i for i, r in enumerate(d.runs) if r != f]
-        fold_inputs[f] = _choose_inputs(d, rows, inputs, n_inputs)[0]
+        fold_inputs[f] = _choose_inputs(d, rows, inputs, n_inputs, terms)[0]
     cv_scores = []
     best: tuple[float, dict, list[tuple[np.ndarray, np.ndarray]]] | None = None
     for params in grid_points(grid) if grid else []:
@@ -212,7 +226,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         raise ValueError("empty hyper-parameter grid")
     cv_eps, params, pairs = best or (float("inf"), {}, [])
     all_rows = list(range(len(d.runs)))
-    chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs)
+    chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs, terms)
     for prom in d.proms:  # the parametric models, on the same folds: the lowest CV of all models
         prom_inputs = [d.switch, *param_channels(prom)]
         if any(c not in d.candidates for c in prom_inputs):
