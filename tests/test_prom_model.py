@@ -181,3 +181,14 @@ def test_two_parameters_pick_the_model_by_both():
     rt = model_from_arrays("prom", params, m.arrays()).runtime()
     rt.start(t.y[:t.start], t.U[:t.start])
     np.testing.assert_allclose([rt.step(u) for u in t.seg_U], m.predict(t), rtol=1e-10, atol=1e-12)
+
+
+def test_the_cv_s_free_run_is_the_state_space_s_own_to_the_last_bit():
+    from node.models.prom import _free_run
+    from node.sysid import StateSpace
+
+    rng = np.random.default_rng(0)
+    for A in (np.diag([0.5, 0.97, 0.2]), np.array([[0.9, 0.1, 0.0], [-0.1, 0.9, 0.0], [0.0, 0.0, 0.5]])):
+        ss = StateSpace(A, rng.normal(size=(3, 2)), rng.normal(size=(1, 3)), rng.normal(size=(1, 2)), 0.025)
+        U, x0 = rng.normal(size=(2000, 2)), rng.normal(size=3)
+        np.testing.assert_array_equal(_free_run(ss, U, x0), ss.simulate(U, x0)[:, 0])
