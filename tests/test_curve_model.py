@@ -163,3 +163,23 @@ def test_a_direction_with_few_samples_in_a_bin_takes_the_bins_mean():
     falling = 2  # the row of a falling speed
     assert alone.means[falling, 0] == 9.0  # one sample decides the falling curve there
     assert pooled.means[falling, 0] == pytest.approx(29.0 / 21.0)  # the bin's mean instead
+
+
+@pytest.mark.parametrize("vector", [False, True])
+def test_the_anchor_s_vectorised_lookups_are_the_scalar_lookups_to_the_last_bit(vector):
+    """The anchor's curve level at the switch (mean over its window of the steady curve at each
+    past speed) from the vectorised lookups equals the per-sample scalar lookups exactly."""
+    from node.models.ocmodel import STEADY, _mean
+
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        B = int(rng.integers(1, 40))
+        means = rng.normal(size=(3, B)) + (1j * rng.normal(size=(3, B)) if vector else 0.0)
+        m = CurveModel({"variant": "vector" if vector else "anchored", "window": 0, "anchor": 40},
+                       np.sort(rng.uniform(1000.0, 9000.0, B)), means)
+        rt = m.runtime()
+        x = rng.uniform(500.0, 9500.0, 400)  # beyond both ends too
+        scalar = _mean([rt._lookup(v, STEADY) for v in x.tolist()])
+        c = rt._lookups(x, STEADY)
+        vectorised = _mean(c.tolist() if vector else c.real.tolist())
+        assert vectorised == scalar and type(vectorised) is type(scalar)

@@ -839,6 +839,10 @@ class CurveRuntime:
             self._rows.append(model.gains.tolist())
         self._slopes = [[(r[i + 1] - r[i]) / (self._xs[i + 1] - self._xs[i]) for i in range(len(r) - 1)]
                         for r in self._rows]
+        # the same tables as arrays, for the vectorised lookups (speeds_ahead, the anchor)
+        self._xa = np.array(self._xs)
+        self._ra = np.array(self._rows, complex)
+        self._sa = np.array(self._slopes, complex).reshape(len(self._rows), -1)
         window = int(model.params.get("window", 0))
         self._deadband = float(model.params.get("deadband", 0.0))
         self._past: deque[float] | None = deque(maxlen=window) if window > 0 else None
@@ -873,7 +877,8 @@ class CurveRuntime:
                 self.anchor = (y_sw, self._anchor_mean)
                 self._shift = y_sw - self._anchor_mean
             return
-        c_sw = _mean([self._lookup(v, STEADY) for v in x[ok].tolist()])
+        c = self._lookups(x[ok], STEADY)  # each sample's _lookup, at once
+        c_sw = _mean(c.tolist() if self._vector else c.real.tolist())
         if not (cmath.isfinite(y_sw) and cmath.isfinite(c_sw)) or c_sw == 0.0:
             return
         self.anchor = (y_sw, c_sw)
@@ -898,11 +903,9 @@ class CurveRuntime:
         codes = np.zeros(x.size, dtype=np.int64)
         if self._past is not None:
             codes = direction_codes(np.array(self._past, float), x, self._past.maxlen or 0, self._deadband)
-        xs = np.array(self._xs)
+        xs, rows, slopes = self._xa, self._ra, self._sa
         i = np.searchsorted(xs, x, side="right")
         j = np.clip(i - 1, 0, max(xs.size - 2, 0))
-        rows = np.array(self._rows, complex)
-        slopes = np.array(self._slopes, complex).reshape(len(self._rows), -1)
         c = np.empty(x.size, complex)
         for code in np.unique(codes):
             m = codes == code
@@ -916,6 +919,13 @@ class CurveRuntime:
                 c = (c.real + float(self._gain.real) * c.real + float(self._shift.real)).astype(complex)
         c[~np.isfinite(x)] = complex(math.nan, 0.0)
         return c
+
+    def _lookups(self, x: np.ndarray, code: int) -> np.ndarray:
+        """``_lookup`` of each speed x (K,) (finite) on row ``code``: complex (K,), the same
+        numbers to the last bit (``_interp``)."""
+        i = np.searchsorted(self._xa, x, side="right")
+        j = np.clip(i - 1, 0, max(self._xa.size - 2, 0))
+        return _interp(self._ra[code], self._sa[code], self._xa, i, j, x)
 
     def _lookup(self, x: float, code: int) -> complex:
         xs, ys = self._xs, self._rows[code]
