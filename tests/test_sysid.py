@@ -303,3 +303,17 @@ def test_a_fitted_estimator_passes_check_is_fitted() -> None:
     m = DelayDMD(delays=1, rcond=1e-10).fit(Y, U)
     check_is_fitted(m)
     assert np.allclose(np.sort(np.abs(np.linalg.eigvals(m.A)))[-1], 0.8, atol=1e-6)
+
+
+def test_the_oe_refit_s_modal_filter_filters_each_conjugate_pair_once_to_the_same_bits():
+    from scipy import signal
+
+    from node.sysid.refine import _modal_filter
+
+    rng = np.random.default_rng(1)
+    for scale in (0.1, 0.3, 0.5):  # poles inside and beyond the unit circle
+        lam = np.linalg.eigvals(rng.normal(size=(12, 12)) * scale)
+        U = rng.normal(size=(1500, 3))
+        one_by_one = np.stack([signal.lfilter([0.0, 1.0], [1.0, -z], U.astype(complex), axis=0)
+                               for z in lam], axis=1)
+        np.testing.assert_array_equal(_modal_filter(lam, U), one_by_one)

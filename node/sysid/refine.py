@@ -35,12 +35,21 @@ def markov_parameters(A: np.ndarray, C: np.ndarray, K: int) -> np.ndarray:
 
 
 def _modal_filter(lam: np.ndarray, U: np.ndarray) -> np.ndarray:
-    """xi[k, l, j] = sum_{i<k} lam_l^(k-1-i) u_j[i]: (K, n, m) complex."""
+    """xi[k, l, j] = sum_{i<k} lam_l^(k-1-i) u_j[i]: (K, n, m) complex.
+
+    U is real, so the filter of a pole's conjugate is the conjugate of its filter, to the
+    last bit (the complex products and sums only change sign): each pair is filtered once."""
     K, m = U.shape
     xi = np.zeros((K, lam.size, m), dtype=complex)
     Uc = U.astype(complex)
+    done: dict[complex, int] = {}
     for l, lam_l in enumerate(lam):
-        xi[:, l, :] = signal.lfilter([0.0, 1.0], [1.0, -lam_l], Uc, axis=0)
+        twin = done.get(complex(lam_l).conjugate()) if lam_l.imag != 0.0 else None
+        if twin is not None:
+            xi[:, l, :] = xi[:, twin, :].conj()
+        else:
+            xi[:, l, :] = signal.lfilter([0.0, 1.0], [1.0, -lam_l], Uc, axis=0)
+        done.setdefault(complex(lam_l), l)
     return xi
 
 
