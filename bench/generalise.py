@@ -75,6 +75,14 @@ def simulate(e: Engine, work: Path) -> tuple[Path, Path]:
     return train, test
 
 
+def train_quietly(train: Path, schedule: Path, model: Path, extra: list[str]) -> bool:
+    """``ordervib train TRAIN --target yB`` with ``extra`` options into ``model``, its table
+    not printed; False when it failed."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        return cli(["train", str(train), "--schedule", str(schedule), "--out", str(model),
+                    "--target", "yB", "--quiet", *extra]) == 0
+
+
 def held_out(model: Path, train: Path, test: Path) -> list[tuple[str, float, str]]:
     """Per OC: (name, held-out eps_td, model kind), the history derived through the training
     runs first (as a node that ran them would have it)."""
@@ -114,10 +122,7 @@ def main(argv: list[str] | None = None) -> int:
         for name, extra in (("today", ["--no-curve-candidates", "--no-history", "--no-prom"]),
                             ("no-phase", ["--no-phase"]), ("default", [])):
             model = work / f"{e.name}-{name}"
-            with contextlib.redirect_stdout(io.StringIO()):
-                code = cli(["train", str(train), "--schedule", str(schedule), "--out", str(model),
-                            "--target", "yB", "--quiet", *extra])
-            if code != 0:
+            if not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")
                 return 2
             scores[name] = held_out(model, train, test)

@@ -52,7 +52,15 @@ from node.contract import FS
 from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import CurveModel, InputScaling, Method, StateSpaceModel, Trajectory, Variant
+from node.models.ocmodel import (
+    CurveModel,
+    InputScaling,
+    Method,
+    StateSpaceModel,
+    Trajectory,
+    Variant,
+    lifted_pair,
+)
 from node.sysid import WDMD, ParametricROM, StateSpace
 from node.sysid.metrics import pooled_eps
 from node.sysid.observer import estimate_state
@@ -160,13 +168,7 @@ class Prefit:
 
 def _lifted(s: Seg, scaling: InputScaling, need: int) -> tuple[np.ndarray, np.ndarray]:
     """The segment with ``need`` samples of past (the first held where the run has fewer)."""
-    lo = max(0, s.start - need)
-    y, U = s.y[lo:], scaling.apply(s.U[lo:])
-    pad = need - (s.start - lo)
-    if pad:
-        y = np.concatenate([np.repeat(y[:1], pad), y])
-        U = np.vstack([np.repeat(U[:1], pad, axis=0), U])
-    return y[:, None], U
+    return lifted_pair(Trajectory(s.y, s.U, s.start), scaling, need)
 
 
 def fit_library(key: tuple, segs: list[Seg], scaling: InputScaling, levels: int) -> None:

@@ -22,8 +22,6 @@ has it), the CV eps_td in brackets; the default's column names the model it chos
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import tempfile
 import time
@@ -31,8 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.generalise import SETS, held_out, simulate
-from node.cli import main as cli
+from bench.generalise import SETS, held_out, simulate, train_quietly
 
 VARIANTS = {
     "pROM": ["--method", "prom", "--no-curve-candidates"],
@@ -74,10 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         cvs: dict[str, dict[str, float]] = {}
         for name, extra in VARIANTS.items():
             model = work / f"{e.name}-{name.lower()}"
-            with contextlib.redirect_stdout(io.StringIO()):
-                code = cli(["train", str(train), "--schedule", str(schedule), "--out", str(model),
-                            "--target", "yB", "--quiet", *extra])
-            if code != 0:
+            if not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")
                 return 2
             held[name] = {oc: (eps, kind) for oc, eps, kind in held_out(model, train, test)}
