@@ -23,7 +23,7 @@ import os
 import queue
 import time
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from itertools import islice
 from operator import itemgetter
@@ -33,7 +33,7 @@ import numpy as np
 import orjson
 
 from node.contract import FS, OrdervibError, is_monitor_key
-from node.mcap import ReadStats, RecordingWriter, iter_messages_fast
+from node.mcap import ReadStats, RecordingWriter, iter_messages_fast, message_time_span
 from node.models.bundle import Bundle, Model
 from node.runtime.core import NodeCore
 
@@ -211,11 +211,14 @@ def _u64(values: Iterable[int], n: int) -> np.ndarray:
 
 
 def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int | None = None,
-           engines: dict | None = None) -> ReplayReport:
+           engines: dict | None = None,
+           progress: Callable[[float, int], None] | None = None) -> ReplayReport:
     """Run the node over every sensor message of ``recording``; write ``out`` if given.
 
     engines: each bed's engine history before the recording (``node.runtime.history``;
-    default: derived from the recording alone, its first run taken as a cold start)."""
+    default: derived from the recording alone, its first run taken as a cold start).
+    progress: called after each batch with the fraction of the recording's time span read
+    (when its summary tells the span) and the messages read."""
     workers = default_workers() if workers is None else workers
     stats = ReadStats()
     gc_was_on = gc.isenabled()
@@ -245,6 +248,7 @@ def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int
             if writer:
                 _write_batch(writer, b, done)
 
+        span = message_time_span(recording) if progress is not None else None
         messages = iter_messages_fast(recording, stats=stats)
         while batch := list(islice(messages, BATCH)):
             keys = list(map(_KEY, batch))
@@ -255,8 +259,12 @@ def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int
             n_in += len(batch)
             if batch:
                 submit(batch, keys)
+                if progress is not None and span is not None:
+                    progress(min(1.0, (_LOG(batch[-1]) - span[0]) / max(span[1] - span[0], 1)), n_in)
         while flight:
             drain()
+        if progress is not None and span is not None:
+            progress(1.0, n_in)
         final, rep = engine.finish()
         if writer:
             writer.write_many([(key, log, log, data) for key, log, data in final])

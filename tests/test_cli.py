@@ -41,7 +41,7 @@ def test_status_goes_to_stderr_through_logging(tmp_path: Path, capsys: pytest.Ca
     assert res.out == ""
     lines = res.err.splitlines()
     assert "\r" not in res.err  # stderr is no terminal here: progress as plain lines
-    assert lines[-2] == "simulate: 100%"
+    assert lines[-2].startswith("simulate: 100% (took ")
     assert lines[-1].startswith("simulate: 1 runs, ") and f"-> {out} " in lines[-1]
     assert any(r.name == "node.cli.simulate" and r.getMessage() == lines[-1] for r in caplog.records)
     # the handler is gone once the command is over
@@ -89,8 +89,35 @@ def test_progress_bar_on_a_terminal_is_ended_before_a_log_line(monkeypatch: pyte
     monkeypatch.setattr("sys.stderr", tty)
     log = logging.getLogger("node.test")
     with command_logging("info"):
-        progress = Progress("work", log)
+        now = [0.0]
+        progress = Progress("work", log, clock=lambda: now[0])
         progress(0.5)
         log.info("meanwhile")
+        now[0] = 3.0
         progress(1.0)
-    assert tty.getvalue() == f"\rwork: [{'#' * 12:<25}]  50%\nmeanwhile\n\rwork: [{'#' * 25}] 100%\n"
+    assert tty.getvalue() == (f"\rwork: [{'#' * 12:<25}] {'50%':<48}\nmeanwhile\n"
+                              f"\rwork: [{'#' * 25}] {'100% (took 3 s)':<48}\n")
+
+
+def test_progress_lines_carry_the_rate_and_the_time_left_and_come_by_step_or_by_time(caplog):
+    import logging
+
+    from node.cli.logs import Progress
+
+    now = [100.0]
+    p = Progress("train", logging.getLogger("node.cli.test_progress"), step=50, every_s=30.0,
+                 clock=lambda: now[0])
+    with caplog.at_level(logging.INFO):
+        p(0.0, 0, "OCs")  # the start: no line
+        now[0] += 10.0
+        p(0.1, 1, "OCs")  # neither 50 % nor 30 s: no line
+        now[0] += 25.0
+        p(0.2, 2, "OCs")  # 35 s since the last line: a line
+        now[0] += 5.0
+        p(0.5, 5, "OCs")  # the 50 % step
+        now[0] += 40.0
+        p(1.0, 10, "OCs")
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines == ["train: 20% (2 OCs, 0.057 OCs/s, 2 min 20 s left)",
+                     "train: 50% (5 OCs, 0.12 OCs/s, 40 s left)",
+                     "train: 100% (10 OCs, 0.12 OCs/s, took 1 min 20 s)"]

@@ -278,3 +278,48 @@ def test_one_router_two_nodes_forty_hz_beds_each_served_once(setup, tmp_path):
     assert per_bed == {b: n for b in beds}, per_bed
     assert set(nodes[0].core.beds) == {"east1"} and set(nodes[1].core.beds) == {"west1", "west2"}
     assert router.returncode == 0
+
+
+def test_publish_max_gap_shortens_the_standing_between_runs(caplog):
+    """The committed four runs span 12,463 s, most of them standing between runs: at 1000 x real
+    time that takes at least 12.5 s; with --max-gap 1 each of the three gaps lasts 1 s, every
+    message delivered, the shortening logged; progress lines carry the rate and the time left."""
+    import logging
+
+    from node.cli.logs import Progress
+    from node.live.zenoh import open_session, zenoh_config
+    from replay.publish import publish_recording
+
+    rec = str(Path(__file__).resolve().parents[1] / "recordings" / "engine1_runs.mcap")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    got = []
+    session = open_session(zenoh_config([endpoint], None, None))
+    sub = session.declare_subscriber("testbed/**", lambda s: got.append(1))
+    log = logging.getLogger("node.cli.test_publish")
+    bar = Progress("publish", log, step=50)
+    try:
+        with caplog.at_level(logging.INFO):
+            t0 = time.monotonic()
+            sent = publish_recording(rec, endpoint, speed=1000.0, max_gap_s=1.0,
+                                     progress=lambda f, n: bar(f, n, "messages"))
+            took = time.monotonic() - t0
+            deadline = time.monotonic() + 10
+            while len(got) < sent and time.monotonic() < deadline:
+                time.sleep(0.05)
+    finally:
+        sub.undeclare()
+        session.close()
+    assert len(got) == sent > 100_000
+    assert took < 10.0, took  # >= 12.5 s with the recording's own timing
+    text = caplog.text
+    import re
+    skipped = re.search(r"shortened 3 gap\(s\) longer than 1 s to it: (\d+) s of standing skipped", text)
+    assert skipped and 11_000 < int(skipped.group(1)) < 12_463
+    assert "publish: 100% (" in text and "messages/s" in text and "left" in text
+
+
+def test_a_bad_max_gap_is_one_line(capsys):
+    rec = str(Path(__file__).resolve().parents[1] / "recordings" / "engine1_runs.mcap")
+    assert main(["replay", rec, "--publish", "--max-gap", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--max-gap" in err[0]

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import logging
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 LEVELS: dict[str, int] = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING,
@@ -88,31 +89,78 @@ def command_logging(level: str | None, quiet: bool = False) -> Iterator[None]:
             root.removeHandler(handler)
 
 
-class Progress:
-    """Percentage of a long step: a bar redrawn in place on a terminal, else a log line every ``step`` %.
+def duration_text(s: float) -> str:
+    """A short human duration: '42 s', '3 min 05 s', '2 h 07 min'.
 
-    Shown only when ``logger`` shows info records; call it with the fraction done (0..1).
+    >>> duration_text(42.4), duration_text(185.0), duration_text(7620.0)
+    ('42 s', '3 min 05 s', '2 h 07 min')
+    """
+    s = max(0.0, s)
+    if s < 60:
+        return f"{s:.0f} s"
+    if s < 3600:
+        return f"{int(s // 60)} min {int(s % 60):02d} s"
+    return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
+
+
+class Progress:
+    """Progress of a long step, with its rate and the time left: a bar redrawn in place on a
+    terminal, else a log line every ``step`` % or every ``every_s`` seconds, whichever first.
+
+    Shown only when ``logger`` shows info records; call it with the fraction done (0..1), and
+    optionally the count of things done and their unit (the rate is then things per second).
+    The time left assumes the rest goes at the mean rate so far.
 
     >>> p = Progress("simulate", logging.getLogger("doctest.quiet"))  # warning level: shows nothing
     >>> p(0.5)
     """
 
-    def __init__(self, label: str, logger: logging.Logger, step: int = 25) -> None:
+    def __init__(self, label: str, logger: logging.Logger, step: int = 25, every_s: float = 30.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.label = label
         self.logger = logger
         self.step = step
+        self.every_s = every_s
+        self.clock = clock
         self.last = -1
+        self._t0: float | None = None
+        self._t_line = 0.0
 
-    def __call__(self, fraction: float) -> None:
+    def text(self, fraction: float, done: int | None = None, unit: str = "") -> str:
+        """The status after ``fraction`` (e.g. '40% (400 runs, 20 runs/s, 30 s left)')."""
+        now = self.clock()
+        t0 = self._t0 if self._t0 is not None else now
+        elapsed = now - t0
+        parts = []
+        if done is not None and elapsed > 0:
+            rate = done / elapsed
+            shown = f"{rate:.0f}" if rate >= 10 else f"{rate:.2g}"
+            parts.append(f"{done} {unit}, {shown} {unit}/s" if unit else f"{done}, {shown}/s")
+        if 0 < fraction < 1 and elapsed > 0:
+            parts.append(f"{duration_text(elapsed * (1 - fraction) / fraction)} left")
+        elif fraction >= 1:
+            parts.append(f"took {duration_text(elapsed)}")
         pct = int(100 * min(max(fraction, 0.0), 1.0))
-        if pct == self.last or not self.logger.isEnabledFor(logging.INFO):
+        return f"{pct}%" + (f" ({', '.join(parts)})" if parts else "")
+
+    def __call__(self, fraction: float, done: int | None = None, unit: str = "") -> None:
+        if not self.logger.isEnabledFor(logging.INFO):
             return
+        now = self.clock()
+        if self._t0 is None:
+            self._t0 = self._t_line = now
+        pct = int(100 * min(max(fraction, 0.0), 1.0))
         last, self.last = self.last, pct
         stream = sys.stderr
         if stream is not None and stream.isatty():
+            if pct == last and pct < 100:
+                return
             bar = "#" * (pct // 4)
-            stream.write(f"\r{self.label}: [{bar:<25}] {pct:3d}%" + ("\n" if pct == 100 else ""))
+            stream.write(f"\r{self.label}: [{bar:<25}] {self.text(fraction, done, unit):<48}"
+                         + ("\n" if pct == 100 else ""))
             stream.flush()
             StderrHandler.bar_open = pct < 100
-        elif pct // self.step > max(last, 0) // self.step:
-            self.logger.info("%s: %d%%", self.label, pct)
+        elif (pct // self.step > max(last, 0) // self.step and pct != last) or \
+                (now - self._t_line >= self.every_s and pct < 100):
+            self._t_line = now
+            self.logger.info("%s: %s", self.label, self.text(fraction, done, unit))

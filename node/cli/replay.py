@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 from typing import Any
 
@@ -29,6 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --publish: Zenoh configuration file (e.g. TLS root CA; see docs/zenoh/)")
     p.add_argument("--speed", type=float, default=1.0, metavar="X",
                    help="with --publish: X times real time (default 1; 0: as fast as possible)")
+    p.add_argument("--max-gap", type=float, default=None, metavar="S",
+                   help="with --publish and --speed > 0: shorten every gap longer than S seconds between "
+                        "messages (the engine standing between runs) to S (default: the recording's own "
+                        "timing, shutdowns included)")
     p.add_argument("--wait", type=float, default=5.0, metavar="S",
                    help="with --publish: how long to wait for a subscriber before giving up "
                         "(default 5 s; exit status 2 if none matched)")
@@ -57,11 +62,18 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
         if not os.path.isfile(engine_state):
             raise OrdervibError(f"--engine-state {engine_state}: no such file")
         engines = load_engine_states(engine_state)
+    from node.cli.logs import Progress
+    bar = Progress("replay", log)
+
+    def progress(fraction: float, n: int) -> None:
+        if not quiet:
+            bar(fraction, n, "messages")
+
     if out is None:
-        r = replay(recording, bundle, None, workers, engines)
+        r = replay(recording, bundle, None, workers, engines, progress)
     else:
         with replacing(out) as tmp:  # an existing output is replaced only by a complete one
-            r = replay(recording, bundle, tmp, workers, engines)
+            r = replay(recording, bundle, tmp, workers, engines, progress)
     if r.truncated:
         warn_unfinished(log, recording, f"{r.inputs} sensor messages")
     summary = {"inputs": r.inputs, "published": r.published, "malformed": r.malformed,
@@ -103,7 +115,12 @@ def run(args: argparse.Namespace) -> int:
         raise OrdervibError("--speed must be >= 0")
     if not args.wait >= 0:
         raise OrdervibError("--wait must be >= 0")
+    if args.max_gap is not None and not (args.max_gap > 0 and math.isfinite(args.max_gap)):
+        raise OrdervibError("--max-gap must be a number of seconds > 0")
+    from node.cli.logs import Progress
     from replay.publish import publish_recording
+    bar = Progress("publish", log)
     publish_recording(args.recording, args.connect, args.speed, args.quiet,
-                      wait_s=args.wait, config_file=args.zenoh_config)
+                      wait_s=args.wait, config_file=args.zenoh_config, max_gap_s=args.max_gap,
+                      progress=None if args.quiet else (lambda f, n: bar(f, n, "messages")))
     return 0

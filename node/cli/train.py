@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
+from node.cli.logs import duration_text
 from node.cli.outputs import check_output_dir, replacing_dir, warn_unfinished
 from node.cli.table import print_table
 from node.contract.errors import OrdervibError
@@ -219,9 +220,15 @@ def run(args: argparse.Namespace) -> int:
                  "per OC%s", args.method, target, len(runs), len(schedule.ocs), n_models,
                  f" and up to {len(CURVE_CANDIDATES)} curves" if args.curves else "")
 
-        def progress(r: OCResult, done: int, total: int) -> None:
+        t_target = time.perf_counter()
+
+        def progress(r: OCResult, done: int, total: int, t_target: float = t_target) -> None:
+            """A line per OC trained (they finish out of order), with the rate and the time left."""
             cv = f"CV eps_td {r.cv_eps:.3f}" if r.model is not None else r.note
-            log.info("  [%d/%d] %s: %s (%.0f s)", done, total, r.name, cv, time.perf_counter() - t0)
+            spent = time.perf_counter() - t_target
+            left = f", {duration_text(spent * (total - done) / done)} left" if done < total else ""
+            log.info("  [%d/%d] %s: %s (%.0f s; %.1f OCs/min%s)", done, total, r.name, cv,
+                     time.perf_counter() - t0, 60.0 * done / max(spent, 1e-9), left)
 
         curve = fleet_curve(runs, schedule.switch, target)
         results = train(runs, schedule, target=target, method=args.method, inputs=inputs,

@@ -3,7 +3,8 @@
 - ``format``: opcodes, magic, record layouts, compressions (the only place they are written);
 - ``writer``: ``RecordingWriter`` (one topic per key expression, JSON payloads) over ``McapWriter``;
 - ``reader``: one walk over the records in file order (``open_recording``), and ``iter_messages``,
-  ``iter_messages_fast``, ``read_payloads`` and ``copy_messages`` on it;
+  ``iter_messages_fast``, ``read_payloads`` and ``copy_messages`` on it; ``message_time_span``
+  from a finished file's summary (progress);
 - ``runs``: ``read_runs``, the pass-off runs of a recording as time-major arrays, for training;
 - ``rotation``: ``RotatingRecorder``, a recording split into successive files.
 """
@@ -16,6 +17,7 @@ from node.mcap.reader import (
     copy_messages,
     iter_messages,
     iter_messages_fast,
+    message_time_span,
     open_recording,
     read_payloads,
 )
@@ -25,6 +27,7 @@ from node.mcap.writer import McapWriter, RecordingWriter
 
 __all__ = [
     "LIBRARY", "MAGIC", "Channel", "Compression", "Opcode", "Schema", "Message", "ReadStats", "Recording",
-    "copy_messages", "iter_messages", "iter_messages_fast", "open_recording", "read_payloads",
+    "copy_messages", "iter_messages", "iter_messages_fast", "message_time_span", "open_recording",
+    "read_payloads",
     "RotatingRecorder", "rotated_path", "Run", "read_runs", "McapWriter", "RecordingWriter",
 ]

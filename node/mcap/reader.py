@@ -285,3 +285,20 @@ def copy_messages(rec: Recording, writer: McapWriter, stats: ReadStats) -> Itera
         writer.add(cid, log_time, publish_time, data, sequence)
         stats.messages += 1
         yield Message(channel.topic, log_time, publish_time, data)
+
+
+def message_time_span(path: str) -> tuple[int, int] | None:
+    """A finished recording's first and last message log times (ns) from its summary (the
+    mcap library reads the footer only); None when it has none (an unfinished file) or no
+    message, or cannot be read (the reading proper reports that)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+    except Exception:  # noqa: BLE001 - any failure here only means: no span known
+        return None
+    stats = summary.statistics if summary is not None else None
+    if stats is None or stats.message_count == 0:
+        return None
+    return int(stats.message_start_time), int(stats.message_end_time)
