@@ -5,8 +5,8 @@ starts.
 
 Inputs (``Trajectory.U`` columns, the node's ``inputs`` of the OC): the switch speed, then the
 history parameter(s) (``params["param"]``: channels of ``node.runtime.history``, one or
-several joined by commas; :func:`param_channels`). The model is driven by the standardised
-speed and the constant 1; the parameters are read once, at the switch (the last sample before
+several joined by commas; :func:`param_channels`). The model is driven by the speed in krpm
+(``SPEED_SCALING``) and the constant 1; the parameters are read once, at the switch (the last sample before
 the OC), and pick the model. Where one is unknown (no past, NaN) the samples' models are
 weighted equally. The state is fitted on the last
 ``params["seed"]`` samples of measured past around the model's equilibrium there.
@@ -29,16 +29,16 @@ from node.models.ocmodel import InputScaling, Method, Trajectory, lifted_pair, s
 from node.sysid import WDMD, ParametricROM, StateSpace
 from node.sysid.observer import estimate_state
 
-# The ROM's settings a model keeps in ``params`` besides levels, param and seed.
-ROM_KEYS = ("weights", "pairs", "real", "scheme")
 # Matching tolerance: the per-run models of one quasi-static OC share no physical modes (real
 # poles at 0.20, 0.43, 0.69 across runs at one level, ``bench prom-engine``); the default 0.5
 # dropped every mode, so modes are paired by the assignment whatever it costs.
 MATCH_TOL = 10.0
 
 
-def _rom(params: Mapping, base: object = None) -> ParametricROM:
-    return ParametricROM(base, n_pairs=int(params.get("pairs", 0)), n_real=int(params.get("real", 1)),
+def _rom(params: Mapping) -> ParametricROM:
+    """The ROM of a model's ``params`` (weights, pairs, real, scheme), without a base estimator:
+    its library is identified here (``_segment_model``) and handed over (``fit_models``)."""
+    return ParametricROM(None, n_pairs=int(params.get("pairs", 0)), n_real=int(params.get("real", 1)),
                          scheme=str(params.get("scheme", "direct")),
                          weights=str(params.get("weights", "regress")), tol=MATCH_TOL, static=True, clip=True,
                          verbose=False)  # a mode without a match drops a CV candidate: no warning
@@ -113,7 +113,7 @@ class ParametricOCModel:
     Attributes:
         params: levels (WDMD), param (the history channel(s)), seed (samples of past the state
             is fitted on), and the ROM's weights, pairs, real, scheme.
-        scaling: the speed's standardisation (one column; ``SPEED_SCALING``).
+        scaling: the speed's scaling (one column; ``SPEED_SCALING``, the same for every model).
         rom: the fitted (or restored) :class:`ParametricROM` over the segments.
 
     Two first-order systems y[k+1] = a y[k] + 0.1 u[k] at parameter 0 (a = 0.80) and 1

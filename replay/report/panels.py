@@ -329,11 +329,14 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
               f"{target}: eps_td of the prediction per OC (all runs: pooled; curve: the characteristic "
               "curve on the same samples)"),
     ]
-    fill = InputFill.fit(runs.runs, schedule, needed_channels(bundle))
     plan = schedule_profile(schedule)
     start = float(plan.t[0])
-    preds = [predict_profile(bundle, plan, history_after(runs.runs, bundle), fill, label="after these runs"),
-             predict_profile(bundle, plan, stated_history(start, 24.0), fill, label="cold (24 h)")]
+    try:
+        fill = InputFill.fit(runs.runs, schedule, needed_channels(bundle))
+        preds = [predict_profile(bundle, plan, history_after(runs.runs, bundle), fill, label="after these runs"),
+                 predict_profile(bundle, plan, stated_history(start, 24.0), fill, label="cold (24 h)")]
+    except OrdervibError as exc:
+        return blocks + [Paragraph(f"planned pass-off: {exc}", note=True)]
     blocks += [
         Heading("A planned pass-off"),
         Paragraph(f"The schedule's plateaus in order ({len(schedule.names)} OCs, 60 s each, ramps at 250 "
