@@ -333,7 +333,8 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     start = float(plan.t[0])
     try:
         fill = InputFill.fit(runs.runs, schedule, needed_channels(bundle))
-        preds = [predict_profile(bundle, plan, history_after(runs.runs, bundle), fill, label="after these runs"),
+        now = history_after(runs.runs, bundle)
+        preds = [predict_profile(bundle, plan, now, fill, label="after these runs"),
                  predict_profile(bundle, plan, stated_history(start, 24.0), fill, label="cold (24 h)")]
     except OrdervibError as exc:
         return blocks + [Paragraph(f"planned pass-off: {exc}", note=True)]
