@@ -14,9 +14,7 @@ weighted equally. The state is fitted on the last
 
 from __future__ import annotations
 
-import hashlib
 import math
-from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -27,6 +25,7 @@ from scipy.signal import lfilter
 from node.contract import FS
 from node.models.ocmodel import InputScaling, Method, Trajectory, lifted_pair, stable_fit, stepper_matrix
 from node.sysid import WDMD, ParametricROM, StateSpace
+from node.sysid.memo import ContentMemo
 from node.sysid.observer import estimate_state
 
 # Matching tolerance: the per-run models of one quasi-static OC share no physical modes (real
@@ -52,8 +51,7 @@ def _speed_only(t: Trajectory) -> Trajectory:
 # input coordinates (their B and D are interpolated), and a fixed one lets a segment's model be
 # fitted once for every cross-validation fold it is in (``_segment_model``).
 SPEED_SCALING = InputScaling(np.zeros(1), np.full(1, 1000.0))  # rpm -> krpm
-_CACHE: OrderedDict[bytes, StateSpace] = OrderedDict()
-_CACHE_SIZE = 256  # segment models (a few kB each)
+_SEGMENT_MODELS: ContentMemo[StateSpace] = ContentMemo(256)  # a few kB each
 
 
 def _segment_model(levels: int, rcond: float, t: Trajectory) -> StateSpace:
@@ -62,19 +60,12 @@ def _segment_model(levels: int, rcond: float, t: Trajectory) -> StateSpace:
     base = WDMD(levels=levels, rcond=rcond, dt=1.0 / FS, seed_window=0)
     need = base.memory()
     y, U = lifted_pair(_speed_only(t), SPEED_SCALING, need)
-    h = hashlib.blake2b(np.array([levels, rcond, need], float).tobytes(), digest_size=20)
-    h.update(np.ascontiguousarray(y).tobytes())
-    h.update(np.ascontiguousarray(U).tobytes())
-    key = h.digest()
-    if key in _CACHE:
-        _CACHE.move_to_end(key)
-        return _CACHE[key]
-    with np.errstate(all="ignore"):
-        ss = stable_fit(base, [y], [U], need)[0]  # an unstable pole's gain would swamp the library's
-    _CACHE[key] = ss
-    if len(_CACHE) > _CACHE_SIZE:
-        _CACHE.popitem(last=False)
-    return ss
+
+    def fit() -> StateSpace:
+        with np.errstate(all="ignore"):  # an unstable pole's gain would swamp the library's
+            return stable_fit(base, [y], [U], need)[0]
+
+    return _SEGMENT_MODELS.get([np.array([levels, rcond, need], float), y, U], fit)
 
 
 def _free_run(ss: StateSpace, U: np.ndarray, x0: np.ndarray) -> np.ndarray:

@@ -15,9 +15,7 @@ s-plane a stiffness-like parameter moves the physical quantities w^2 = |s|^2 and
 from __future__ import annotations
 
 import copy
-import hashlib
 import logging
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,6 +23,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from sklearn.base import BaseEstimator
 
+from node.sysid.memo import ContentMemo
 from node.sysid.metrics import mac
 from node.sysid.observer import estimate_state
 from node.sysid.statespace import PoleResidue, StateSpace
@@ -83,24 +82,14 @@ def static_gain(ss: StateSpace) -> np.ndarray:
         return np.full(ss.D.shape, np.inf)
 
 
-_FORMS: OrderedDict[bytes, tuple[PoleResidue, np.ndarray]] = OrderedDict()
-_FORMS_SIZE = 512
+_FORMS: ContentMemo[tuple[PoleResidue, np.ndarray]] = ContentMemo(512)
 
 
 def _modal_form(ss: StateSpace) -> tuple[PoleResidue, np.ndarray]:
     """``_pole_residue`` and ``static_gain`` of ``ss``, memoised on its matrices: a
     leave-one-run-out CV builds a ROM per fold from the same library models."""
-    h = hashlib.blake2b(np.array([ss.dt, *ss.A.shape, *ss.B.shape, *ss.C.shape], float).tobytes(),
-                        digest_size=20)
-    for M in (ss.A, ss.B, ss.C, ss.D):
-        h.update(np.ascontiguousarray(M, float).tobytes())
-    key = h.digest()
-    if key not in _FORMS:
-        _FORMS[key] = (_pole_residue(ss), static_gain(ss))
-        if len(_FORMS) > _FORMS_SIZE:
-            _FORMS.popitem(last=False)
-    _FORMS.move_to_end(key)
-    return _FORMS[key]
+    return _FORMS.get([np.array([ss.dt]), ss.A, ss.B, ss.C, ss.D],
+                      lambda: (_pole_residue(ss), static_gain(ss)))
 
 
 def _modes(pr: PoleResidue, real: bool) -> _Modes:
