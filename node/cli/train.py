@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
+import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
@@ -17,7 +19,9 @@ from node.cli.table import print_table
 from node.contract.errors import OrdervibError
 
 if TYPE_CHECKING:
+    from node.contract.schedule import Schedule
     from node.mcap import Run
+    from node.models.bundle import Model
     from node.training.train import OCResult
 
 log = logging.getLogger(__name__)
@@ -27,9 +31,17 @@ HELP = "train the per-OC switching model from pass-off recordings"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recordings", nargs="+", metavar="REC.mcap", help="training recordings")
-    p.add_argument("--schedule", required=True, metavar="S.toml", help="pass-off schedule (TOML)")
+    p.add_argument("recordings", nargs="+", metavar="REC.mcap",
+                   help="training recordings (with --update: the new ones)")
+    p.add_argument("--schedule", metavar="S.toml", help="pass-off schedule (TOML; required unless --update)")
     p.add_argument("--out", required=True, metavar="MODEL", help="model bundle directory to write")
+    p.add_argument("--update", metavar="MODEL",
+                   help="add the recordings' runs to this model's: the model --out is the one training "
+                        "on all of them would give, without reading the old recordings again (the "
+                        "model keeps its runs and training options; those options cannot be given)")
+    p.add_argument("--keep-runs", action=argparse.BooleanOptionalAction, default=True,
+                   help="the model keeps its training runs (training-runs.npz, about a seventh of the "
+                        "recordings' size) so that --update can add runs to it (default: keep)")
     p.add_argument("--target", default=None, metavar="LIST",
                    help="modelled channel(s), comma-separated: several targets in one model "
                         "(default: every tracked order, yA, yB, yC, that all the recordings hold)")
@@ -163,9 +175,102 @@ def print_ranking(results: list[OCResult], top: int = 6, file: TextIO | None = N
     print(file=file)
 
 
+# The options that make the model (stored with the kept runs: ``--update`` trains with them).
+MODEL_OPTIONS = ("target", "method", "estimator", "rcond_grid", "inputs", "n_inputs",
+                 "false_alarms_per_hour", "cv_undercoverage", "curves", "history", "prom", "phase")
+
+
 def run(args: argparse.Namespace) -> int:
     from node.contract.schedule import load_schedule
-    from node.models.bundle import Bundle, Model, save_model, sha256_file
+    from node.models.bundle import MANIFEST, load_model, save_model, sha256_file
+    from node.training.kept_runs import load_kept_runs, save_kept_runs
+
+    if args.workers is not None and args.workers < 1:
+        raise OrdervibError("--workers must be at least 1")
+    t0 = time.perf_counter()
+    if args.update is None:
+        if args.schedule is None:
+            raise OrdervibError("--schedule is required (the pass-off schedule, TOML)")
+        check_output_dir(args.out, "--out", inputs=[*args.recordings, args.schedule])
+        options = {k: getattr(args, k) for k in MODEL_OPTIONS}
+        _check_options(options)
+        schedule = load_schedule(args.schedule)
+        old_runs: list[Run] = []
+        old_recordings: list[dict] = []
+    else:
+        given = [k for k in ("schedule", *MODEL_OPTIONS) if getattr(args, k) != _DEFAULTS[k]]
+        if given:
+            raise OrdervibError(f"--update trains with the model's own schedule and options: "
+                                f"{', '.join('--' + k.replace('_', '-') for k in given)} cannot be given")
+        check_output_dir(args.out, "--out",
+                         inputs=[*args.recordings, os.path.join(args.update, MANIFEST)])
+        schedule = load_model(args.update).schedule
+        old_runs, options, old_recordings = load_kept_runs(args.update)
+        _check_options(options)
+        log.info("model %s: %d kept run(s) of %d recording(s)", args.update, len(old_runs),
+                 len(old_recordings))
+    recordings = old_recordings + [{"path": p, "sha256": sha256_file(p)} for p in args.recordings]
+    runs = old_runs + load_runs(args.recordings, args.quiet)
+    model, trained = _train_model(runs, schedule, options, args.workers, args.allow_empty)
+    model = dataclasses.replace(model, bundles=tuple(
+        dataclasses.replace(b, training={"recordings": recordings, "runs": len(runs),
+                                         "seconds": round(time.perf_counter() - t0, 1)})
+        for b in model.bundles))
+    with replacing_dir(args.out) as tmp:  # an existing model is replaced only by a complete one
+        save_model(model, tmp)
+        if args.keep_runs:
+            save_kept_runs(runs, tmp, options, recordings)
+    for target, results in trained:
+        if len(trained) > 1:
+            print(f"target {target}:")
+        if options["inputs"] is None:
+            print_ranking(results)
+        print_results(results)
+        if len(trained) > 1:
+            print()
+    print(f"model written to {Path(args.out)} ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def _defaults() -> dict:
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    return {a.dest: a.default for a in p._actions}
+
+
+def _check_options(o: dict) -> None:
+    """The model options' values, checked before anything is read (one-line errors)."""
+    from node.training.train import Method
+
+    if o["n_inputs"] < 1:
+        raise OrdervibError("--n-inputs must be at least 1")
+    if o["false_alarms_per_hour"] is not None and not o["false_alarms_per_hour"] > 0:
+        raise OrdervibError("--false-alarms-per-hour must be positive")
+    under = o["cv_undercoverage"]
+    if under is not None and not (under >= 1.0 and math.isfinite(under)):
+        raise OrdervibError("--cv-undercoverage must be a number >= 1")
+    if o["rcond_grid"]:
+        rconds = _rconds(o["rcond_grid"])
+        if not all(0 < x < 1 for x in rconds):
+            raise OrdervibError("--rcond-grid values must lie in (0, 1)")
+    try:
+        Method(o["method"])
+    except ValueError:
+        raise OrdervibError(f"unknown method {o['method']!r}") from None
+
+
+def _rconds(spec: str) -> list[float]:
+    try:
+        return [float(x) for x in spec.split(",")]
+    except ValueError:
+        raise OrdervibError(f"--rcond-grid must be numbers separated by commas, got {spec!r}") from None
+
+
+def _train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | None,
+                 allow_empty: bool) -> tuple[Model, list[tuple[str, list[OCResult]]]]:
+    """The model of ``runs`` with the model options ``o`` (``MODEL_OPTIONS``), and per target its
+    OCs' results; training's provenance is left to the caller."""
+    from node.models.bundle import Bundle, Model
     from node.models.config import RuntimeConfig
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.training.train import (
@@ -178,47 +283,33 @@ def run(args: argparse.Namespace) -> int:
         train,
     )
 
-    check_output_dir(args.out, "--out", inputs=[*args.recordings, args.schedule])
-    if args.workers is not None and args.workers < 1:
-        raise OrdervibError("--workers must be at least 1")
-    if args.n_inputs < 1:
-        raise OrdervibError("--n-inputs must be at least 1")
-    budget = FALSE_ALARMS_PER_HOUR if args.false_alarms_per_hour is None else args.false_alarms_per_hour
-    if not budget > 0:
-        raise OrdervibError("--false-alarms-per-hour must be positive")
-    per_rule = budget / 2  # shared half and half by the residual and the step rules
-    under = CV_UNDERCOVERAGE if args.cv_undercoverage is None else args.cv_undercoverage
-    if not (under >= 1.0 and math.isfinite(under)):
-        raise OrdervibError("--cv-undercoverage must be a number >= 1")
-    schedule = load_schedule(args.schedule)
     t0 = time.perf_counter()
-    runs = load_runs(args.recordings, args.quiet)
-    inputs = None if args.inputs == "auto" else [c.strip() for c in args.inputs.split(",") if c.strip()]
-    grid = dict(DEFAULT_GRIDS[Method(args.method)])
-    if args.method in ("wdmd", "delay-dmd"):
-        grid["estimator"] = [args.estimator] if args.estimator else ["oe"]
-        if args.rcond_grid:
-            try:
-                grid["rcond"] = [float(x) for x in args.rcond_grid.split(",")]
-            except ValueError:
-                raise OrdervibError(f"--rcond-grid must be numbers separated by commas, "
-                                    f"got {args.rcond_grid!r}") from None
-            if not all(0 < x < 1 for x in grid["rcond"]):
-                raise OrdervibError("--rcond-grid values must lie in (0, 1)")
-    targets = resolve_targets(args.target, runs)
+    budget = FALSE_ALARMS_PER_HOUR if o["false_alarms_per_hour"] is None else o["false_alarms_per_hour"]
+    per_rule = budget / 2  # shared half and half by the residual and the step rules
+    under = CV_UNDERCOVERAGE if o["cv_undercoverage"] is None else o["cv_undercoverage"]
+    inputs = None if o["inputs"] in (None, "auto") else \
+        [c.strip() for c in o["inputs"].split(",") if c.strip()]
+    method = o["method"]
+    grid = dict(DEFAULT_GRIDS[Method(method)])
+    if method in ("wdmd", "delay-dmd"):
+        grid["estimator"] = [o["estimator"]] if o["estimator"] else ["oe"]
+        if o["rcond_grid"]:
+            grid["rcond"] = _rconds(o["rcond_grid"])
+    targets = resolve_targets(o["target"], runs)
     config = RuntimeConfig()
-    if args.history or args.prom or args.method == "prom":  # (the engine history's cooling)
+    if o["history"] or o["prom"] or method == "prom":  # (the engine history's cooling)
         config = history_config(runs, schedule, config)
         log.info("engine history: cooling %.3g rpm min per hour of shutdown%s", config.history_cooling,
                  "" if config.history_cooling != RuntimeConfig().history_cooling
                  else " (the text's value: too few runs after a known one to estimate it)")
-    trained: list[tuple[str, list[OCResult], tuple[np.ndarray, np.ndarray], dict]] = []
-    use_prom = args.prom or args.method == "prom"
+    bundles: list[Bundle] = []
+    trained: list[tuple[str, list[OCResult]]] = []
+    use_prom = o["prom"] or method == "prom"
     n_models = (_count(grid) if grid else 0) + (len(PROM_CANDIDATES) if use_prom else 0)
     for target in targets:
         log.info("training %s for %s on %d run(s), %d OCs, leave-one-run-out CV over %d model candidates "
-                 "per OC%s", args.method, target, len(runs), len(schedule.ocs), n_models,
-                 f" and up to {len(CURVE_CANDIDATES)} curves" if args.curves else "")
+                 "per OC%s", method, target, len(runs), len(schedule.ocs), n_models,
+                 f" and up to {len(CURVE_CANDIDATES)} curves" if o["curves"] else "")
 
         t_target = time.perf_counter()
 
@@ -231,36 +322,22 @@ def run(args: argparse.Namespace) -> int:
                      time.perf_counter() - t0, 60.0 * done / max(spent, 1e-9), left)
 
         curve = fleet_curve(runs, schedule.switch, target)
-        results = train(runs, schedule, target=target, method=args.method, inputs=inputs,
-                        n_inputs=args.n_inputs, grid=grid, workers=args.workers, progress=progress,
+        results = train(runs, schedule, target=target, method=method, inputs=inputs,
+                        n_inputs=o["n_inputs"], grid=grid, workers=workers, progress=progress,
                         false_alarms_per_hour=per_rule, cv_undercoverage=under,
-                        fleet=curve, curves=args.curves, config=config, history=args.history,
-                        phase=args.phase, prom=use_prom)
-        if not any(r.model is not None for r in results) and not args.allow_empty:
+                        fleet=curve, curves=o["curves"], config=config, history=o["history"],
+                        phase=o["phase"], prom=use_prom)
+        if not any(r.model is not None for r in results) and not allow_empty:
             notes = sorted({r.note for r in results if r.note})
             which = f"target {target}: " if len(targets) > 1 else ""
             raise OrdervibError(f"{which}no OC could be trained ({'; '.join(notes) or 'no segment'}): "
                                 f"no model written (--allow-empty writes one that flags every sample "
                                 f"no-model)")
-        checks = calibrate_checks(runs, schedule, target, per_rule, use_phase=args.phase)
+        checks = calibrate_checks(runs, schedule, target, per_rule, use_phase=o["phase"])
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
-        trained.append((target, results, curve, checks))
-    training = {"recordings": [{"path": p, "sha256": sha256_file(p)} for p in args.recordings],
-                "runs": len(runs), "seconds": round(time.perf_counter() - t0, 1)}
-    model = Model(tuple(Bundle(args.method, target, schedule, results, config, training, curve, checks)
-                        for target, results, curve, checks in trained))
-    with replacing_dir(args.out) as tmp:  # an existing model is replaced only by a complete one
-        save_model(model, tmp)
-    for target, results, _, _ in trained:
-        if len(trained) > 1:
-            print(f"target {target}:")
-        if inputs is None:
-            print_ranking(results)
-        print_results(results)
-        if len(trained) > 1:
-            print()
-    print(f"model written to {Path(args.out)} ({time.perf_counter() - t0:.1f} s)")
-    return 0
+        bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks))
+        trained.append((target, results))
+    return Model(tuple(bundles)), trained
 
 
 def _count(grid: dict[str, list[object]]) -> int:
@@ -268,3 +345,6 @@ def _count(grid: dict[str, list[object]]) -> int:
     for v in grid.values():
         n *= len(v)
     return n
+
+
+_DEFAULTS = _defaults()
