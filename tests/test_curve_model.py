@@ -16,7 +16,8 @@ from node.models.ocmodel import (
     Trajectory,
     Variant,
 )
-from node.training.train import CURVE_CANDIDATES, OCData, train_oc
+from node.models.result import OCResult
+from node.training.train import CURVE_CANDIDATES, CURVE_MARGIN, OCData, train_oc
 
 FLEET = {"variant": "fleet", "bin": 25.0, "window": 40, "deadband": 20.0}
 
@@ -106,7 +107,7 @@ def test_training_picks_the_curve_for_a_function_of_speed_and_a_dmd_for_dynamics
     # each run's level scaled by its own factor (its imbalance): the curve anchored at the switch
     factors = rng.uniform(0.5, 2.0, 5)
     scaled = _ocdata(lambda s, u, r: factors[r] * _law(s, _codes(s)) + rng.normal(0, 0.02, s.size), rng)
-    res = train_oc(scaled, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, None, 2)
+    res = train_oc(scaled, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, None, 2, prune=False)
     assert isinstance(res.model, CurveModel) and res.params["variant"] == "anchored"
     fleet_scores = [s for p, s in res.cv_scores if p.get("variant") == "fleet"]
     assert res.cv_eps < 0.5 * min(fleet_scores)
@@ -117,7 +118,7 @@ def test_training_picks_the_curve_for_a_function_of_speed_and_a_dmd_for_dynamics
             y[k] = 0.95 * y[k - 1] + 0.5 * u[k - 1]
         return y
     dyn = _ocdata(dynamic, rng)
-    res = train_oc(dyn, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, ["u1"], 2)
+    res = train_oc(dyn, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, ["u1"], 2, prune=False)
     assert isinstance(res.model, StateSpaceModel)
     curve_scores = [s for p, s in res.cv_scores if p.get("method") == "curve"]
     assert curve_scores and min(curve_scores) > res.cv_eps
@@ -125,6 +126,45 @@ def test_training_picks_the_curve_for_a_function_of_speed_and_a_dmd_for_dynamics
     dyn.curves = []
     plain = train_oc(dyn, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, ["u1"], 2)
     assert plain.cv_eps == res.cv_eps and plain.params == res.params
+
+
+def _same_result(a: OCResult, b: OCResult) -> bool:
+    """The same choice, inputs, errors, calibration and model arrays (bit for bit)."""
+    if (a.kind, a.params, a.inputs, a.cv_eps, a.train_eps, a.calibration) != \
+            (b.kind, b.params, b.inputs, b.cv_eps, b.train_eps, b.calibration):
+        return False
+    x, y = a.model.arrays(), b.model.arrays()
+    return sorted(x) == sorted(y) and all(np.array_equal(x[k], y[k]) for k in x)
+
+
+@pytest.mark.parametrize("law", ["static", "scaled", "dynamic", "mixed"])
+def test_pruned_cv_chooses_and_fits_as_the_full_cv(law: str) -> None:
+    """Stopping a candidate's CV once it cannot be chosen changes nothing chosen or fitted; the
+    pruned candidates' scores are inf, the others' those of the full CV."""
+    rng = np.random.default_rng(11)
+    factors = rng.uniform(0.5, 2.0, 5)
+
+    def dynamic(s, u, r):
+        y = np.zeros(s.size)
+        for k in range(1, s.size):
+            y[k] = 0.95 * y[k - 1] + 0.5 * u[k - 1]
+        return factors[r] * y if law == "mixed" else y
+
+    laws = {"static": lambda s, u, r: _law(s, _codes(s)) + rng.normal(0, 0.02, s.size),
+            "scaled": lambda s, u, r: factors[r] * _law(s, _codes(s)) + rng.normal(0, 0.02, s.size),
+            "dynamic": dynamic,
+            "mixed": lambda s, u, r: dynamic(s, u, r) + _law(s, _codes(s)) + rng.normal(0, 0.05, s.size)}
+    d = _ocdata(laws[law], rng)
+    grid = {"delays": [1, 2, 4], "rcond": [1e-8]}
+    full = train_oc(d, "delay-dmd", grid, ["u1"], 2, prune=False)
+    pruned = train_oc(d, "delay-dmd", grid, ["u1"], 2)
+    assert _same_result(full, pruned), (full.kind, pruned.kind)
+    assert isinstance(full.model, StateSpaceModel) == (law == "dynamic")  # both paths covered
+    assert [p for p, _ in full.cv_scores] == [p for p, _ in pruned.cv_scores]
+    for (_, s), (_, t) in zip(full.cv_scores, pruned.cv_scores):
+        assert t == s or (t == np.inf and s >= (1 - CURVE_MARGIN) * min(v for _, v in pruned.cv_scores))
+    if law != "dynamic":  # there the curves lose, each to the one before it at most
+        assert sum(t == np.inf for _, t in pruned.cv_scores) > 0
 
 
 @pytest.mark.parametrize("variant", ["fleet", "run", "anchored"])

@@ -47,8 +47,11 @@ def test_the_cv_picks_the_parametric_model_for_history_dependent_dynamics():
     rng = np.random.default_rng(5)
     ps = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0]
     d = _ocdata(rng, ps)
-    res = train_oc(d, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, None, 1)
+    res = train_oc(d, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, None, 1, prune=False)
     assert isinstance(res.model, ParametricOCModel), res.model
+    pruned = train_oc(d, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, None, 1)
+    assert (pruned.params, pruned.cv_eps, pruned.calibration) == (res.params, res.cv_eps, res.calibration)
+    assert np.inf in [s for _, s in pruned.cv_scores]
     assert res.inputs == ["nB", "hist_thermal"] and res.params["param"] == "hist_thermal"
     grid = min(s for p, s in res.cv_scores if "method" not in p)
     curve = min(s for p, s in res.cv_scores if p.get("method") == "curve")
