@@ -154,9 +154,19 @@ class Bench:
         self.session.close()
 
 
-def start_node(model: str, record: str, port: int) -> subprocess.Popen:
+def start_node(model: str, record: str, port: int, beds: str | None = None) -> subprocess.Popen:
+    """``ordervib run`` listening on ``port``; with ``beds`` (a --beds pattern), connected to a
+    router on ``port`` instead."""
+    where = ["--listen", f"tcp/127.0.0.1:{port}"] if beds is None else \
+        ["--connect", f"tcp/127.0.0.1:{port}", "--beds", beds]
     return subprocess.Popen([sys.executable, "-m", "node.cli", "run", "--model", model, "--record", record,
-                             "--listen", f"tcp/127.0.0.1:{port}", "--quiet"], cwd=ROOT)
+                             *where, "--quiet"], cwd=ROOT)
+
+
+def start_router(port: int) -> subprocess.Popen:
+    """``ordervib router`` on loopback ``port``."""
+    return subprocess.Popen([sys.executable, "-m", "node.cli", "router", "--listen", f"tcp/127.0.0.1:{port}"],
+                            cwd=ROOT, stderr=subprocess.DEVNULL)
 
 
 def start_peer(mode: str, port: int, stream: Stream | None = None, needed: set[str] | None = None):
