@@ -52,13 +52,12 @@ from node.contract import FS
 from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.config import RuntimeConfig
+from node.models.curve import CurveModel, Variant
 from node.models.ocmodel import (
-    CurveModel,
     InputScaling,
     Method,
     StateSpaceModel,
     Trajectory,
-    Variant,
     lifted_pair,
 )
 from node.sysid import WDMD, ParametricROM, StateSpace

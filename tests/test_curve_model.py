@@ -7,15 +7,9 @@ import pytest
 
 from node.contract.schedule import OperatingCondition, Schedule
 from node.models.bundle import Bundle, load_bundle, save_bundle
+from node.models.curve import CurveModel, Variant
 from node.models.kinds import fit_oc_model, model_from_arrays
-from node.models.ocmodel import (
-    RUN_CURVE,
-    CurveModel,
-    Method,
-    StateSpaceModel,
-    Trajectory,
-    Variant,
-)
+from node.models.ocmodel import RUN_CURVE, Method, StateSpaceModel, Trajectory
 from node.models.result import OCResult
 from node.training.train import CURVE_CANDIDATES, CURVE_MARGIN, OCData, train_oc
 
@@ -36,7 +30,7 @@ def _law(speed: np.ndarray, code: np.ndarray) -> np.ndarray:
 
 
 def _codes(speed: np.ndarray, window: int = 40, deadband: float = 20.0) -> np.ndarray:
-    from node.models.ocmodel import direction_codes
+    from node.models.curve import direction_codes
     return direction_codes(np.zeros(0), speed, window, deadband)
 
 
@@ -209,7 +203,7 @@ def test_a_direction_with_few_samples_in_a_bin_takes_the_bins_mean():
 def test_the_anchor_s_vectorised_lookups_are_the_scalar_lookups_to_the_last_bit(vector):
     """The anchor's curve level at the switch (mean over its window of the steady curve at each
     past speed) from the vectorised lookups equals the per-sample scalar lookups exactly."""
-    from node.models.ocmodel import STEADY, _mean
+    from node.models.curve import STEADY, _mean
 
     rng = np.random.default_rng(11)
     for _ in range(50):

@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 
 from node.cli import main
 from node.models.bundle import load_bundle
-from node.models.ocmodel import CurveModel, Method, Trajectory, order_vectors
+from node.models.curve import CurveModel
+from node.models.ocmodel import Method, Trajectory, order_vectors
 from node.runtime.alarms import StepCheck
 from node.training.evaluation import predict_segments
 

@@ -7,8 +7,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from node.models.curve import CurveModel
 from node.models.ocmodel import (
-    CurveModel,
     Method,
     OCModel,
     OCModelKind,

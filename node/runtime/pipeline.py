@@ -29,10 +29,9 @@ import numpy as np
 
 from node.contract import FS, Flag, Phase, Reason, phase_channel
 from node.models.bundle import Bundle
+from node.models.curve import CurveModel, CurveRuntime
 from node.models.ocmodel import (
     NAN_VECTOR,
-    CurveModel,
-    CurveRuntime,
     OCRuntime,
     lag_degrees,
     order_vector,

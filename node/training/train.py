@@ -25,8 +25,9 @@ from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
+from node.models.curve import Variant
 from node.models.kinds import fit_oc_model
-from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory, Variant
+from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory
 from node.models.prom import param_channels
 from node.models.result import EWMA_ALPHA, Calibration, OCResult
 from node.runtime.history import HISTORY_CHANNELS, estimate_cooling

@@ -1,0 +1,494 @@
+"""The characteristic-curve OC model (``curve``): no dynamics, a lookup of the speed.
+
+:class:`CurveModel` holds the OC's curve (the training runs' mean target per speed bin,
+rising, falling and steady speed apart), the curve anchored to the run's level (or 1x
+vector) at the switch, the influence-coefficient curve, or the derived ``run_curve`` input
+itself: the baseline every other kind must beat. :class:`CurveRuntime` is its online stepper.
+
+A fit is a sum over trajectories: ``CurveModel.part`` takes from one trajectory what the fit
+needs of it (its samples' bin sums, and for the anchored curves its samples and its level at
+the switch), ``CurveModel.from_parts`` makes the model of any set of parts, and ``fit`` is
+``from_parts`` of every trajectory's part. The leave-one-run-out CV computes each run's part
+once and makes every fold's model from the other runs' parts: the very model a fit on those
+runs gives, bit for bit, at a fraction of the cost.
+"""
+
+from __future__ import annotations
+
+import bisect
+import cmath
+import math
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import ClassVar
+
+import numpy as np
+
+from node.contract import FS
+from node.models.baseline import bin_sums
+from node.models.ocmodel import Method, Trajectory, _readonly
+
+
+class Variant(StrEnum):
+    FLEET = "fleet"  # the training runs' characteristic curve of this OC; input: the switch speed
+    RUN = "run"  # the derived run_curve input itself (node.runtime.runcurve); input: run_curve
+    ANCHORED = "anchored"  # the fleet curve moved to the level this run had at the switch
+    VECTOR = "vector"  # anchored, on the order's 1x vector (its phase recorded): |vector| predicted
+    INFLUENCE = "influence"  # the 1x vector from its value at the switch by per-speed influence coefficients
+
+    @property
+    def on_vector(self) -> bool:
+        """Whether the variant predicts the order's 1x vector (needs its phase)."""
+        return self in (Variant.VECTOR, Variant.INFLUENCE)
+
+    @property
+    def anchored(self) -> bool:
+        """Whether the variant is moved by the run's measured level (or vector) at the switch."""
+        return self in (Variant.ANCHORED, Variant.VECTOR, Variant.INFLUENCE)
+
+
+STEADY, RISING, FALLING = 0, 1, 2  # the speed's recent change: the rows of CurveModel.means
+GAINS = 3  # an influence curve's runtime row of gains
+
+
+def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: float) -> np.ndarray:
+    """Each sample's direction code (K,) as :class:`CurveRuntime` finds it, vectorised (for fitting).
+
+    The change is speed[k] - speed[k - window] (the oldest of the last ``window`` finite samples,
+    ``hist`` (K1,) before ``speed`` (K,) included); beyond +deadband RISING, below -deadband
+    FALLING, else STEADY (also without any past, or with window 0). NaN speeds are skipped.
+
+    >>> direction_codes(np.array([100.0]), np.array([150.0, 140.0, 110.0, 110.0]), 2, 20.0)
+    array([1, 1, 2, 2])
+    """
+    full = np.concatenate([np.asarray(hist, float), np.asarray(speed, float)])
+    keep = np.isfinite(full)
+    out = np.zeros(len(speed), dtype=np.int64)
+    if window <= 0:
+        return out
+    n_hist = int(keep[:len(hist)].sum())
+    vals = full[keep]
+    pos = np.arange(n_hist, vals.size)  # the finite samples of ``speed`` in ``vals``
+    ref = vals[np.maximum(pos - window, 0)]
+    change = np.where(pos > 0, vals[pos] - ref, 0.0)
+    codes = np.where(change > deadband, RISING, np.where(change < -deadband, FALLING, STEADY))
+    out[keep[len(hist):]] = codes
+    return out
+
+
+def _binned_means(speed: np.ndarray, y: np.ndarray, code: np.ndarray, width: float,
+                  min_count: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Bin centres (B,) and the mean target per bin and direction (3, B) (every sample's mean
+    where a direction has fewer than ``min_count`` samples); complex y: complex means."""
+    if np.iscomplexobj(y):
+        ok = np.isfinite(y)
+        centres, re = _binned_means(speed[ok], y.real[ok], code[ok], width, min_count)
+        return centres, re + 1j * _binned_means(speed[ok], y.imag[ok], code[ok], width, min_count)[1]
+    ok = np.isfinite(speed) & np.isfinite(y)
+    if not ok.any():
+        raise ValueError("no finite (speed, target) pairs to fit a curve")
+    bins, sums, counts = bin_sums(speed[ok], y[ok], width)
+    means = np.tile(sums / counts, (3, 1))
+    for c in (STEADY, RISING, FALLING):
+        mine = ok & (code == c)
+        if mine.any():
+            b, sm, n = bin_sums(speed[mine], y[mine], width)
+            enough = n >= min_count
+            means[c, np.searchsorted(bins, b[enough])] = sm[enough] / n[enough]
+    return (bins + 0.5) * width, means
+
+
+@dataclass(frozen=True, eq=False)
+class CurveModel:
+    """A characteristic-curve OC model (``curve``): no dynamics, a lookup of the speed.
+
+    Attributes:
+        params: variant (``Variant``: "fleet", "run", "anchored", "vector" or "influence"),
+            and but for run: bin (rpm), window (samples the speed's change is taken over; 0:
+            one curve; influence: one curve whatever it), deadband (rpm over the window),
+            min_count (a direction's own mean in a bin needs this many samples, else the
+            bin's mean of every sample; default 1), and for the anchored ones: anchor
+            (samples before the switch whose mean level, or 1x vector, anchors the curve);
+            influence: ridge.
+        centres: (B,) the speed bins' centres, rpm (empty for run).
+        means: (3, B) the mean target per bin when the speed is steady, rising, falling
+            (rows STEADY, RISING, FALLING); a bin without samples of a direction holds the
+            mean of every sample in it.
+        weights: anchored only, (2,): (w_mul, w_add). With c the curve at the speed, y_sw and
+            c_sw the measured mean and the steady curve's mean over the ``anchor`` samples
+            before the switch, the prediction is
+            c + w_mul c (y_sw / c_sw - 1) + w_add (y_sw - c_sw): the curve scaled and shifted
+            towards this run's level (a new run's imbalance and bow move its level, its
+            curve keeps its shape). The weights are least squares over the training runs.
+            vector: the same on the order's 1x vector (``Trajectory.z``; means complex, y_sw
+            and c_sw complex, the weights real), the predicted amplitude the modulus: a run's
+            own imbalance and bow turn the vector, which the amplitude alone cannot tell
+            from a change of level.
+        gains: influence only, (B,) complex: the influence coefficients g per bin. With z_sw
+            the measured 1x vector over the ``anchor`` samples before the switch and
+            ``anchor_mean`` its mean over the training runs, the predicted vector at speed v is
+            b(v) + g(v) (z_sw - anchor_mean), b the ``means`` (the training runs' mean vector):
+            a linear rotor's response to the run's own unbalance u is H(v) u, so the vector at
+            any speed is an affine function of the vector at the switch, the ratio H(v) / H(v_sw)
+            being what trim balancing calls an influence coefficient. b and g are least squares
+            per bin over every training sample (with its run's z_sw), g shrunk by ``ridge``
+            (relative to the spread of the runs' z_sw; default 1e-3) where the runs' anchors
+            cannot tell it.
+        anchor_mean: influence only, the training runs' mean z_sw (complex).
+
+    A law that differs on the way up and down is recovered exactly:
+
+    >>> up = np.arange(1002.5, 2000.0, 5.0)  # the bins' centres
+    >>> speed = np.concatenate([up, up[::-1]])
+    >>> law = np.where(np.diff(speed, prepend=speed[0]) >= 0, speed / 1000.0, 3.0)
+    >>> traj = Trajectory(law, speed[:, None], start=0)
+    >>> m = CurveModel.fit(Method.CURVE, {"variant": "fleet", "bin": 5.0, "window": 1,
+    ...                                   "deadband": 1.0}, [traj])
+    >>> rt = m.runtime()
+    >>> rt.start(np.array([1.0]), np.array([[1497.5]]))
+    >>> rt.step([1502.5]), rt.step([1497.5])
+    (1.5025, 3.0)
+
+    Runs whose level is the curve's times a run factor are followed from their switch:
+
+    >>> speed = np.concatenate([np.full(50, 1010.0), np.arange(1010.0, 3000.0, 20.0)])  # bin centres
+    >>> trajs = [Trajectory(f * speed / 1000.0, speed[:, None], start=50) for f in (1.0, 2.0, 3.0)]
+    >>> m = CurveModel.fit(Method.CURVE, {"variant": "anchored", "bin": 20.0, "anchor": 10}, trajs)
+    >>> np.round(m.weights, 6) + 0.0
+    array([1., 0.])
+    >>> new = Trajectory(2.5 * speed / 1000.0, speed[:, None], start=50)
+    >>> round(float(m.predict(new)[-1]), 6)  # the fleet curve says 2 x 2.99 at 2990 rpm
+    7.475
+    """
+
+    params: dict
+    centres: np.ndarray
+    means: np.ndarray
+    weights: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    gains: np.ndarray = field(default_factory=lambda: np.zeros(0, complex))
+    anchor_mean: complex = 0j
+    method: ClassVar[Method] = Method.CURVE
+    repaired: ClassVar[int] = 0
+    n_states: ClassVar[int] = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "centres", _readonly(self.centres))
+        kind = complex if self.variant.on_vector else float
+        object.__setattr__(self, "means", _readonly(np.reshape(self.means, (3, -1)), kind))
+        object.__setattr__(self, "weights", _readonly(np.reshape(self.weights, (2,))))
+        object.__setattr__(self, "gains", _readonly(np.reshape(self.gains, (-1,)), complex))
+        object.__setattr__(self, "anchor_mean", complex(self.anchor_mean))
+
+    @property
+    def variant(self) -> Variant:
+        return Variant(self.params.get("variant", Variant.FLEET))
+
+    @classmethod
+    def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> CurveModel:
+        """The binned mean of the OC samples' target against their one input (the speed);
+        anchored: of every sample with its past (so the curve knows the speed at the switch),
+        then the anchoring weights by least squares over the OC samples."""
+        if any(t.U.shape[1] != 1 for t in trajs):
+            raise ValueError("a curve model takes exactly one input")
+        variant = Variant(params.get("variant", Variant.FLEET))
+        if variant is Variant.RUN:
+            return cls(dict(params), np.zeros(0), np.zeros((3, 0)))
+        width, window = float(params.get("bin", 25.0)), int(params.get("window", 0))
+        deadband = float(params.get("deadband", 0.0))
+        vector = variant.on_vector
+        if vector and any(t.z is None for t in trajs):
+            raise ValueError("a vector curve needs the target's phase")
+        if variant is Variant.INFLUENCE:
+            return cls._fit_influence(params, trajs)
+        if variant.anchored:  # whole trajectories: the switch is in the past
+            speed = np.concatenate([t.U[:, 0] for t in trajs])
+            y = np.concatenate([_levels(t, vector) for t in trajs])
+            code = np.concatenate([direction_codes(t.U[:0, 0], t.U[:, 0], window, deadband) for t in trajs])
+        else:
+            speed = np.concatenate([t.seg_U[:, 0] for t in trajs])
+            y = np.concatenate([t.seg_y for t in trajs])
+            code = np.concatenate([direction_codes(t.U[:t.start, 0][-window:] if window else t.U[:0, 0],
+                                                   t.seg_U[:, 0], window, deadband) for t in trajs])
+        centres, means = _binned_means(speed, y, code, width, int(params.get("min_count", 1)))
+        plain = cls(dict(params), centres, means)
+        if not variant.anchored:
+            return plain
+        rows, targets = [], []
+        for t in trajs:
+            rt = plain.runtime()
+            level = _levels(t, vector)
+            rt.start(level[:t.start], t.U[:t.start])
+            c = rt.speeds_ahead(t.seg_U[:, 0])
+            c = c if vector else c.real
+            if rt.anchor is None:
+                continue
+            y_sw, c_sw = rt.anchor
+            rows.append(np.column_stack([c * (y_sw / c_sw - 1.0), np.full(c.size, y_sw - c_sw)]))
+            targets.append(level[t.start:] - c)
+        weights = np.zeros(2)
+        if rows:
+            X, r = np.vstack(rows), np.concatenate(targets)
+            if vector:  # real weights: both components of the complex residual
+                X, r = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag])
+            ok = np.isfinite(r) & np.isfinite(X).all(axis=1)
+            if ok.sum() > 2:
+                weights = np.linalg.lstsq(X[ok], r[ok], rcond=None)[0]
+        return cls(dict(params), centres, means, weights)
+
+    @classmethod
+    def _fit_influence(cls, params: dict, trajs: Sequence[Trajectory]) -> CurveModel:
+        """b and g per speed bin by least squares over every sample of the trajectories (with
+        their past) against its run's vector at the switch (see the class's ``gains``)."""
+        width, ridge = float(params.get("bin", 25.0)), float(params.get("ridge", 1e-3))
+        speeds, zs, anchors = [], [], []
+        for t in trajs:
+            rt = cls(dict(params), np.zeros(1), np.zeros((3, 1)), gains=np.zeros(1)).runtime()
+            rt.start(_levels(t, True)[:t.start], t.U[:t.start])
+            ok = np.isfinite(t.U[:, 0]) & np.isfinite(_levels(t, True))
+            speeds.append(t.U[ok, 0])
+            zs.append(_levels(t, True)[ok])
+            anchors.append(np.full(int(ok.sum()), np.nan if rt.anchor is None else rt.anchor[0]))
+        v, z, a = np.concatenate(speeds), np.concatenate(zs), np.concatenate(anchors)
+        if not v.size:
+            raise ValueError("no finite (speed, 1x vector) pairs to fit a curve")
+        known = np.isfinite(a)
+        if known.any():  # only runs with their vector at the switch tell the gains
+            v, z, a = v[known], z[known], a[known]
+            a_mean = complex(np.mean(a))
+        else:  # none: the plain mean vector per bin (as a node without the anchor predicts)
+            a, a_mean = np.zeros(v.size, complex), 0j
+        x = a - a_mean
+        bins, inv = np.unique(np.floor(v / width).astype(np.int64), return_inverse=True)
+        n = np.bincount(inv).astype(float)
+
+        def bin_mean(w: np.ndarray) -> np.ndarray:
+            return (np.bincount(inv, w.real) + 1j * np.bincount(inv, w.imag)) / n
+
+        xm, zm = bin_mean(x), bin_mean(z)
+        dx, dz = x - xm[inv], z - zm[inv]
+        sxx = np.bincount(inv, np.abs(dx) ** 2)
+        sxz = bin_mean(np.conj(dx) * dz) * n
+        g = sxz / (sxx + ridge * n * float(np.mean(np.abs(x) ** 2)) + 1e-300)  # 0 where x is 0
+        b = zm - g * xm  # the mean vector at the runs' mean anchor
+        return cls(dict(params), (bins + 0.5) * width, np.tile(b, (3, 1)), gains=g, anchor_mean=a_mean)
+
+    def predict(self, traj: Trajectory) -> np.ndarray:
+        """Prediction over the OC samples of ``traj``, by the node's stepper vectorised
+        (``CurveRuntime.speeds_ahead``: the same numbers to the last bit): (K_seg,)."""
+        if self.variant is Variant.RUN:
+            return np.array(traj.seg_U[:, 0], dtype=float)
+        rt = self.runtime()
+        rt.start(_levels(traj, self.variant.on_vector)[:traj.start], traj.U[:traj.start])
+        pred = rt.speeds_ahead(traj.seg_U[:, 0])
+        # the modulus as Python's abs() takes it (numpy's own may differ in the last bit)
+        return np.hypot(pred.real, pred.imag) if self.variant.on_vector else pred.real
+
+    def runtime(self) -> CurveRuntime:
+        return CurveRuntime(self)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {"centres": self.centres, "means": self.means.real}
+        if self.variant.on_vector:
+            out["means_im"] = self.means.imag
+        if self.variant in (Variant.ANCHORED, Variant.VECTOR):
+            out["weights"] = self.weights
+        if self.variant is Variant.INFLUENCE:
+            out["gains"], out["gains_im"] = self.gains.real, self.gains.imag
+            out["anchor_mean"] = np.array([self.anchor_mean.real, self.anchor_mean.imag])
+        return out
+
+    @classmethod
+    def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
+                    repaired: int = 0) -> CurveModel:
+        means = arrays["means"] + 1j * arrays["means_im"] if "means_im" in arrays else arrays["means"]
+        gains = arrays["gains"] + 1j * arrays["gains_im"] if "gains" in arrays else np.zeros(0, complex)
+        a_mean = complex(*arrays["anchor_mean"]) if "anchor_mean" in arrays else 0j
+        return cls(dict(params), arrays["centres"], means,
+                   arrays["weights"] if "weights" in arrays else np.zeros(2), gains, a_mean)
+
+
+def _levels(traj: Trajectory, vector: bool) -> np.ndarray:
+    """What a curve is fitted to and anchored on: the 1x vectors (K,) complex, or the target (K,)."""
+    if not vector:
+        return traj.y
+    if traj.z is None:  # no phase recorded: as the node without it, no anchor
+        return np.full(traj.y.shape, complex(np.nan, np.nan))
+    return traj.z
+
+
+class CurveRuntime:
+    """Online stepper of a :class:`CurveModel`: a bin lookup per sample.
+
+    Memory: the last ``window`` speeds (the direction of the speed's recent change), and
+    for an anchored curve the run's level at the switch (``anchor``: (y_sw, c_sw) or None);
+    a vector curve's are complex, ``start`` takes the 1x vectors as its measured past, and
+    ``step`` returns the predicted amplitude, the predicted vector left in ``vector``.
+
+    >>> m = CurveModel({"variant": "fleet", "window": 0}, np.array([0.0, 100.0]),
+    ...                np.tile([0.0, 10.0], (3, 1)))
+    >>> rt = m.runtime()
+    >>> rt.start(np.zeros(0), np.zeros((0, 1)))
+    >>> rt.step([25.0]), rt.step([500.0])
+    (2.5, 10.0)
+    """
+
+    def __init__(self, model: CurveModel) -> None:
+        self._run = model.variant is Variant.RUN
+        self._vector = model.variant.on_vector
+        self._anchored = model.variant.anchored
+        self._influence = model.variant is Variant.INFLUENCE
+        self._anchor_mean = model.anchor_mean
+        self._anchor_n = int(model.params.get("anchor", FS))
+        self._w_mul, self._w_add = (float(w) for w in model.weights)
+        self.anchor: tuple[complex, complex] | None = None
+        self._shift: complex = 0.0
+        self._gain: complex = 0.0
+        self.vector: complex = math.nan  # the last predicted 1x vector (vector curves)
+        self._xs = [float(x) for x in model.centres]
+        self._rows: list[list[complex]] = [row.tolist() for row in model.means]
+        if self._influence:  # the gains, looked up as a fourth row (GAINS)
+            self._rows.append(model.gains.tolist())
+        self._slopes = [[(r[i + 1] - r[i]) / (self._xs[i + 1] - self._xs[i]) for i in range(len(r) - 1)]
+                        for r in self._rows]
+        # the same tables as arrays, for the vectorised lookups (speeds_ahead, the anchor)
+        self._xa = np.array(self._xs)
+        self._ra = np.array(self._rows, complex)
+        self._sa = np.array(self._slopes, complex).reshape(len(self._rows), -1)
+        window = int(model.params.get("window", 0))
+        self._deadband = float(model.params.get("deadband", 0.0))
+        self._past: deque[float] | None = deque(maxlen=window) if window > 0 else None
+
+    def start(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
+        """Seed the recent speeds (and the anchor) from the measured past y_hist (K1,) (the 1x
+        vectors, complex, for a vector curve), U_hist (K1, 1) (K1 may be 0)."""
+        if self._anchored:
+            levels = np.asarray(y_hist, complex if self._vector else float)
+            self._set_anchor(levels, np.asarray(U_hist, float))
+        if self._past is None:
+            return
+        self._past.clear()
+        n = self._past.maxlen or 0
+        for x in np.asarray(U_hist, float)[:, 0][-n:].tolist() if len(U_hist) else []:
+            if x == x:
+                self._past.append(x)
+
+    def _set_anchor(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
+        """The run's level just before the switch against the steady curve's there."""
+        self.anchor, self._shift, self._gain = None, 0.0, 0.0
+        n = self._anchor_n
+        if n <= 0 or len(y_hist) < n:
+            return
+        y, x = y_hist[-n:], U_hist[-n:, 0]
+        ok = np.isfinite(y) & np.isfinite(x)
+        if not ok.any():
+            return
+        y_sw = _mean(y[ok].tolist())
+        if self._influence:
+            if cmath.isfinite(y_sw):
+                self.anchor = (y_sw, self._anchor_mean)
+                self._shift = y_sw - self._anchor_mean
+            return
+        c = self._lookups(x[ok], STEADY)  # each sample's _lookup, at once
+        c_sw = _mean(c.tolist() if self._vector else c.real.tolist())
+        if not (cmath.isfinite(y_sw) and cmath.isfinite(c_sw)) or c_sw == 0.0:
+            return
+        self.anchor = (y_sw, c_sw)
+        self._gain = self._w_mul * (y_sw / c_sw - 1.0)
+        self._shift = self._w_add * (y_sw - c_sw)
+
+    def step(self, u: Sequence[float] | np.ndarray) -> float:
+        """Prediction for this sample from its raw input u (1,): the speed, or run_curve itself."""
+        if self._run:
+            return float(u[0])
+        if self._vector:
+            self.vector = self.step_speed(float(u[0]))
+            return abs(self.vector)
+        return self.step_speed(float(u[0])).real
+
+    def speeds_ahead(self, speeds: np.ndarray) -> np.ndarray:
+        """``step_speed`` over speeds (K,) at once, vectorised for training: the same numbers to
+        the last bit (the same real operations in the same order: numpy's own complex product
+        and modulus may round otherwise); complex (K,). The stepper's recent speeds are left
+        as ``start`` set them."""
+        x = np.asarray(speeds, float)
+        codes = np.zeros(x.size, dtype=np.int64)
+        if self._past is not None:
+            codes = direction_codes(np.array(self._past, float), x, self._past.maxlen or 0, self._deadband)
+        xs, rows, slopes = self._xa, self._ra, self._sa
+        i = np.searchsorted(xs, x, side="right")
+        j = np.clip(i - 1, 0, max(xs.size - 2, 0))
+        c = np.empty(x.size, complex)
+        for code in np.unique(codes):
+            m = codes == code
+            c[m] = _interp(rows[code], slopes[code], xs, i[m], j[m], x[m])
+        if self.anchor is not None:
+            if self._influence:
+                c = c + _cmul(_interp(rows[GAINS], slopes[GAINS], xs, i, j, x), complex(self._shift))
+            elif self._vector:
+                c = c + _cmul(c, complex(self._gain)) + complex(self._shift)
+            else:  # real: as Python floats
+                c = (c.real + float(self._gain.real) * c.real + float(self._shift.real)).astype(complex)
+        c[~np.isfinite(x)] = complex(math.nan, 0.0)
+        return c
+
+    def _lookups(self, x: np.ndarray, code: int) -> np.ndarray:
+        """``_lookup`` of each speed x (K,) (finite) on row ``code``: complex (K,), the same
+        numbers to the last bit (``_interp``)."""
+        i = np.searchsorted(self._xa, x, side="right")
+        j = np.clip(i - 1, 0, max(self._xa.size - 2, 0))
+        return _interp(self._ra[code], self._sa[code], self._xa, i, j, x)
+
+    def _lookup(self, x: float, code: int) -> complex:
+        xs, ys = self._xs, self._rows[code]
+        i = bisect.bisect_right(xs, x)
+        if i == 0:
+            return ys[0]
+        if i == len(xs):
+            return ys[-1]
+        return ys[i - 1] + self._slopes[code][i - 1] * (x - xs[i - 1])
+
+    def step_speed(self, x: float) -> complex:
+        """Prediction at speed x (rpm) (NaN: NaN, and the recent speeds are kept); complex for a
+        vector curve, else real."""
+        if x != x:
+            return math.nan
+        code = STEADY
+        past = self._past
+        if past is not None:
+            if past:
+                change = x - past[0]
+                code = RISING if change > self._deadband else FALLING if change < -self._deadband else STEADY
+            past.append(x)
+        c = self._lookup(x, code)
+        if self.anchor is None:
+            return c
+        if self._influence:
+            return c + self._lookup(x, GAINS) * self._shift
+        return c + self._gain * c + self._shift
+
+
+def _cmul(a: np.ndarray, b: complex) -> np.ndarray:
+    """a * b (K,) complex as CPython multiplies complex numbers (``_Py_c_prod``)."""
+    return (a.real * b.real - a.imag * b.imag) + 1j * (a.real * b.imag + a.imag * b.real)
+
+
+def _interp(ys: np.ndarray, slopes: np.ndarray, xs: np.ndarray, i: np.ndarray, j: np.ndarray,
+            x: np.ndarray) -> np.ndarray:
+    """``CurveRuntime._lookup`` vectorised (K,): i = bisect_right(xs, x), j = i - 1 clipped to a
+    segment; a complex slope times a real offset as CPython does it."""
+    if slopes.size == 0:
+        return np.full(x.size, ys[0], complex)
+    sl, dx = slopes[j], x - xs[j]
+    out = ys[j] + ((sl.real * dx - sl.imag * 0.0) + 1j * (sl.real * 0.0 + sl.imag * dx))
+    out = np.where(i == 0, ys[0], out)
+    return np.where(i == xs.size, ys[-1], out)
+
+
+def _mean(values: list[complex]) -> complex:
+    """Exact-sum mean of real or complex values (real stays real)."""
+    re = math.fsum(v.real for v in values) / len(values)
+    if all(isinstance(v, float) for v in values):
+        return re
+    return complex(re, math.fsum(v.imag for v in values) / len(values))
