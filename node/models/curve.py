@@ -27,7 +27,6 @@ from typing import ClassVar
 import numpy as np
 
 from node.contract import FS
-from node.models.baseline import bin_sums
 from node.models.ocmodel import Method, Trajectory, _readonly
 
 
@@ -78,26 +77,66 @@ def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: 
     return out
 
 
-def _binned_means(speed: np.ndarray, y: np.ndarray, code: np.ndarray, width: float,
-                  min_count: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Bin centres (B,) and the mean target per bin and direction (3, B) (every sample's mean
-    where a direction has fewer than ``min_count`` samples); complex y: complex means."""
-    if np.iscomplexobj(y):
-        ok = np.isfinite(y)
-        centres, re = _binned_means(speed[ok], y.real[ok], code[ok], width, min_count)
-        return centres, re + 1j * _binned_means(speed[ok], y.imag[ok], code[ok], width, min_count)[1]
+@dataclass(frozen=True, eq=False)
+class CurvePart:
+    """What a curve fit needs of one trajectory (``CurveModel.part``), whatever the others are.
+
+    bins: (nb,) the speed bins holding samples (bin b spans [b, b + 1) x the bin width);
+    sums, counts: (3, nb) the sum (complex on the 1x vector) and count of the fitted level's
+    finite samples per bin and direction (STEADY, RISING, FALLING).
+    The anchored curves' weights: seg_x, seg_codes, seg_level (K,) the OC samples' speeds,
+    direction codes as the stepper finds them, and levels; anchor_x (n,) the finite speeds of
+    the anchor window before the switch and y_sw the mean level there (None: no anchor; the
+    influence curve keeps only y_sw).
+    """
+
+    bins: np.ndarray
+    sums: np.ndarray
+    counts: np.ndarray
+    seg_x: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    seg_codes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    seg_level: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    anchor_x: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    y_sw: complex | None = None
+
+
+def _code_bin_sums(speed: np.ndarray, y: np.ndarray, code: np.ndarray, width: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bins (nb,), sums and counts (3, nb) per direction of the finite (speed, y) pairs (K,)."""
     ok = np.isfinite(speed) & np.isfinite(y)
-    if not ok.any():
-        raise ValueError("no finite (speed, target) pairs to fit a curve")
-    bins, sums, counts = bin_sums(speed[ok], y[ok], width)
-    means = np.tile(sums / counts, (3, 1))
-    for c in (STEADY, RISING, FALLING):
-        mine = ok & (code == c)
-        if mine.any():
-            b, sm, n = bin_sums(speed[mine], y[mine], width)
-            enough = n >= min_count
-            means[c, np.searchsorted(bins, b[enough])] = sm[enough] / n[enough]
-    return (bins + 0.5) * width, means
+    bins, inv = np.unique(np.floor(speed[ok] / width).astype(np.int64), return_inverse=True)
+    flat = code[ok] * bins.size + inv  # (code, bin) as one index
+    size = 3 * bins.size
+    counts = np.bincount(flat, minlength=size).reshape(3, -1)
+    yo = y[ok]
+    if np.iscomplexobj(yo):
+        sums = (np.bincount(flat, yo.real, size) + 1j * np.bincount(flat, yo.imag, size)).reshape(3, -1)
+    else:
+        sums = np.bincount(flat, yo, size).reshape(3, -1)
+    return bins, sums, counts
+
+
+def _merge_parts(parts: Sequence[CurvePart]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bins every part holds (B,), and each part's sums and counts on them (P, 3, B)."""
+    bins = np.unique(np.concatenate([np.zeros(0, np.int64), *(p.bins for p in parts)]))
+    kind = complex if any(np.iscomplexobj(p.sums) for p in parts) else float
+    sums = np.zeros((len(parts), 3, bins.size), kind)
+    counts = np.zeros((len(parts), 3, bins.size), np.int64)
+    for k, p in enumerate(parts):
+        pos = np.searchsorted(bins, p.bins)
+        sums[k][:, pos], counts[k][:, pos] = p.sums, p.counts
+    return bins, sums, counts
+
+
+def _binned_means(sums: np.ndarray, counts: np.ndarray, min_count: int) -> np.ndarray:
+    """The mean level per direction and bin (3, B) from the parts' sums and counts (P, 3, B):
+    a direction's own mean where it has at least ``min_count`` (and 1) samples, else the mean
+    of every sample in the bin."""
+    s, n = sums.sum(axis=0), counts.sum(axis=0)  # the parts in order, then the directions
+    means = np.tile(s.sum(axis=0) / n.sum(axis=0), (3, 1))
+    enough = (n > 0) & (n >= min_count)
+    means[enough] = s[enough] / n[enough]
+    return means
 
 
 @dataclass(frozen=True, eq=False)
@@ -189,44 +228,81 @@ class CurveModel:
     def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> CurveModel:
         """The binned mean of the OC samples' target against their one input (the speed);
         anchored: of every sample with its past (so the curve knows the speed at the switch),
-        then the anchoring weights by least squares over the OC samples."""
-        if any(t.U.shape[1] != 1 for t in trajs):
+        then the anchoring weights by least squares over the OC samples; influence: the mean
+        vector and the gains per bin by least squares. ``from_parts`` of each trajectory's
+        ``part``."""
+        return cls.from_parts(params, [cls.part(params, t) for t in trajs])
+
+    @classmethod
+    def part(cls, params: dict, traj: Trajectory) -> CurvePart:
+        """What the fit of ``params`` needs of ``traj`` (see :class:`CurvePart`)."""
+        if traj.U.shape[1] != 1:
             raise ValueError("a curve model takes exactly one input")
         variant = Variant(params.get("variant", Variant.FLEET))
         if variant is Variant.RUN:
-            return cls(dict(params), np.zeros(0), np.zeros((3, 0)))
+            return CurvePart(np.zeros(0, np.int64), np.zeros((3, 0)), np.zeros((3, 0), np.int64))
         width, window = float(params.get("bin", 25.0)), int(params.get("window", 0))
         deadband = float(params.get("deadband", 0.0))
         vector = variant.on_vector
-        if vector and any(t.z is None for t in trajs):
+        if vector and traj.z is None:
             raise ValueError("a vector curve needs the target's phase")
+        level, start = _levels(traj, vector), traj.start
+        seg_x = np.asarray(traj.seg_U[:, 0], float)
+        past = traj.U[:start, 0][-window:] if window > 0 else traj.U[:0, 0]
+        if not variant.anchored:
+            codes = direction_codes(past, seg_x, window, deadband)
+            return CurvePart(*_code_bin_sums(seg_x, traj.seg_y, codes, width))
+        # whole trajectories: the switch is in the past (the influence curve: one curve)
+        window = 0 if variant is Variant.INFLUENCE else window
+        speed = np.asarray(traj.U[:, 0], float)
+        codes = direction_codes(speed[:0], speed, window, deadband)
+        bins, sums, counts = _code_bin_sums(speed, level, codes, width)
+        anchor = _anchor_window(level[:start], traj.U[:start], int(params.get("anchor", FS)))
         if variant is Variant.INFLUENCE:
-            return cls._fit_influence(params, trajs)
-        if variant.anchored:  # whole trajectories: the switch is in the past
-            speed = np.concatenate([t.U[:, 0] for t in trajs])
-            y = np.concatenate([_levels(t, vector) for t in trajs])
-            code = np.concatenate([direction_codes(t.U[:0, 0], t.U[:, 0], window, deadband) for t in trajs])
-        else:
-            speed = np.concatenate([t.seg_U[:, 0] for t in trajs])
-            y = np.concatenate([t.seg_y for t in trajs])
-            code = np.concatenate([direction_codes(t.U[:t.start, 0][-window:] if window else t.U[:0, 0],
-                                                   t.seg_U[:, 0], window, deadband) for t in trajs])
-        centres, means = _binned_means(speed, y, code, width, int(params.get("min_count", 1)))
+            finite = anchor is not None and cmath.isfinite(anchor[0])
+            return CurvePart(bins, sums, counts, y_sw=anchor[0] if anchor and finite else None)
+        y_sw, anchor_x = anchor if anchor else (None, np.zeros(0))
+        return CurvePart(bins, sums, counts, seg_x, direction_codes(past, seg_x, window, deadband),
+                         level[start:], anchor_x, y_sw)
+
+    @classmethod
+    def from_parts(cls, params: dict, parts: Sequence[CurvePart]) -> CurveModel:
+        """The model ``fit`` gives on the trajectories of ``parts`` (in their order)."""
+        variant = Variant(params.get("variant", Variant.FLEET))
+        if variant is Variant.RUN:
+            return cls(dict(params), np.zeros(0), np.zeros((3, 0)))
+        if variant is Variant.INFLUENCE:
+            return cls._from_parts_influence(params, parts)
+        width = float(params.get("bin", 25.0))
+        bins, sums, counts = _merge_parts(parts)
+        if not bins.size:
+            raise ValueError("no finite (speed, target) pairs to fit a curve")
+        centres = (bins + 0.5) * width
+        means = _binned_means(sums, counts, int(params.get("min_count", 1)))
         plain = cls(dict(params), centres, means)
         if not variant.anchored:
             return plain
+        vector = variant.on_vector
+        rt = plain.runtime()
+        use = [(p, p.y_sw) for p in parts if p.y_sw is not None]
+        if not use:
+            return cls(dict(params), centres, means, np.zeros(2))
+        # every part's lookups at once (each sample's on its own: the same numbers)
+        c_anchor = rt._lookups(np.concatenate([p.anchor_x for p, _ in use]), STEADY)
+        c_seg = rt._table(np.concatenate([p.seg_x for p, _ in use]),
+                          np.concatenate([p.seg_codes for p, _ in use]))
+        if not vector:
+            c_anchor, c_seg = c_anchor.real, c_seg.real
         rows, targets = [], []
-        for t in trajs:
-            rt = plain.runtime()
-            level = _levels(t, vector)
-            rt.start(level[:t.start], t.U[:t.start])
-            c = rt.speeds_ahead(t.seg_U[:, 0])
-            c = c if vector else c.real
-            if rt.anchor is None:
-                continue
-            y_sw, c_sw = rt.anchor
+        a0 = s0 = 0
+        for p, y_sw in use:
+            a1, s1 = a0 + p.anchor_x.size, s0 + p.seg_x.size
+            c_sw, c = _mean(c_anchor[a0:a1]), c_seg[s0:s1]
+            a0, s0 = a1, s1
+            if not (cmath.isfinite(c_sw) and cmath.isfinite(y_sw)) or c_sw == 0.0:
+                continue  # as the stepper: no anchor
             rows.append(np.column_stack([c * (y_sw / c_sw - 1.0), np.full(c.size, y_sw - c_sw)]))
-            targets.append(level[t.start:] - c)
+            targets.append(p.seg_level - c)
         weights = np.zeros(2)
         if rows:
             X, r = np.vstack(rows), np.concatenate(targets)
@@ -238,39 +314,32 @@ class CurveModel:
         return cls(dict(params), centres, means, weights)
 
     @classmethod
-    def _fit_influence(cls, params: dict, trajs: Sequence[Trajectory]) -> CurveModel:
+    def _from_parts_influence(cls, params: dict, parts: Sequence[CurvePart]) -> CurveModel:
         """b and g per speed bin by least squares over every sample of the trajectories (with
-        their past) against its run's vector at the switch (see the class's ``gains``)."""
+        their past) against its run's vector at the switch (see the class's ``gains``): a run's
+        anchor is one number, so its samples enter each bin by their count and sum alone."""
         width, ridge = float(params.get("bin", 25.0)), float(params.get("ridge", 1e-3))
-        speeds, zs, anchors = [], [], []
-        for t in trajs:
-            rt = cls(dict(params), np.zeros(1), np.zeros((3, 1)), gains=np.zeros(1)).runtime()
-            rt.start(_levels(t, True)[:t.start], t.U[:t.start])
-            ok = np.isfinite(t.U[:, 0]) & np.isfinite(_levels(t, True))
-            speeds.append(t.U[ok, 0])
-            zs.append(_levels(t, True)[ok])
-            anchors.append(np.full(int(ok.sum()), np.nan if rt.anchor is None else rt.anchor[0]))
-        v, z, a = np.concatenate(speeds), np.concatenate(zs), np.concatenate(anchors)
-        if not v.size:
+        known = [p for p in parts if p.y_sw is not None]
+        # only runs with their vector at the switch tell the gains; none: the plain mean
+        # vector per bin (as a node without the anchor predicts)
+        use = known or list(parts)
+        bins, sums, counts = _merge_parts(use)
+        n_rb, z_rb = counts[:, STEADY, :].astype(float), sums[:, STEADY, :].astype(complex)  # (P, B)
+        n_r, n_b = n_rb.sum(axis=1), n_rb.sum(axis=0)
+        if not n_r.sum():
             raise ValueError("no finite (speed, 1x vector) pairs to fit a curve")
-        known = np.isfinite(a)
-        if known.any():  # only runs with their vector at the switch tell the gains
-            v, z, a = v[known], z[known], a[known]
-            a_mean = complex(np.mean(a))
-        else:  # none: the plain mean vector per bin (as a node without the anchor predicts)
-            a, a_mean = np.zeros(v.size, complex), 0j
-        x = a - a_mean
-        bins, inv = np.unique(np.floor(v / width).astype(np.int64), return_inverse=True)
-        n = np.bincount(inv).astype(float)
-
-        def bin_mean(w: np.ndarray) -> np.ndarray:
-            return (np.bincount(inv, w.real) + 1j * np.bincount(inv, w.imag)) / n
-
-        xm, zm = bin_mean(x), bin_mean(z)
-        dx, dz = x - xm[inv], z - zm[inv]
-        sxx = np.bincount(inv, np.abs(dx) ** 2)
-        sxz = bin_mean(np.conj(dx) * dz) * n
-        g = sxz / (sxx + ridge * n * float(np.mean(np.abs(x) ** 2)) + 1e-300)  # 0 where x is 0
+        a = np.array([p.y_sw for p in known], complex) if known else np.zeros(len(use), complex)
+        a_mean = complex(np.sum(n_r * a) / n_r.sum()) if known else 0j
+        x = a - a_mean  # (P,) each run's anchor about the mean
+        keep = n_b > 0
+        bins, n_rb, z_rb, n_b = bins[keep], n_rb[:, keep], z_rb[:, keep], n_b[keep]
+        xm = (n_rb * x[:, None]).sum(axis=0) / n_b
+        zm = z_rb.sum(axis=0) / n_b
+        dx = x[:, None] - xm[None, :]
+        sxx = (n_rb * np.abs(dx) ** 2).sum(axis=0)
+        sxz = (np.conj(dx) * (z_rb - n_rb * zm[None, :])).sum(axis=0)
+        mean_x2 = float(np.sum(n_r * np.abs(x) ** 2) / n_r.sum())
+        g = sxz / (sxx + ridge * n_b * mean_x2 + 1e-300)  # 0 where x is 0
         b = zm - g * xm  # the mean vector at the runs' mean anchor
         return cls(dict(params), (bins + 0.5) * width, np.tile(b, (3, 1)), gains=g, anchor_mean=a_mean)
 
@@ -377,21 +446,17 @@ class CurveRuntime:
     def _set_anchor(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
         """The run's level just before the switch against the steady curve's there."""
         self.anchor, self._shift, self._gain = None, 0.0, 0.0
-        n = self._anchor_n
-        if n <= 0 or len(y_hist) < n:
+        window = _anchor_window(y_hist, U_hist, self._anchor_n)
+        if window is None:
             return
-        y, x = y_hist[-n:], U_hist[-n:, 0]
-        ok = np.isfinite(y) & np.isfinite(x)
-        if not ok.any():
-            return
-        y_sw = _mean(y[ok].tolist())
+        y_sw, x = window
         if self._influence:
             if cmath.isfinite(y_sw):
                 self.anchor = (y_sw, self._anchor_mean)
                 self._shift = y_sw - self._anchor_mean
             return
-        c = self._lookups(x[ok], STEADY)  # each sample's _lookup, at once
-        c_sw = _mean(c.tolist() if self._vector else c.real.tolist())
+        c = self._lookups(x, STEADY)  # each sample's _lookup, at once
+        c_sw = _mean(c if self._vector else c.real)
         if not (cmath.isfinite(y_sw) and cmath.isfinite(c_sw)) or c_sw == 0.0:
             return
         self.anchor = (y_sw, c_sw)
@@ -416,13 +481,10 @@ class CurveRuntime:
         codes = np.zeros(x.size, dtype=np.int64)
         if self._past is not None:
             codes = direction_codes(np.array(self._past, float), x, self._past.maxlen or 0, self._deadband)
+        c = self._table(x, codes)
         xs, rows, slopes = self._xa, self._ra, self._sa
         i = np.searchsorted(xs, x, side="right")
         j = np.clip(i - 1, 0, max(xs.size - 2, 0))
-        c = np.empty(x.size, complex)
-        for code in np.unique(codes):
-            m = codes == code
-            c[m] = _interp(rows[code], slopes[code], xs, i[m], j[m], x[m])
         if self.anchor is not None:
             if self._influence:
                 c = c + _cmul(_interp(rows[GAINS], slopes[GAINS], xs, i, j, x), complex(self._shift))
@@ -430,6 +492,19 @@ class CurveRuntime:
                 c = c + _cmul(c, complex(self._gain)) + complex(self._shift)
             else:  # real: as Python floats
                 c = (c.real + float(self._gain.real) * c.real + float(self._shift.real)).astype(complex)
+        c[~np.isfinite(x)] = complex(math.nan, 0.0)
+        return c
+
+    def _table(self, x: np.ndarray, codes: np.ndarray) -> np.ndarray:
+        """The curve of each speed x (K,) in its direction ``codes`` (K,), without the anchor:
+        complex (K,), NaN where x is (``_lookup`` of each, the same numbers to the last bit)."""
+        xs, rows, slopes = self._xa, self._ra, self._sa
+        i = np.searchsorted(xs, x, side="right")
+        j = np.clip(i - 1, 0, max(xs.size - 2, 0))
+        c = np.empty(x.size, complex)
+        for code in np.unique(codes):
+            m = codes == code
+            c[m] = _interp(rows[code], slopes[code], xs, i[m], j[m], x[m])
         c[~np.isfinite(x)] = complex(math.nan, 0.0)
         return c
 
@@ -486,9 +561,23 @@ def _interp(ys: np.ndarray, slopes: np.ndarray, xs: np.ndarray, i: np.ndarray, j
     return np.where(i == xs.size, ys[-1], out)
 
 
-def _mean(values: list[complex]) -> complex:
-    """Exact-sum mean of real or complex values (real stays real)."""
-    re = math.fsum(v.real for v in values) / len(values)
-    if all(isinstance(v, float) for v in values):
+def _mean(values: np.ndarray | Sequence[complex]) -> complex:
+    """Exact-sum mean of real or complex values (K,) (real stays real)."""
+    a = np.asarray(values)
+    re = math.fsum(a.real.tolist()) / a.size
+    if not np.iscomplexobj(a):
         return re
-    return complex(re, math.fsum(v.imag for v in values) / len(values))
+    return complex(re, math.fsum(a.imag.tolist()) / a.size)
+
+
+def _anchor_window(y_hist: np.ndarray, U_hist: np.ndarray, n: int) -> tuple[complex, np.ndarray] | None:
+    """The mean level over the last ``n`` samples before the switch where the level y_hist (K1,)
+    and the speed U_hist (K1, 1) are finite, and those speeds (k,); None: fewer than ``n``
+    samples of past, or none of them finite."""
+    if n <= 0 or len(y_hist) < n:
+        return None
+    y, x = y_hist[-n:], U_hist[-n:, 0]
+    ok = np.isfinite(y) & np.isfinite(x)
+    if not ok.any():
+        return None
+    return _mean(y[ok]), np.asarray(x[ok], float)

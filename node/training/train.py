@@ -25,7 +25,7 @@ from node.contract.schedule import Schedule
 from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
-from node.models.curve import Variant
+from node.models.curve import CurveModel, CurvePart, Variant
 from node.models.kinds import fit_oc_model
 from node.models.ocmodel import RUN_CURVE, Method, OCModel, StateSpaceModel, Trajectory
 from node.models.prom import param_channels
@@ -186,12 +186,13 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
     candidate can no longer be chosen (``train_oc``)."""
     pairs_all: list[tuple[np.ndarray, np.ndarray]] = []
     num, den = 0.0, _reference_energy(d, folds) if bound < math.inf else 0.0
+    fit = _fold_fitter(d, method, params, fold_inputs)
     for f in folds:
         train_rows = [i for i, r in enumerate(d.runs) if r != f]
         test_rows = [i for i, r in enumerate(d.runs) if r == f]
         chosen = fold_inputs[f]
         try:
-            m = fit_oc_model(method, params, _trajs(d, train_rows, chosen))
+            m = fit(train_rows, chosen)
         except (np.linalg.LinAlgError, ValueError):
             return float("inf"), []
         pairs = _predict_pairs(m, _trajs(d, test_rows, chosen))
@@ -202,6 +203,28 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
             if not math.sqrt(num / den) < bound:  # (nan: an infinite prediction)
                 return float("inf"), []
     return (pooled_eps(pairs_all) if pairs_all else float("inf")), pairs_all
+
+
+def _fold_fitter(d: OCData, method: str, params: dict, fold_inputs: dict[int, list[str]]
+                 ) -> Callable[[list[int], list[str]], OCModel]:
+    """fit(rows, inputs): the model of ``method`` fitted on the segments ``rows`` with ``inputs``.
+
+    A curve is made from the rows' parts (``CurveModel.part``), each segment's computed once
+    for every fold: the model ``fit_oc_model`` gives on those rows, bit for bit, without
+    re-binning every other run in every fold (40 runs: 13 s of curve CV per OC before)."""
+    if Method(method) is not Method.CURVE or len({tuple(c) for c in fold_inputs.values()}) != 1:
+        return lambda rows, inputs: fit_oc_model(method, params, _trajs(d, rows, inputs))
+    inputs = next(iter(fold_inputs.values()))
+    parts: dict[int, CurvePart] = {}
+
+    def fit(rows: list[int], chosen: list[str]) -> OCModel:
+        if chosen != inputs:
+            return fit_oc_model(method, params, _trajs(d, rows, chosen))
+        for i in rows:
+            if i not in parts:
+                parts[i] = CurveModel.part(params, _trajs(d, [i], inputs)[0])
+        return CurveModel.from_parts(params, [parts[i] for i in rows])
+    return fit
 
 
 def _reference_energy(d: OCData, folds: list[int]) -> float:
