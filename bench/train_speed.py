@@ -29,8 +29,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default="wdmd,delay-dmd,lasso")
     ap.add_argument("--runs", type=int, default=8, help="training runs to simulate (default 8)")
     ap.add_argument("--check-full", action="store_true",
-                    help="also train the default without pruning the CV (every candidate on every "
-                         "fold, as before) and say whether every OC's choice is the same")
+                    help="also train the default with the full CV as before (every candidate on "
+                         "every fold, each fold fitted afresh) and say whether every OC's choice is "
+                         "the same")
     args = ap.parse_args(argv)
     from node.cli.train import load_runs
     from node.contract.schedule import load_schedule
@@ -91,7 +92,8 @@ def main(argv: list[str] | None = None) -> int:
         t_full = time.perf_counter() - t1 + t_common
         same = [(a.kind, a.params, a.inputs, a.cv_eps, a.calibration) ==
                 (b.kind, b.params, b.inputs, b.cv_eps, b.calibration) for a, b in zip(default, full)]
-        print(f"the full CV (no candidate pruned, as before): {t_full:.1f} s against "
+        print("the full CV as before (every candidate on every fold, each fitted afresh): "
+              f"{t_full:.1f} s against "
               f"{first[1] - t_read:.1f} s; the same choice, inputs, CV eps and calibration in "
               f"{sum(same)} of {len(same)} OCs")
     return 0

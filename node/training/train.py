@@ -176,17 +176,19 @@ def _predict_pairs(model: OCModel, trajs: list[Trajectory]) -> list[tuple[np.nda
 
 
 def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
-                    fold_inputs: dict[int, list[str]], bound: float = math.inf
+                    fold_inputs: dict[int, list[str]], bound: float = math.inf, parts: bool = True
                     ) -> tuple[float, list[tuple[np.ndarray, np.ndarray]]]:
     """Pooled eps of ``method`` with ``params`` over the leave-one-run-out folds, and the held-out
     (measured, predicted) pairs in fold order (inf and no pairs when a fit fails).
 
     bound: stop, returning inf and no pairs, as soon as the folds done prove the pooled eps at
     least ``bound`` (their error energy over every fold's reference energy only grows): the
-    candidate can no longer be chosen (``train_oc``)."""
+    candidate can no longer be chosen (``train_oc``).
+    parts: a curve's folds from the runs' parts (``_fold_fitter``; False: each fitted afresh,
+    the same numbers slower)."""
     pairs_all: list[tuple[np.ndarray, np.ndarray]] = []
     num, den = 0.0, _reference_energy(d, folds) if bound < math.inf else 0.0
-    fit = _fold_fitter(d, method, params, fold_inputs)
+    fit = _fold_fitter(d, method, params, fold_inputs, parts)
     for f in folds:
         train_rows = [i for i, r in enumerate(d.runs) if r != f]
         test_rows = [i for i, r in enumerate(d.runs) if r == f]
@@ -205,25 +207,25 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
     return (pooled_eps(pairs_all) if pairs_all else float("inf")), pairs_all
 
 
-def _fold_fitter(d: OCData, method: str, params: dict, fold_inputs: dict[int, list[str]]
-                 ) -> Callable[[list[int], list[str]], OCModel]:
+def _fold_fitter(d: OCData, method: str, params: dict, fold_inputs: dict[int, list[str]],
+                 parts: bool = True) -> Callable[[list[int], list[str]], OCModel]:
     """fit(rows, inputs): the model of ``method`` fitted on the segments ``rows`` with ``inputs``.
 
-    A curve is made from the rows' parts (``CurveModel.part``), each segment's computed once
-    for every fold: the model ``fit_oc_model`` gives on those rows, bit for bit, without
+    parts: a curve is made from the rows' parts (``CurveModel.part``), each segment's computed
+    once for every fold: the model ``fit_oc_model`` gives on those rows, bit for bit, without
     re-binning every other run in every fold (40 runs: 13 s of curve CV per OC before)."""
-    if Method(method) is not Method.CURVE or len({tuple(c) for c in fold_inputs.values()}) != 1:
+    if not parts or Method(method) is not Method.CURVE or len({tuple(c) for c in fold_inputs.values()}) != 1:
         return lambda rows, inputs: fit_oc_model(method, params, _trajs(d, rows, inputs))
     inputs = next(iter(fold_inputs.values()))
-    parts: dict[int, CurvePart] = {}
+    done: dict[int, CurvePart] = {}
 
     def fit(rows: list[int], chosen: list[str]) -> OCModel:
         if chosen != inputs:
             return fit_oc_model(method, params, _trajs(d, rows, chosen))
         for i in rows:
-            if i not in parts:
-                parts[i] = CurveModel.part(params, _trajs(d, [i], inputs)[0])
-        return CurveModel.from_parts(params, [parts[i] for i in rows])
+            if i not in done:
+                done[i] = CurveModel.part(params, _trajs(d, [i], inputs)[0])
+        return CurveModel.from_parts(params, [done[i] for i in rows])
     return fit
 
 
@@ -253,9 +255,10 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     prune: a candidate's CV stops as soon as its folds so far prove that it cannot be chosen
     (its error energy only grows with the folds: beyond the best of its kind so far, or, for
     a grid or parametric model, beyond (1 - ``CURVE_MARGIN``) x the best curve's eps); its
-    ``cv_scores`` entry is then inf. The choice, the model and its calibration are those of
-    the full CV (test); 40 runs of an engine (``bench train-speed --check-full``): 68 s against
-    167 s, the same choices in 12 of 12 OCs.
+    ``cv_scores`` entry is then inf; and a curve's folds are made from the runs' parts
+    (``_fold_fitter``). The choice, the model and its calibration are those of the full CV
+    (prune False: every candidate on every fold, each fold fitted afresh; tests); 40 runs of
+    an engine (``bench train-speed --check-full``): 56 s against 190 s, the same in 12 of 12 OCs.
     """
     folds = sorted(set(d.runs))
     if len(folds) < 2:
@@ -276,7 +279,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
             continue
         bound = best_curve[0] if prune and best_curve is not None else math.inf
         score, pairs_all = _cross_validate(d, folds, Method.CURVE, curve, dict.fromkeys(folds, curve_inputs),
-                                           bound)
+                                           bound, parts=prune)
         cv_scores.append(({"method": Method.CURVE.value, **curve}, score))
         if best_curve is None or score < best_curve[0]:
             best_curve = (score, curve, pairs_all, curve_inputs)
@@ -473,7 +476,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     engine-history parameters (computed for them when ``history`` is off, then only they take
     them as inputs); ``runs`` are then one engine's.
 
-    prune: stop a candidate's CV once it cannot be chosen (``train_oc``; the same models).
+    prune: stop a candidate's CV once it cannot be chosen, and make the curves' folds from the
+    runs' parts (``train_oc``; the same models; False: the CV as before, slower).
 
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
