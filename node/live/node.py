@@ -1,7 +1,7 @@
 """The live edges: Zenoh in and out, MCAP recording. The logic is ``NodeCore``'s.
 
-The subscriber callback only stamps and enqueues (bounded queue, overflow
-counted per key); one worker thread drains the queue in batches (everything
+The subscriber callback only stamps and enqueues (a bounded ``Inbox``, overflow
+counted per key); one worker thread drains the inbox in batches (everything
 waiting, up to ``BATCH_MAX``), runs the node logic once per batch
 (``NodeCore.handle_batch``, as offline replay does), records every input,
 publishes and records every output, flushes the recording once a second (a
@@ -31,14 +31,15 @@ Failures (README "Health and liveliness"):
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
 
+import numpy as np
 import orjson
 
 from node.contract import (
@@ -50,6 +51,7 @@ from node.contract import (
     sensor_subscription,
 )
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
+from node.live.inbox import Inbox
 from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
@@ -98,7 +100,7 @@ class LiveNode:
         self._engine_next = 0.0  # monotonic time of the next save
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
         self.conf = zenoh_config(listen, connect, config_file)
-        self.queue: queue.Queue[tuple[str, bytes, int]] = queue.Queue(maxsize=queue_size)
+        self.queue: Inbox[tuple[str, bytes, int]] = Inbox(maxsize=queue_size)
         self.stats = LiveStats()
         self.token: Any = None
         self._stop = threading.Event()
@@ -128,9 +130,7 @@ class LiveNode:
         self.stop()
 
     def _on_sample(self, sample: Any) -> None:  # Zenoh thread: stamp and enqueue only
-        try:
-            self.queue.put_nowait((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns()))
-        except queue.Full:
+        if not self.queue.put((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns())):
             self.stats.overflow += 1
             key = str(sample.key_expr)
             self._overflow[key] = self._overflow.get(key, 0) + 1
@@ -155,6 +155,17 @@ class LiveNode:
             except Exception as exc:  # noqa: BLE001 - any recorder failure: go on without it
                 self._recording_failed(exc)
         self.stats.unrecorded += 1
+
+    def _record_many(self, messages: Iterable[tuple[str, int, int, bytes]], n: int) -> None:
+        """``_record`` of n (key, log time ns, receive time ns, payload) messages at once."""
+        if self.stats.recording_error is None:
+            try:
+                self.writer.write_many(messages)
+                self._written += n
+                return
+            except Exception as exc:  # noqa: BLE001 - any recorder failure: go on without it
+                self._recording_failed(exc)
+        self.stats.unrecorded += n
 
     def _flush(self) -> None:
         if self.stats.recording_error is None:
@@ -191,16 +202,7 @@ class LiveNode:
 
     def _drain(self) -> list[tuple[str, bytes, int]]:
         """The messages waiting (at most ``BATCH_MAX``); waits a little for the first."""
-        try:
-            batch = [self.queue.get(timeout=0.05)]
-        except queue.Empty:
-            return []
-        try:
-            while len(batch) < BATCH_MAX:
-                batch.append(self.queue.get_nowait())
-        except queue.Empty:
-            pass
-        return batch
+        return self.queue.take(BATCH_MAX, timeout=0.05)
 
     def _bed(self, key: str) -> str | None:
         bed = self._bed_of.get(key, "")
@@ -220,12 +222,14 @@ class LiveNode:
         t0 = time.perf_counter()
         result = self.core.handle_batch(keys, payloads)
         self._spent["core"] += time.perf_counter() - t0
-        t = result.t.tolist()
-        record = self._record
+        # each input's log time (ns) as log_time_ns takes it; a malformed one at its receive time
+        t = np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)
+        log_ns = np.rint(t * 1e9).astype(np.int64).tolist()
         start = 0
         for i, outs in [*result.done, (len(batch) - 1, [])]:
-            for j in range(start, i + 1):  # malformed: recorded at its receive time
-                record(keys[j], t[j] if t[j] == t[j] else recv[j] / 1e9, payloads[j], recv[j])
+            if i >= start:  # the inputs up to the one that completed these outputs
+                self._record_many(zip(keys[start:i + 1], log_ns[start:i + 1], recv[start:i + 1],
+                                      payloads[start:i + 1]), i + 1 - start)
             start = i + 1
             if outs:
                 for key, msg in outs:
@@ -250,7 +254,7 @@ class LiveNode:
         gc.callbacks.append(self._on_gc)
         try:
             next_tick = time.monotonic() + 1.0
-            while not (self._stop.is_set() and self.queue.empty()):
+            while not (self._stop.is_set() and not self.queue):
                 t0 = time.perf_counter()
                 spent = self._spent = dict.fromkeys(self._spent, 0.0)
                 batch = self._drain()
