@@ -344,6 +344,9 @@ def main(argv: list[str] | None = None) -> int:
     target = model.targets[0]  # the latency and throughput parts time this target's messages
     stream = load_stream(args.recording, args.seconds, args.offset, needed)
     channels = sorted({c for s in stream.slots for c, _ in s})
+    if needed - set(channels):  # a node would wait out every sample for them: not a measurement
+        raise SystemExit(f"the model needs {', '.join(sorted(needed - set(channels)))}, which "
+                         f"{args.recording} does not hold: give a recording of the model's channels")
     print(f"{args.recording}: {len(stream.slots)} samples of {len(channels)} channels per bed "
           f"({len(needed)} needed by the model), from {args.offset:g} s into the first run; "
           f"node recordings in {tmp}")
