@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
+
 from node.cli import main
+from node.runtime import align
 
 SMALL_CHANNELS = ["--channels", "nB,yB,tF", "--plateau-scale", "0.05", "--quiet"]
 
@@ -22,3 +26,12 @@ def small_campaign(d: Path, seed: int) -> Path:
                  "--out", str(d / "m"), "--method", "lasso", "--inputs", "nB,tF", "--quiet",
                  "--workers", "1"]) == 0
     return d
+
+
+@pytest.fixture(scope="module")
+def numpy_path_from_16_messages() -> Iterator[None]:
+    """For modules of small batches: those of 16 messages and more take ``push_columns``' numpy
+    path (the node's threshold is higher, where that path pays), so that it is checked too."""
+    old, align.SMALL_BATCH = align.SMALL_BATCH, 16
+    yield
+    align.SMALL_BATCH = old

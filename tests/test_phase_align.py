@@ -19,17 +19,9 @@ from node.contract.slotting import ChannelPhase
 from node.mcap import read_runs
 from node.mcap.writer import RecordingWriter
 from node.models.config import RuntimeConfig
-from node.runtime import align
 from node.runtime.align import AlignedSample, Aligner
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _numpy_path_from_16_messages():
-    """The batches here are small: let those of 16 messages and more take push_columns' numpy
-    path (the node's threshold is higher, where that path pays) so that it is checked too."""
-    old, align.SMALL_BATCH = align.SMALL_BATCH, 16
-    yield
-    align.SMALL_BATCH = old
+pytestmark = pytest.mark.usefixtures("numpy_path_from_16_messages")
 
 JITTER = 1e-3  # s, each group's sampling instant, uniform +-
 WAIT = RuntimeConfig.align_wait_s

@@ -13,18 +13,10 @@ from node.contract import RUN_GAP
 from node.contract.schedule import OperatingCondition, Schedule
 from node.contract.slotting import ChannelPhase
 from node.models.bundle import Bundle
-from node.runtime import align
 from node.runtime.align import AlignedSample, Aligner
 from node.runtime.core import NodeCore
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _numpy_path_from_16_messages():
-    """The batches here are small: let those of 16 messages and more take push_columns' numpy
-    path (the node's threshold is higher, where that path pays) so that it is checked too."""
-    old, align.SMALL_BATCH = align.SMALL_BATCH, 16
-    yield
-    align.SMALL_BATCH = old
+pytestmark = pytest.mark.usefixtures("numpy_path_from_16_messages")
 
 REC = Path(__file__).resolve().parents[1] / "recordings" / "engine1_fault.mcap"
 

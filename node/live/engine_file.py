@@ -19,6 +19,7 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
+from node.contract.documents import parse_document
 from node.contract.errors import OrdervibError
 from node.runtime.history import EngineState
 
@@ -37,15 +38,7 @@ def load_engine_states(path: str | os.PathLike) -> dict[str, EngineState]:
         return {}
     except (OSError, UnicodeDecodeError) as exc:
         raise OrdervibError(f"engine state {p}: cannot be read ({exc})") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise OrdervibError(f"engine state {p}: not valid JSON ({exc})") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise OrdervibError(f"engine state {p}: not an ordervib engine-history file")
-    if doc.get("version") != VERSION:
-        raise OrdervibError(f"engine state {p}: version {doc.get('version')!r} is not supported "
-                            f"(this ordervib reads {VERSION})")
+    doc = parse_document(text, FORMAT, VERSION, f"engine state {p}", "engine-history")
     beds = doc.get("beds")
     if not isinstance(beds, dict):
         raise OrdervibError(f"engine state {p}: 'beds' must be an object")

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from node.contract.documents import parse_document
 from node.contract.errors import OrdervibError
 from node.mcap import Run
 
@@ -64,14 +65,11 @@ def load_kept_runs(folder: str | os.PathLike) -> tuple[list[Run], dict, list[dic
         raise OrdervibError(f"{folder} keeps no training runs (trained by an older ordervib or with "
                             f"--no-keep-runs): train again on all the recordings")
     try:
-        meta = json.loads((root / RUNS_META).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise OrdervibError(f"{root / RUNS_META} is not readable JSON: {exc}") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise OrdervibError(f"{root / RUNS_META} is not an ordervib training-runs file")
-    if meta.get("format_version") != FORMAT_VERSION:
-        raise OrdervibError(f"{root / RUNS_META}: format version {meta.get('format_version')!r} "
-                            f"(this ordervib reads {FORMAT_VERSION})")
+        text = (root / RUNS_META).read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise OrdervibError(f"{root / RUNS_META} cannot be read: {exc}") from None
+    meta = parse_document(text, FORMAT, FORMAT_VERSION, str(root / RUNS_META), "training-runs",
+                          version_key="format_version")
     try:
         with np.load(root / RUNS_ARRAYS, allow_pickle=False) as npz:
             runs = [_run(npz, i, info) for i, info in enumerate(meta["runs"])]
