@@ -13,8 +13,9 @@ import itertools
 import math
 import os
 import signal
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -418,9 +419,29 @@ def _worker_init() -> None:
     15.4 s)."""
     from threadpoolctl import threadpool_limits
 
-    threadpool_limits(limits=1)
+    # the parent forks its workers with both signals blocked (``_signals_blocked``): a signal
+    # that comes before these lines waits, and then ends the worker without a traceback
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
+    threadpool_limits(limits=1)
+
+
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+@contextmanager
+def _signals_blocked() -> Iterator[None]:
+    """SIGINT and SIGTERM held back while the pool's workers (and its manager thread, which
+    may start more) are made, so that they inherit the block until ``_worker_init`` has
+    their handlers set; one that came meanwhile is delivered to this process on the way out.
+    (Without it, a SIGTERM to the process group between a worker's fork and its handlers
+    ran the parent's handler there: a traceback from the worker.)"""
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _stop_pool(pool: ProcessPoolExecutor, grace_s: float = 2.0) -> None:
@@ -513,7 +534,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     if workers > 1:
         pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init)
         try:
-            futures = {pool.submit(train_oc, *job): i for i, job in enumerate(jobs)}
+            with _signals_blocked():
+                futures = {pool.submit(train_oc, *job): i for i, job in enumerate(jobs)}
             for done, fut in enumerate(as_completed(futures), 1):
                 i = futures[fut]
                 results[i] = r = fut.result()
