@@ -18,6 +18,7 @@ BENCHMARKS = {
     "rotor": "bench.rotor",
     "live": "bench.live",
     "soak": "bench.soak",
+    "top-curves": "bench.top_curves",
 }
 
 

@@ -1,0 +1,135 @@
+"""Issue 13 study: the average of the CV-best curve candidates of an OC against the default.
+
+    python -m bench top-curves [--set dev|report|all] [--workdir DIR]
+
+Per engine of ``bench generalise``'s sets (8 training, 10 held-out runs; recordings kept and
+reused in --workdir), yB is trained as ``ordervib train`` trains it, in one process and with
+the full CV (every curve candidate on every fold). Where an OC's model is a curve, the
+average of its k best curve candidates is taken instead when its leave-one-run-out CV eps
+(the candidates' own CV predictions averaged) is lower, k in 1, 2, 3: a choice made on the
+training runs alone. Per OC it prints the held-out eps_td of the default and of the average
+beside the characteristic curve, then the means and the OCs worse than the curve by > 5 %.
+
+This is a study, not the product: it reads the CV's predictions by wrapping
+``node.training.train._cross_validate``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from bench.generalise import SETS, simulate
+from node.models.kinds import fit_oc_model
+from node.models.ocmodel import Method
+from node.runtime.history import HISTORY_CHANNELS
+from node.sysid.metrics import pooled_eps
+from node.training import train as T
+
+Pairs = list[tuple[np.ndarray, np.ndarray]]
+
+
+def _key(method: str, params: dict) -> tuple[str, str]:
+    return str(method), repr(sorted(params.items()))
+
+
+class CVSpy:
+    """Keeps every CV's (measured, predicted) pairs per OC while installed."""
+
+    def __init__(self) -> None:
+        self.seen: dict[str, tuple[T.OCData, dict[tuple[str, str], Pairs]]] = {}
+        self._cv = T._cross_validate
+
+    def __enter__(self) -> CVSpy:
+        def spy(d, folds, method, params, fold_inputs, bound=float("inf"), parts=True):  # type: ignore[no-untyped-def]
+            score, pairs = self._cv(d, folds, method, params, fold_inputs, bound, parts)
+            self.seen.setdefault(d.name, (d, {}))[1][_key(method, params)] = pairs
+            return score, pairs
+        T._cross_validate = spy  # type: ignore[assignment]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        T._cross_validate = self._cv
+
+
+def average_members(d: T.OCData, pairs: dict[tuple[str, str], Pairs], k_max: int = 3) -> list[dict]:
+    """The curve candidates whose average has the lowest CV eps (the best alone included)."""
+    cands = sorted(((pooled_eps(p), c, p) for c in d.curves if (p := pairs.get(_key(Method.CURVE, c)))),
+                   key=lambda x: x[0])
+    if not cands:
+        return []
+    best_k, best = 1, cands[0][0]
+    for k in range(2, min(k_max, len(cands)) + 1):
+        avg = [(y, sum(cands[i][2][n][1] for i in range(k)) / k) for n, (y, _) in enumerate(cands[0][2])]
+        if (score := pooled_eps(avg)) < best:
+            best_k, best = k, score
+    return [c for _, c, _ in cands[:best_k]]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench top-curves")
+    ap.add_argument("--set", choices=[*SETS, "all"], default="dev")
+    ap.add_argument("--workdir", help="keep the simulated recordings here (default: a new temp folder)")
+    args = ap.parse_args(argv)
+    from node.cli.train import load_runs
+    from node.contract.schedule import load_schedule
+    from node.training.dataset import with_history
+    from node.training.evaluation import baseline_eps, predict_segments
+
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="ordervib-top-curves-"))
+    work.mkdir(parents=True, exist_ok=True)
+    engines = SETS["dev"] + SETS["report"] if args.set == "all" else SETS[args.set]
+    rows = []
+    for e in engines:
+        trp, tep = simulate(e, work)
+        sched = load_schedule(trp.with_suffix(".schedule.toml"))
+        tr, te = load_runs([str(trp)], quiet=True), load_runs([str(tep)], quiet=True)
+        fleet = T.fleet_curve(tr, sched.switch, "yB")
+        config = T.history_config(tr, sched)
+        with CVSpy() as spy:
+            res = T.train(tr, sched, fleet=fleet, config=config, workers=1, prune=False)
+        base = baseline_eps(tr, te, sched, "yB")
+        if any(c in HISTORY_CHANNELS for r in res for c in r.inputs):
+            te = with_history(tr + te, sched, config)[len(tr):]
+        members: dict[str, list] = {}
+        for r in res:
+            if r.model is None or r.name not in spy.seen or not r.kind.startswith("curve"):
+                continue
+            d, pairs = spy.seen[r.name]
+            rows_all = list(range(len(d.runs)))
+            members[r.name] = []
+            for c in average_members(d, pairs):
+                inputs = T._curve_inputs(d, c) or []
+                model = fit_oc_model(Method.CURVE, c, T._trajs(d, rows_all, inputs))
+                members[r.name].append(dataclasses.replace(r, model=model, inputs=inputs, params=c))
+        chosen = predict_segments(res, te, sched, "yB", fleet, config)
+        layers = [predict_segments([m[i] if len(m := members.get(r.name, [])) > i else r for r in res],
+                                   te, sched, "yB", fleet, config)
+                  for i in range(max((len(v) for v in members.values()), default=1))]
+        for j, name in enumerate(sched.names):
+            mine = [p for p in chosen if p.oc == j]
+            if not mine:
+                continue
+            k = max(1, len(members.get(name, [])))
+            lay = [[q for q in layers[i] if q.oc == j] for i in range(k)]
+            e_c = pooled_eps([(p.measured, p.predicted) for p in mine])
+            e_a = pooled_eps([(p.measured, sum(lay[i][n].predicted for i in range(k)) / k)
+                              for n, p in enumerate(mine)])
+            kind = next(r.kind for r in res if r.name == name)
+            rows.append((e_c, e_a, base[j]))
+            print(f"{e.name} {name:5s} {kind:16s} k={k} default {e_c:.3f} average {e_a:.3f} "
+                  f"curve {base[j]:.3f}", flush=True)
+    arr = np.array(rows, float)
+    print(f"\n{len(rows)} OCs: mean held-out eps_td default {arr[:, 0].mean():.4f}, "
+          f"average {arr[:, 1].mean():.4f}, characteristic curve {arr[:, 2].mean():.4f}")
+    for i, name in ((0, "default"), (1, "average")):
+        print(f"{name}: OCs worse than the curve by > 5 %: {int((arr[:, i] > 1.05 * arr[:, 2]).sum())}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
