@@ -101,18 +101,24 @@ def held_out(model: Path, train: Path, test: Path) -> list[tuple[str, float, str
     return [(e.name, e.eps, kinds[e.name]) for e in evals]
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench generalise")
-    ap.add_argument("--set", choices=[*SETS, "all"], default="report")
+def engine_args(name: str, default_set: str, argv: list[str] | None) -> tuple[Path, str, list[Engine]]:
+    """``--set`` and ``--workdir`` of a bench over these engines: the folder of the recordings
+    (made), the set's name and its engines."""
+    ap = argparse.ArgumentParser(prog=f"python -m bench {name}")
+    ap.add_argument("--set", choices=[*SETS, "all"], default=default_set)
     ap.add_argument("--workdir", help="keep the simulated recordings here (default: a new temp folder)")
     args = ap.parse_args(argv)
+    work = Path(args.workdir or tempfile.mkdtemp(prefix=f"ordervib-{name}-"))
+    work.mkdir(parents=True, exist_ok=True)
+    return work, args.set, SETS["dev"] + SETS["report"] if args.set == "all" else SETS[args.set]
+
+
+def main(argv: list[str] | None = None) -> int:
+    work, set_name, engines = engine_args("generalise", "report", argv)
     from node.cli.train import load_runs
     from node.contract.schedule import load_schedule
     from node.training.evaluation import baseline_eps
 
-    work = Path(args.workdir or tempfile.mkdtemp(prefix="ordervib-generalise-"))
-    work.mkdir(parents=True, exist_ok=True)
-    engines = SETS["dev"] + SETS["report"] if args.set == "all" else SETS[args.set]
     rows: list[tuple[str, str, float, float, float, float, str]] = []
     for e in engines:
         t0 = time.perf_counter()
@@ -142,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| mean | {m[0]:.3f} | {m[1]:.3f} | | {m[2]:.3f} | | {m[3]:.3f} |", flush=True)
     a = np.array([r[2:6] for r in rows], dtype=float)
     a_curve = a[:, 3]
-    print(f"\n{args.set} set: {len(engines)} engines, {len(rows)} OCs (8 training, 10 held-out runs each)")
+    print(f"\n{set_name} set: {len(engines)} engines, {len(rows)} OCs (8 training, 10 held-out runs each)")
     print("| | mean held-out eps_td | OCs worse than the curve by > 5 % |")
     print("|---|---|---|")
     for label, v in (("today", a[:, 0]), ("no phase", a[:, 1]), ("default (with phase)", a[:, 2])):

@@ -16,14 +16,11 @@ This is a study, not the product: it reads the CV's predictions by wrapping
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
-from bench.generalise import SETS, simulate
+from bench.generalise import engine_args, simulate
 from node.models.kinds import fit_oc_model
 from node.models.ocmodel import Method
 from node.runtime.history import HISTORY_CHANNELS
@@ -71,18 +68,12 @@ def average_members(d: T.OCData, pairs: dict[tuple[str, str], Pairs], k_max: int
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench top-curves")
-    ap.add_argument("--set", choices=[*SETS, "all"], default="dev")
-    ap.add_argument("--workdir", help="keep the simulated recordings here (default: a new temp folder)")
-    args = ap.parse_args(argv)
+    work, _, engines = engine_args("top-curves", "dev", argv)
     from node.cli.train import load_runs
     from node.contract.schedule import load_schedule
     from node.training.dataset import with_history
     from node.training.evaluation import baseline_eps, predict_segments
 
-    work = Path(args.workdir or tempfile.mkdtemp(prefix="ordervib-top-curves-"))
-    work.mkdir(parents=True, exist_ok=True)
-    engines = SETS["dev"] + SETS["report"] if args.set == "all" else SETS[args.set]
     rows = []
     for e in engines:
         trp, tep = simulate(e, work)
