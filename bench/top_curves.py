@@ -7,8 +7,10 @@ reused in --workdir), yB is trained as ``ordervib train`` trains it, in one proc
 the full CV (every curve candidate on every fold). Where an OC's model is a curve, the
 average of its k best curve candidates is taken instead when its leave-one-run-out CV eps
 (the candidates' own CV predictions averaged) is lower, k in 1, 2, 3: a choice made on the
-training runs alone. Per OC it prints the held-out eps_td of the default and of the average
-beside the characteristic curve, then the means and the OCs worse than the curve by > 5 %.
+training runs alone; and again with members that predict what the best does only (the
+amplitude, or the 1x vector: ``same level``). Per OC it prints the held-out eps_td of the
+default and of both averages (with their members) beside the characteristic curve, then the
+means and the OCs worse than the curve by > 5 %.
 
 This is a study, not the product: it reads the CV's predictions by wrapping
 ``node.training.train._cross_validate``.
@@ -21,6 +23,7 @@ import dataclasses
 import numpy as np
 
 from bench.generalise import engine_args, simulate
+from node.models.curve import Variant
 from node.models.kinds import fit_oc_model
 from node.models.ocmodel import Method
 from node.runtime.history import HISTORY_CHANNELS
@@ -53,12 +56,17 @@ class CVSpy:
         T._cross_validate = self._cv
 
 
-def average_members(d: T.OCData, pairs: dict[tuple[str, str], Pairs], k_max: int = 3) -> list[dict]:
-    """The curve candidates whose average has the lowest CV eps (the best alone included)."""
+def average_members(d: T.OCData, pairs: dict[tuple[str, str], Pairs], k_max: int = 3,
+                    same_level: bool = False) -> list[dict]:
+    """The curve candidates whose average has the lowest CV eps (the best alone included);
+    same_level: only those that predict what the best does (the amplitude, or the 1x vector)."""
     cands = sorted(((pooled_eps(p), c, p) for c in d.curves if (p := pairs.get(_key(Method.CURVE, c)))),
                    key=lambda x: x[0])
     if not cands:
         return []
+    if same_level:
+        vector = Variant(cands[0][1]["variant"]).on_vector
+        cands = [x for x in cands if Variant(x[1]["variant"]).on_vector == vector]
     best_k, best = 1, cands[0][0]
     for k in range(2, min(k_max, len(cands)) + 1):
         avg = [(y, sum(cands[i][2][n][1] for i in range(k)) / k) for n, (y, _) in enumerate(cands[0][2])]
@@ -86,39 +94,46 @@ def main(argv: list[str] | None = None) -> int:
         base = baseline_eps(tr, te, sched, "yB")
         if any(c in HISTORY_CHANNELS for r in res for c in r.inputs):
             te = with_history(tr + te, sched, config)[len(tr):]
-        members: dict[str, list] = {}
-        for r in res:
-            if r.model is None or r.name not in spy.seen or not r.kind.startswith("curve"):
-                continue
-            d, pairs = spy.seen[r.name]
-            rows_all = list(range(len(d.runs)))
-            members[r.name] = []
-            for c in average_members(d, pairs):
-                inputs = T._curve_inputs(d, c) or []
-                model = fit_oc_model(Method.CURVE, c, T._trajs(d, rows_all, inputs))
-                members[r.name].append(dataclasses.replace(r, model=model, inputs=inputs, params=c))
         chosen = predict_segments(res, te, sched, "yB", fleet, config)
-        layers = [predict_segments([m[i] if len(m := members.get(r.name, [])) > i else r for r in res],
-                                   te, sched, "yB", fleet, config)
-                  for i in range(max((len(v) for v in members.values()), default=1))]
+        results = {}
+        for mode in (False, True):  # any members; members of the best's level only
+            members: dict[str, list] = {}
+            for r in res:
+                if r.model is None or r.name not in spy.seen or not r.kind.startswith("curve"):
+                    continue
+                d, pairs = spy.seen[r.name]
+                rows_all = list(range(len(d.runs)))
+                members[r.name] = []
+                for c in average_members(d, pairs, same_level=mode):
+                    inputs = T._curve_inputs(d, c) or []
+                    model = fit_oc_model(Method.CURVE, c, T._trajs(d, rows_all, inputs))
+                    members[r.name].append(dataclasses.replace(r, model=model, inputs=inputs, params=c))
+            layers = [predict_segments([m[i] if len(m := members.get(r.name, [])) > i else r for r in res],
+                                       te, sched, "yB", fleet, config)
+                      for i in range(max((len(v) for v in members.values()), default=1))]
+            results[mode] = (members, layers)
         for j, name in enumerate(sched.names):
             mine = [p for p in chosen if p.oc == j]
             if not mine:
                 continue
-            k = max(1, len(members.get(name, [])))
-            lay = [[q for q in layers[i] if q.oc == j] for i in range(k)]
-            e_c = pooled_eps([(p.measured, p.predicted) for p in mine])
-            e_a = pooled_eps([(p.measured, sum(lay[i][n].predicted for i in range(k)) / k)
-                              for n, p in enumerate(mine)])
+            row, text = [pooled_eps([(p.measured, p.predicted) for p in mine])], []
+            for mode in (False, True):
+                members, layers = results[mode]
+                k = max(1, len(members.get(name, [])))
+                lay = [[q for q in layers[i] if q.oc == j] for i in range(k)]
+                row.append(pooled_eps([(p.measured, sum(lay[i][n].predicted for i in range(k)) / k)
+                                       for n, p in enumerate(mine)]))
+                text.append("+".join(m.params["variant"] for m in members.get(name, [])) or "-")
             kind = next(r.kind for r in res if r.name == name)
-            rows.append((e_c, e_a, base[j]))
-            print(f"{e.name} {name:5s} {kind:16s} k={k} default {e_c:.3f} average {e_a:.3f} "
-                  f"curve {base[j]:.3f}", flush=True)
+            rows.append((*row, base[j]))
+            print(f"{e.name} {name:5s} {kind:16s} default {row[0]:.3f} average {row[1]:.3f} ({text[0]}) "
+                  f"same level {row[2]:.3f} ({text[1]}) curve {base[j]:.3f}", flush=True)
     arr = np.array(rows, float)
     print(f"\n{len(rows)} OCs: mean held-out eps_td default {arr[:, 0].mean():.4f}, "
-          f"average {arr[:, 1].mean():.4f}, characteristic curve {arr[:, 2].mean():.4f}")
-    for i, name in ((0, "default"), (1, "average")):
-        print(f"{name}: OCs worse than the curve by > 5 %: {int((arr[:, i] > 1.05 * arr[:, 2]).sum())}")
+          f"average {arr[:, 1].mean():.4f}, same level {arr[:, 2].mean():.4f}, "
+          f"characteristic curve {arr[:, 3].mean():.4f}")
+    for i, name in ((0, "default"), (1, "average"), (2, "same level")):
+        print(f"{name}: OCs worse than the curve by > 5 %: {int((arr[:, i] > 1.05 * arr[:, 3]).sum())}")
     return 0
 
 
