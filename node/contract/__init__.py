@@ -42,7 +42,7 @@ from node.contract.messages import (
     SensorSample,
     json_schema,
 )
-from node.contract.payload import check_sample, decode_sample, decode_samples, log_time_ns
+from node.contract.payload import check_sample, decode_sample, decode_samples, log_time_ns, log_times_ns
 from node.contract.schedule import OperatingCondition, Schedule, load_schedule
 
 __all__ = [
@@ -53,5 +53,6 @@ __all__ = [
     "parse_sensor_key", "phase_channel", "sensor_key", "sensor_subscription",
     "topic_kind", "Flag", "HealthMessage", "MonitorMessage", "OCMessage", "Phase", "Reason",
     "SensorSample", "json_schema", "check_sample", "decode_sample", "decode_samples", "log_time_ns",
+    "log_times_ns",
     "OrdervibError", "OperatingCondition", "Schedule", "load_schedule",
 ]

@@ -37,6 +37,17 @@ def log_time_ns(t: float) -> int:
     return round(t * 1e9)
 
 
+def log_times_ns(t: np.ndarray) -> np.ndarray:
+    """``log_time_ns`` of each time t (K,) s at once: int64 (K,), the same integers (both round
+    half to even).
+
+    >>> t = [1.5e-9, 2.5e-9, 1767600000.025]
+    >>> log_times_ns(np.array(t)).tolist() == [log_time_ns(x) for x in t] == [2, 2, 1767600000025000192]
+    True
+    """
+    return np.rint(np.asarray(t, float) * 1e9).astype(np.int64)
+
+
 def check_sample(t: object, v: object) -> tuple[float, float | None] | None:
     """(t, v) as floats when they make a well-formed sample (see the module); else None."""
     if isinstance(t, bool) or not isinstance(t, (int, float)):

@@ -47,6 +47,8 @@ from node.contract import (
     OrdervibError,
     health_key,
     liveliness_key,
+    log_time_ns,
+    log_times_ns,
     parse_sensor_key,
     sensor_subscription,
 )
@@ -147,20 +149,14 @@ class LiveNode:
 
     # -- recording: a failure stops it, never the node
     def _record(self, key: str, t: float, data: bytes, recv_ns: int) -> None:
-        if self.stats.recording_error is None:
-            try:
-                self.writer.write(key, t, data, recv_ns)  # may close a full chunk (compress, write)
-                self._written += 1
-                return
-            except Exception as exc:  # noqa: BLE001 - any recorder failure: go on without it
-                self._recording_failed(exc)
-        self.stats.unrecorded += 1
+        """One message of time t (s), received (or published) at recv_ns."""
+        self._record_many([(key, log_time_ns(t), recv_ns, data)], 1)
 
     def _record_many(self, messages: Iterable[tuple[str, int, int, bytes]], n: int) -> None:
-        """``_record`` of n (key, log time ns, receive time ns, payload) messages at once."""
+        """n (key, log time ns, receive time ns, payload) messages at once."""
         if self.stats.recording_error is None:
             try:
-                self.writer.write_many(messages)
+                self.writer.write_many(messages)  # may close a full chunk (compress, write)
                 self._written += n
                 return
             except Exception as exc:  # noqa: BLE001 - any recorder failure: go on without it
@@ -223,8 +219,7 @@ class LiveNode:
         result = self.core.handle_batch(keys, payloads)
         self._spent["core"] += time.perf_counter() - t0
         # each input's log time (ns) as log_time_ns takes it; a malformed one at its receive time
-        t = np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)
-        log_ns = np.rint(t * 1e9).astype(np.int64).tolist()
+        log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
         start = 0
         for i, outs in [*result.done, (len(batch) - 1, [])]:
             if i >= start:  # the inputs up to the one that completed these outputs

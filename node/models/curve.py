@@ -482,12 +482,9 @@ class CurveRuntime:
         if self._past is not None:
             codes = direction_codes(np.array(self._past, float), x, self._past.maxlen or 0, self._deadband)
         c = self._table(x, codes)
-        xs, rows, slopes = self._xa, self._ra, self._sa
-        i = np.searchsorted(xs, x, side="right")
-        j = np.clip(i - 1, 0, max(xs.size - 2, 0))
         if self.anchor is not None:
             if self._influence:
-                c = c + _cmul(_interp(rows[GAINS], slopes[GAINS], xs, i, j, x), complex(self._shift))
+                c = c + _cmul(self._lookups(x, GAINS), complex(self._shift))
             elif self._vector:
                 c = c + _cmul(c, complex(self._gain)) + complex(self._shift)
             else:  # real: as Python floats
@@ -509,8 +506,8 @@ class CurveRuntime:
         return c
 
     def _lookups(self, x: np.ndarray, code: int) -> np.ndarray:
-        """``_lookup`` of each speed x (K,) (finite) on row ``code``: complex (K,), the same
-        numbers to the last bit (``_interp``)."""
+        """``_lookup`` of each speed x (K,) on row ``code``: complex (K,), the same numbers to the
+        last bit (``_interp``); a non-finite x gets a value its caller must discard."""
         i = np.searchsorted(self._xa, x, side="right")
         j = np.clip(i - 1, 0, max(self._xa.size - 2, 0))
         return _interp(self._ra[code], self._sa[code], self._xa, i, j, x)
