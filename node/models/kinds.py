@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from node.models.average import AverageModel
 from node.models.curve import CurveModel
 from node.models.ocmodel import (
     Method,
@@ -20,7 +21,7 @@ from node.models.prom import ParametricOCModel
 
 KINDS: dict[Method, OCModelKind] = {
     Method.WDMD: StateSpaceModel, Method.DELAY_DMD: StateSpaceModel, Method.LASSO: RegressionModel,
-    Method.CURVE: CurveModel, Method.PROM: ParametricOCModel,
+    Method.CURVE: CurveModel, Method.PROM: ParametricOCModel, Method.AVERAGE: AverageModel,
 }
 
 

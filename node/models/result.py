@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from node.contract import FS
+from node.models.average import member_label
 from node.models.ocmodel import OCModel
 
 EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
@@ -64,5 +65,7 @@ class OCResult:
         "-" without a model."""
         if self.model is None:
             return "-"
+        if "members" in self.params:  # an average of curves: "average:vector+influence"
+            return f"{self.model.method.value}:{member_label(self.params)}"
         variant = self.params.get("variant")
         return f"{self.model.method.value}:{variant}" if variant else self.model.method.value

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from node.contract import FS, Flag, Phase, Reason, phase_channel
+from node.models.average import AverageModel, AverageRuntime
 from node.models.bundle import Bundle
 from node.models.curve import CurveModel, CurveRuntime
 from node.models.ocmodel import (
@@ -55,11 +56,14 @@ class _Active:
     inputs: list[str]
     model_id: str
     check: ResidualCheck
-    vector: CurveRuntime | None = None  # the runtime again when it predicts the 1x vector
+    vector: CurveRuntime | AverageRuntime | None = None  # the runtime again when it predicts the 1x vector
 
 
 def _is_vector(model: object) -> bool:
-    """Whether an OC model predicts the 1x vector (a vector or influence curve)."""
+    """Whether an OC model predicts the 1x vector (a vector or influence curve, or an average
+    with one among its members)."""
+    if isinstance(model, AverageModel):
+        return model.on_vector
     return isinstance(model, CurveModel) and model.variant.on_vector
 
 
@@ -228,7 +232,7 @@ class MonitorPipeline:
         if res is None or res.model is None or res.calibration is None:
             return
         rt = res.model.runtime()
-        vector = rt if isinstance(rt, CurveRuntime) and _is_vector(res.model) else None
+        vector = rt if isinstance(rt, (CurveRuntime, AverageRuntime)) and _is_vector(res.model) else None
         cols = [self.channels.index(c) for c in [self.target, *res.inputs]]
         if self._hist:
             full = np.asarray(self._hist)
@@ -236,9 +240,14 @@ class MonitorPipeline:
             ok = np.all(np.isfinite(H), axis=1)
             first = int(np.argmax(ok)) if ok.any() else len(H)  # history from the first complete row
             y = H[first:, 0]
-            if vector is not None:  # its past: the 1x vectors
-                y = order_vectors(y, full[first:, self.channels.index(self._phase_ch)])
-            rt.start(y, H[first:, 1:])
+            if vector is not None:
+                z = order_vectors(y, full[first:, self.channels.index(self._phase_ch)])
+            if isinstance(vector, AverageRuntime):  # its past: the amplitudes and the 1x vectors
+                vector.start(y, H[first:, 1:], z)
+            elif vector is not None:  # its past: the 1x vectors
+                rt.start(z, H[first:, 1:])
+            else:
+                rt.start(y, H[first:, 1:])
         else:
             rt.start(np.zeros(0), np.zeros((0, len(res.inputs))))
         c = res.calibration

@@ -1,0 +1,176 @@
+"""The average of an OC's best characteristic curves (``average``): their mean prediction.
+
+Where an OC's model is a characteristic curve, training also tries the mean of its 2 or 3
+curve candidates with the lowest leave-one-run-out CV eps, and keeps the mean when its own
+CV eps (the members' CV predictions averaged, which is exactly the CV of the average) is
+lower (``node.training.train``). Curves of different kinds err differently on a new run:
+the fleet curve by the run's own level, an anchored curve by its anchor's noise, a vector
+curve where the phase is noisy; their mean errs less than the best of them (issue 13: the
+development engines' mean held-out eps_td 0.1405 against 0.1459 for the best curve alone).
+
+Members may predict the amplitude or the order's 1x vector (``Variant.on_vector``) and read
+different inputs (the switch speed, or ``run_curve``): the model's inputs are their union
+(``params["inputs"]``), each member reads its own columns; the runtime's ``start`` takes the
+measured amplitudes and, when a member needs them, the 1x vectors.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from node.models.curve import CurveModel, CurveRuntime
+from node.models.ocmodel import NAN_VECTOR, Method, Trajectory
+
+
+def average_params(members: Sequence[tuple[dict, Sequence[str]]]) -> dict:
+    """An average's params from its members' (curve params, inputs): the members and the
+    union of their inputs (in the order first met), which is the model's input order.
+
+    >>> average_params([({"variant": "fleet"}, ["nB"]), ({"variant": "run"}, ["run_curve"])])["inputs"]
+    ['nB', 'run_curve']
+    """
+    inputs: list[str] = []
+    for _, ins in members:
+        inputs += [c for c in ins if c not in inputs]
+    return {"members": [{"params": dict(p), "inputs": list(ins)} for p, ins in members], "inputs": inputs}
+
+
+def member_label(params: Mapping) -> str:
+    """A short name of an average's members for tables: their variants joined by '+'."""
+    return "+".join(str(m["params"].get("variant", "fleet")) for m in params.get("members", []))
+
+
+def _columns(params: Mapping) -> list[list[int]]:
+    """Each member's columns of the model's inputs."""
+    inputs = list(params["inputs"])
+    try:
+        return [[inputs.index(c) for c in m["inputs"]] for m in params["members"]]
+    except ValueError:
+        raise ValueError("an average's member reads an input the average does not hold") from None
+
+
+def _member_traj(t: Trajectory, cols: list[int]) -> Trajectory:
+    return Trajectory(t.y, t.U[:, cols], t.start, t.z)
+
+
+@dataclass(frozen=True, eq=False)
+class AverageModel:
+    """The mean prediction of several curve models (``average``).
+
+    Attributes:
+        params: ``members``, each ``{"params": curve params, "inputs": its channels}``, and
+            ``inputs``, their union: the model's input columns (``average_params``).
+        members: the member curves, in order; the prediction is
+            (p_0 + p_1 + ... ) / k, summed in this order (the stepper sums alike: the same
+            numbers to the last bit).
+
+    Two curves, one 1 too high and one 1 too low, average to the law:
+
+    >>> speed = np.arange(1010.0, 2000.0, 20.0)
+    >>> traj = Trajectory(speed / 1000.0, speed[:, None], start=0)
+    >>> lo, hi = (Trajectory(speed / 1000.0 + d, speed[:, None], start=0) for d in (-1.0, 1.0))
+    >>> a = CurveModel.fit(Method.CURVE, {"variant": "fleet", "bin": 20.0}, [lo])
+    >>> b = CurveModel.fit(Method.CURVE, {"variant": "fleet", "bin": 20.0}, [hi])
+    >>> m = AverageModel(average_params([(a.params, ["nB"]), (b.params, ["nB"])]), (a, b))
+    >>> rt = m.runtime()
+    >>> rt.start(np.zeros(0), np.zeros((0, 1)))
+    >>> p = rt.step([1490.0])  # the stepper and predict: the same number to the last bit
+    >>> round(p, 12), p == float(m.predict(traj)[24])
+    (1.49, True)
+    """
+
+    params: dict
+    members: tuple[CurveModel, ...]
+    method: ClassVar[Method] = Method.AVERAGE
+    repaired: ClassVar[int] = 0
+    n_states: ClassVar[int] = 0
+    columns: list[list[int]] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "members", tuple(self.members))
+        if len(self.members) != len(self.params.get("members", ())) or not self.members:
+            raise ValueError("an average needs its members' models, one per member")
+        object.__setattr__(self, "columns", _columns(self.params))
+
+    @classmethod
+    def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> AverageModel:
+        """Each member fitted on the trajectories' columns of its inputs."""
+        cols = _columns(params)
+        members = tuple(CurveModel.fit(Method.CURVE, dict(m["params"]), [_member_traj(t, c) for t in trajs])
+                        for m, c in zip(params["members"], cols))
+        return cls(dict(params), members)
+
+    def predict(self, traj: Trajectory) -> np.ndarray:
+        """The members' predictions over the OC samples of ``traj``, averaged: (K_seg,)."""
+        preds = [m.predict(_member_traj(traj, c)) for m, c in zip(self.members, self.columns)]
+        total = preds[0]
+        for p in preds[1:]:
+            total = total + p
+        out: np.ndarray = total / len(preds)
+        return out
+
+    @property
+    def on_vector(self) -> bool:
+        """Whether a member predicts the 1x vector (its runtime's ``start`` then needs them)."""
+        return any(m.variant.on_vector for m in self.members)
+
+    def runtime(self) -> AverageRuntime:
+        return AverageRuntime(self)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {f"m{i}/{k}": v for i, m in enumerate(self.members) for k, v in m.arrays().items()}
+
+    @classmethod
+    def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
+                    repaired: int = 0) -> AverageModel:
+        members = []
+        for i, m in enumerate(params["members"]):
+            mine = {k.split("/", 1)[1]: v for k, v in arrays.items() if k.split("/", 1)[0] == f"m{i}"}
+            members.append(CurveModel.from_arrays(Method.CURVE, dict(m["params"]), mine))
+        return cls(dict(params), tuple(members))
+
+
+class AverageRuntime:
+    """Online stepper of an :class:`AverageModel`: each member's stepper, averaged.
+
+    ``start(y_hist, U_hist, z_hist)``: the measured amplitudes (K1,), the inputs (K1, m) and,
+    for members of the 1x vector, the measured vectors (K1,) complex (None: unknown, those
+    members start without their anchor, as in training without the phase). ``vector``: the
+    predicted 1x vector, the predicted amplitude in the direction of the vector members' mean
+    vector (NaN without such members).
+    """
+
+    def __init__(self, model: AverageModel) -> None:
+        self._rts: list[CurveRuntime] = [m.runtime() for m in model.members]
+        self._cols = model.columns
+        self._vec = [m.variant.on_vector for m in model.members]
+        self._k = float(len(self._rts))
+        self.vector: complex = NAN_VECTOR
+
+    def start(self, y_hist: np.ndarray, U_hist: np.ndarray, z_hist: np.ndarray | None = None) -> None:
+        """Seed every member from the measured past (see the class)."""
+        U_hist = np.asarray(U_hist, float)
+        if z_hist is None:
+            z_hist = np.full(len(y_hist), NAN_VECTOR)
+        for rt, cols, vec in zip(self._rts, self._cols, self._vec):
+            rt.start(z_hist if vec else y_hist, U_hist[:, cols])
+
+    def step(self, u: Sequence[float] | np.ndarray) -> float:
+        """The members' mean prediction for this sample from its raw inputs u (m,)."""
+        total = 0.0
+        direction = 0j
+        for i, (rt, cols) in enumerate(zip(self._rts, self._cols)):
+            p = rt.step([u[c] for c in cols])
+            total = p if i == 0 else total + p
+            if self._vec[i]:
+                direction += rt.vector
+        pred = total / self._k
+        self.vector = NAN_VECTOR
+        if any(self._vec) and direction == direction and direction != 0 and math.isfinite(pred):
+            self.vector = pred * direction / abs(direction)
+        return pred
