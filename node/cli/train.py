@@ -135,6 +135,22 @@ def resolve_targets(spec: str | None, runs: list[Run]) -> list[str]:
     return targets
 
 
+def _hyper_parameters(params: dict) -> str:
+    """"k=v, ..."; an average of curves: each member's, "variant(k=v, ...) + ...".
+
+    >>> _hyper_parameters({"levels": 3, "rcond": 1e-08})
+    'levels=3, rcond=1e-08'
+    >>> _hyper_parameters({"members": [{"params": {"variant": "run"}, "inputs": ["run_curve"]},
+    ...     {"params": {"variant": "fleet", "bin": 25.0}, "inputs": ["nB"]}], "inputs": ["run_curve", "nB"]})
+    'run() + fleet(bin=25)'
+    """
+    if "members" in params:
+        return " + ".join(f"{m['params'].get('variant', 'fleet')}("
+                          f"{_hyper_parameters({k: v for k, v in m['params'].items() if k != 'variant'})})"
+                          for m in params["members"])
+    return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items())
+
+
 def print_results(results: list[OCResult], file: TextIO | None = None) -> None:
     """Per-OC table of the trained models, then the mean cross-validated eps_td.
 
@@ -149,7 +165,7 @@ def print_results(results: list[OCResult], file: TextIO | None = None) -> None:
             rows.append([r.name, "-", "-", "-", "-", "-", "-", "-", r.note or "no model"])
             continue
         states = str(r.model.n_states)
-        hp = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.params.items())
+        hp = _hyper_parameters(r.params)
         rows.append([r.name, ",".join(r.inputs), states, hp, f"{r.train_eps:.3f}", f"{r.cv_eps:.3f}",
                      f"{r.calibration.sigma:.3g}" if r.calibration else "-",
                      f"{r.calibration.threshold:.2f} sigma" if r.calibration else "-", r.note])
