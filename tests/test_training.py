@@ -96,9 +96,12 @@ def test_training_survives_dropouts_and_a_missing_optional_channel(sim):
     results = train(damaged, schedule, method="wdmd", grid=SMALL_GRID, workers=1)
     fitted = [r for r in results if r.model is not None]
     assert len(fitted) >= len(schedule.ocs) - 1
-    for r in fitted:  # a characteristic curve (one input, the speed) or an average of them may win
-        curves = r.model.method in ("curve", "average")
-        assert "tG" not in r.inputs and (r.inputs == ["nB"] if curves else len(r.inputs) == 4)
+    for r in fitted:  # a characteristic curve (one input, the speed) or an average may win
+        assert "tG" not in r.inputs
+        members = r.params["members"] if r.model.method == "average" else [r.model.method]
+        for m in members:  # an average's: curves and the grid's best
+            ins = m["inputs"] if isinstance(m, dict) else r.inputs
+            assert ins == ["nB"] if (m["method"] if isinstance(m, dict) else m) == "curve" else len(ins) == 4
         assert np.isfinite(r.cv_eps) and all(np.isfinite(a).all() for a in r.model.arrays().values())
     assert set(SENSOR_CHANNELS) >= set().union(*(r.inputs for r in fitted))
 

@@ -1,15 +1,14 @@
-"""The average of an OC's best characteristic curves (``average``): their mean prediction.
+"""The average of an OC's best models (``average``): their mean prediction.
 
-Where an OC's model is a characteristic curve, training also tries the mean of its 2 or 3
-curve candidates with the lowest leave-one-run-out CV eps, and keeps the mean when its own
-CV eps (the members' CV predictions averaged, which is exactly the CV of the average) is
-lower (``node.training.train``). Curves of different kinds err differently on a new run:
-the fleet curve by the run's own level, an anchored curve by its anchor's noise, a vector
-curve where the phase is noisy; their mean errs less than the best of them (issue 13: the
-development engines' mean held-out eps_td 0.1405 against 0.1459 for the best curve alone).
+Where an OC's model is a characteristic curve, training also tries the mean of its best
+candidates, the CV-best curves and the grid's CV-best model (a WDMD), and keeps the mean when
+its CV eps (the members' CV predictions averaged) is lower (``node.training.train``). Models
+of different kinds err differently on a new run: the fleet curve by the run's own level, an
+anchored curve by its anchor's noise, a vector curve where the phase is noisy, a dynamic
+model where its free run drifts; their mean errs less than the best of them (issue 13).
 
-Members may predict the amplitude or the order's 1x vector (``Variant.on_vector``) and read
-different inputs (the switch speed, or ``run_curve``): the model's inputs are their union
+Members may be of any kind (``node.models.kinds``), predict the amplitude or the order's 1x
+vector (a vector curve) and read different inputs: the model's inputs are their union
 (``params["inputs"]``), each member reads its own columns; the runtime's ``start`` takes the
 measured amplitudes and, when a member needs them, the 1x vectors.
 """
@@ -24,25 +23,37 @@ from typing import ClassVar
 import numpy as np
 
 from node.models.curve import CurveModel, CurveRuntime
-from node.models.ocmodel import NAN_VECTOR, Method, Trajectory
+from node.models.ocmodel import NAN_VECTOR, Method, OCModel, OCRuntime, Trajectory
 
 
-def average_params(members: Sequence[tuple[dict, Sequence[str]]]) -> dict:
-    """An average's params from its members' (curve params, inputs): the members and the
+def average_params(members: Sequence[tuple[str, dict, Sequence[str]]]) -> dict:
+    """An average's params from its members' (method, params, inputs): the members and the
     union of their inputs (in the order first met), which is the model's input order.
 
-    >>> average_params([({"variant": "fleet"}, ["nB"]), ({"variant": "run"}, ["run_curve"])])["inputs"]
-    ['nB', 'run_curve']
+    >>> p = average_params([("curve", {"variant": "fleet"}, ["nB"]), ("wdmd", {"levels": 2}, ["tA", "nB"])])
+    >>> p["inputs"], member_label(p)
+    (['nB', 'tA'], 'fleet+wdmd')
     """
     inputs: list[str] = []
-    for _, ins in members:
+    for _, _, ins in members:
         inputs += [c for c in ins if c not in inputs]
-    return {"members": [{"params": dict(p), "inputs": list(ins)} for p, ins in members], "inputs": inputs}
+    return {"members": [{"method": str(Method(m)), "params": dict(p), "inputs": list(ins)}
+                        for m, p, ins in members], "inputs": inputs}
+
+
+def _method(member: Mapping) -> Method:
+    return Method(member.get("method", Method.CURVE))
 
 
 def member_label(params: Mapping) -> str:
-    """A short name of an average's members for tables: their variants joined by '+'."""
-    return "+".join(str(m["params"].get("variant", "fleet")) for m in params.get("members", []))
+    """A short name of an average's members for tables: a curve's variant, else the method,
+    joined by '+'."""
+    return "+".join(str(m["params"].get("variant", "fleet")) if _method(m) is Method.CURVE
+                    else str(_method(m)) for m in params.get("members", []))
+
+
+def _on_vector(model: object) -> bool:
+    return isinstance(model, CurveModel) and model.variant.on_vector
 
 
 def _columns(params: Mapping) -> list[list[int]]:
@@ -60,14 +71,16 @@ def _member_traj(t: Trajectory, cols: list[int]) -> Trajectory:
 
 @dataclass(frozen=True, eq=False)
 class AverageModel:
-    """The mean prediction of several curve models (``average``).
+    """The mean prediction of several OC models (``average``).
 
     Attributes:
-        params: ``members``, each ``{"params": curve params, "inputs": its channels}``, and
-            ``inputs``, their union: the model's input columns (``average_params``).
-        members: the member curves, in order; the prediction is
+        params: ``members``, each ``{"method": its kind, "params": its params, "inputs": its
+            channels}``, and ``inputs``, their union: the model's input columns
+            (``average_params``).
+        members: the member models, in order; the prediction is
             (p_0 + p_1 + ... ) / k, summed in this order (the stepper sums alike: the same
             numbers to the last bit).
+        repaired: the members' unstable poles moved inside the unit circle.
 
     Two curves, one 1 too high and one 1 too low, average to the law:
 
@@ -76,7 +89,7 @@ class AverageModel:
     >>> lo, hi = (Trajectory(speed / 1000.0 + d, speed[:, None], start=0) for d in (-1.0, 1.0))
     >>> a = CurveModel.fit(Method.CURVE, {"variant": "fleet", "bin": 20.0}, [lo])
     >>> b = CurveModel.fit(Method.CURVE, {"variant": "fleet", "bin": 20.0}, [hi])
-    >>> m = AverageModel(average_params([(a.params, ["nB"]), (b.params, ["nB"])]), (a, b))
+    >>> m = AverageModel(average_params([("curve", a.params, ["nB"]), ("curve", b.params, ["nB"])]), (a, b))
     >>> rt = m.runtime()
     >>> rt.start(np.zeros(0), np.zeros((0, 1)))
     >>> p = rt.step([1490.0])  # the stepper and predict: the same number to the last bit
@@ -85,25 +98,32 @@ class AverageModel:
     """
 
     params: dict
-    members: tuple[CurveModel, ...]
+    members: tuple[OCModel, ...]
+    repaired: int = 0
     method: ClassVar[Method] = Method.AVERAGE
-    repaired: ClassVar[int] = 0
-    n_states: ClassVar[int] = 0
     columns: list[list[int]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "members", tuple(self.members))
         if len(self.members) != len(self.params.get("members", ())) or not self.members:
             raise ValueError("an average needs its members' models, one per member")
+        if any(isinstance(m, AverageModel) for m in self.members):
+            raise ValueError("an average's member cannot be an average")
         object.__setattr__(self, "columns", _columns(self.params))
+
+    @property
+    def n_states(self) -> int:
+        return sum(m.n_states for m in self.members)
 
     @classmethod
     def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> AverageModel:
         """Each member fitted on the trajectories' columns of its inputs."""
+        from node.models.kinds import fit_oc_model  # (kinds maps "average" to this class)
+
         cols = _columns(params)
-        members = tuple(CurveModel.fit(Method.CURVE, dict(m["params"]), [_member_traj(t, c) for t in trajs])
+        members = tuple(fit_oc_model(_method(m), dict(m["params"]), [_member_traj(t, c) for t in trajs])
                         for m, c in zip(params["members"], cols))
-        return cls(dict(params), members)
+        return cls(dict(params), members, sum(m.repaired for m in members))
 
     def predict(self, traj: Trajectory) -> np.ndarray:
         """The members' predictions over the OC samples of ``traj``, averaged: (K_seg,)."""
@@ -117,7 +137,7 @@ class AverageModel:
     @property
     def on_vector(self) -> bool:
         """Whether a member predicts the 1x vector (its runtime's ``start`` then needs them)."""
-        return any(m.variant.on_vector for m in self.members)
+        return any(_on_vector(m) for m in self.members)
 
     def runtime(self) -> AverageRuntime:
         return AverageRuntime(self)
@@ -128,11 +148,15 @@ class AverageModel:
     @classmethod
     def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
                     repaired: int = 0) -> AverageModel:
+        from node.models.kinds import model_from_arrays
+
         members = []
         for i, m in enumerate(params["members"]):
+            if _method(m) is Method.AVERAGE:
+                raise ValueError("an average's member cannot be an average")
             mine = {k.split("/", 1)[1]: v for k, v in arrays.items() if k.split("/", 1)[0] == f"m{i}"}
-            members.append(CurveModel.from_arrays(Method.CURVE, dict(m["params"]), mine))
-        return cls(dict(params), tuple(members))
+            members.append(model_from_arrays(_method(m), dict(m["params"]), mine))
+        return cls(dict(params), tuple(members), repaired)
 
 
 class AverageRuntime:
@@ -146,9 +170,9 @@ class AverageRuntime:
     """
 
     def __init__(self, model: AverageModel) -> None:
-        self._rts: list[CurveRuntime] = [m.runtime() for m in model.members]
+        self._rts: list[OCRuntime] = [m.runtime() for m in model.members]
         self._cols = model.columns
-        self._vec = [m.variant.on_vector for m in model.members]
+        self._vec = [_on_vector(m) for m in model.members]
         self._k = float(len(self._rts))
         self.vector: complex = NAN_VECTOR
 
@@ -167,7 +191,7 @@ class AverageRuntime:
         for i, (rt, cols) in enumerate(zip(self._rts, self._cols)):
             p = rt.step([u[c] for c in cols])
             total = p if i == 0 else total + p
-            if self._vec[i]:
+            if self._vec[i] and isinstance(rt, CurveRuntime):
                 direction += rt.vector
         pred = total / self._k
         self.vector = NAN_VECTOR
