@@ -4,15 +4,18 @@ the default.
     python -m bench top-curves [--set dev|report|all] [--workdir DIR]
 
 Per engine of ``bench generalise``'s sets (8 training, 10 held-out runs; recordings kept and
-reused in --workdir), yB is trained as ``ordervib train`` trains it (the default: where an OC's
-model is a curve, the average of its 2-3 CV-best curves when that has the lower CV eps), in
-one process and with the full CV (every candidate on every fold). Where the default's model
-is a curve or an average of curves, two alternatives are chosen on the training runs alone,
-from the leave-one-run-out CV predictions (averaged: an average's CV):
+reused in --workdir), yB is trained as ``ordervib train`` trains it, in one process and with
+the full CV (every candidate on every fold). Where the default's model is a curve or an
+average, two rules are applied on the training runs alone, from the leave-one-run-out CV
+predictions (averaged: an average's CV):
 
 * ``top``: the k best of the pool (the 3 best curves and the grid's best model, a WDMD),
   ranked by CV eps, k in 1-3 by the CV eps of their average;
 * ``subset``: the subset of that pool (size 1-3) whose average has the lowest CV eps.
+
+Session 13 measured them against the default of then (averages of the 2-3 best curves
+alone; development engines 0.1405, top 0.1366, subset 0.1385) and made ``top`` the default
+(``node.training.train._best_average``): since then its column reproduces the default's.
 
 Per OC it prints the held-out eps_td of the default and of both alternatives (with their
 members) beside the characteristic curve, then the means and the OCs worse than the curve by
