@@ -27,6 +27,7 @@ from node.training.train import (
     OCData,
     _cross_validate,
     _curve_inputs,
+    run_folds,
     train_oc,
 )
 from node.training.train import (
@@ -162,6 +163,26 @@ def test_an_average_s_cv_is_its_members_cv_averaged_and_chosen_only_when_lower(n
     # the pruned CV chooses and fits the same
     full = train_oc(d, "lasso", {"alpha": [a["alpha"] for a in grid]}, ["nB"], 1, prune=False)
     assert (full.params, full.cv_eps, full.calibration) == (res.params, res.cv_eps, res.calibration)
+
+
+def test_beyond_max_folds_the_cv_holds_out_blocks_of_runs_and_pruning_keeps_the_choice():
+    """12 runs in 4 folds of 3 consecutive runs: a candidate's CV is the fits on the other
+    blocks, predicting each block; the pruned CV chooses, scores and calibrates as the full."""
+    d = _ocdata(np.random.default_rng(8), n_runs=12, noise=0.1)
+    d.folds = run_folds(12, 4)
+    assert d.fold_ids() == [0, 3, 6, 9]
+    score, pairs = _cross_validate(d, d.fold_ids(), Method.CURVE, FLEET, dict.fromkeys(d.fold_ids(), ["nB"]))
+    again = []
+    for f in d.fold_ids():
+        fit_rows = [i for i in range(12) if not f <= d.runs[i] < f + 3]
+        m = fit_oc_model("curve", FLEET, _trajs_of(d, fit_rows, ["nB"]))
+        again += [(t.seg_y, m.predict(t)) for t in _trajs_of(d, [f, f + 1, f + 2], ["nB"])]
+    assert len(pairs) == 12 and score == pooled_eps(again)
+    grid = {"alpha": [1.0, 0.01]}
+    res = train_oc(d, "lasso", grid, ["nB"], 1)
+    full = train_oc(d, "lasso", grid, ["nB"], 1, prune=False)
+    assert (full.params, full.cv_eps, full.calibration) == (res.params, res.cv_eps, res.calibration)
+    assert res.n_runs == 12 and len(res.calibration.peaks) == 12
 
 
 def test_a_bundle_stores_and_loads_an_average_as_json_and_arrays(tmp_path: Path):

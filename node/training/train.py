@@ -143,6 +143,38 @@ class OCData:
     z: list[np.ndarray] = field(default_factory=list)  # the target's 1x vectors, y's rows (empty: no phase)
     proms: list[dict] = field(default_factory=list)  # parametric candidates (ParametricOCModel params)
     unranked: list[str] = field(default_factory=list)  # candidates only the parametric models take
+    folds: dict[int, int] = field(default_factory=dict)  # run -> its CV fold (``run_folds``; empty: its own)
+
+    def fold(self, run: int) -> int:
+        """The CV fold of ``run``: the run itself (leave one run out) unless ``folds`` says otherwise."""
+        return self.folds.get(run, run)
+
+    def fold_ids(self) -> list[int]:
+        return sorted({self.fold(r) for r in self.runs})
+
+
+# Leave-one-run-out CV up to MAX_FOLDS training runs; beyond, MAX_FOLDS folds of contiguous
+# runs (``run_folds``), as scikit-learn's grouped K-fold: the fits per candidate stay at
+# MAX_FOLDS whatever the runs, each on (1 - 1/MAX_FOLDS) of them (40 runs of an engine: the CV
+# of 10 folds of 4 runs; every study of the defaults used 8 runs, leave-one-run-out).
+MAX_FOLDS = 10
+
+
+def run_folds(n_runs: int, max_folds: int = MAX_FOLDS) -> dict[int, int]:
+    """Each run's CV fold (runs 0 .. n_runs - 1, in time order): its own up to ``max_folds``
+    runs; beyond, ``max_folds`` blocks of consecutive runs (later runs held out together, as
+    new runs are), a block named by its first run.
+
+    >>> run_folds(3)
+    {0: 0, 1: 1, 2: 2}
+    >>> sorted(set(run_folds(40).values()))[:3], run_folds(40)[7], run_folds(12, 4)
+    ([0, 4, 8], 4, {0: 0, 1: 0, 2: 0, 3: 3, 4: 3, 5: 3, 6: 6, 7: 6, 8: 6, 9: 9, 10: 9, 11: 9})
+    """
+    if n_runs <= max_folds:
+        return {r: r for r in range(n_runs)}
+    block = [r * max_folds // n_runs for r in range(n_runs)]
+    first = {b: block.index(b) for b in set(block)}
+    return {r: first[b] for r, b in enumerate(block)}
 
 
 def _ranking_terms(d: OCData) -> list[Term | None]:
@@ -190,8 +222,9 @@ def _predict_pairs(model: OCModel, trajs: list[Trajectory]) -> list[tuple[np.nda
 def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
                     fold_inputs: dict[int, list[str]], bound: float = math.inf, parts: bool = True
                     ) -> tuple[float, list[tuple[np.ndarray, np.ndarray]]]:
-    """Pooled eps of ``method`` with ``params`` over the leave-one-run-out folds, and the held-out
-    (measured, predicted) pairs in fold order (inf and no pairs when a fit fails).
+    """Pooled eps of ``method`` with ``params`` over the CV ``folds`` (``OCData.fold``: leave one
+    run out, or blocks of runs), and the held-out (measured, predicted) pairs in fold order (inf
+    and no pairs when a fit fails).
 
     bound: stop, returning inf and no pairs, as soon as the folds done prove the pooled eps at
     least ``bound`` (their error energy over every fold's reference energy only grows): the
@@ -202,8 +235,8 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
     num, den = 0.0, _reference_energy(d, folds) if bound < math.inf else 0.0
     fit = _fold_fitter(d, method, params, fold_inputs, parts)
     for f in folds:
-        train_rows = [i for i, r in enumerate(d.runs) if r != f]
-        test_rows = [i for i, r in enumerate(d.runs) if r == f]
+        train_rows = [i for i, r in enumerate(d.runs) if d.fold(r) != f]
+        test_rows = [i for i, r in enumerate(d.runs) if d.fold(r) == f]
         chosen = fold_inputs[f]
         try:
             m = fit(train_rows, chosen)
@@ -242,7 +275,7 @@ def _fold_fitter(d: OCData, method: str, params: dict, fold_inputs: dict[int, li
 def _reference_energy(d: OCData, folds: list[int]) -> float:
     """The pooled eps's denominator over ``folds``: the squared target of every OC sample of
     every segment, summed in fold order as ``pooled_eps`` sums it (nan when zero)."""
-    rows = [i for f in folds for i, r in enumerate(d.runs) if r == f]
+    rows = [i for f in folds for i, r in enumerate(d.runs) if d.fold(r) == f]
     return sum(float(np.sum(d.y[i][d.start[i]:] ** 2)) for i in rows) or math.nan
 
 
@@ -295,14 +328,17 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     (prune False: every candidate on every fold, each fold fitted afresh; tests); 40 runs of
     an engine (``bench train-speed --check-full``): 56 s against 190 s, the same in 12 of 12 OCs.
     """
-    folds = sorted(set(d.runs))
-    if len(folds) < 2:
-        return OCResult(d.name, None, [], {}, len(folds), float("nan"), float("nan"), None,
-                        note=f"seen in {len(folds)} run(s); at least 2 are needed")
+    n_runs = len(set(d.runs))
+    if n_runs < 2:
+        return OCResult(d.name, None, [], {}, n_runs, float("nan"), float("nan"), None,
+                        note=f"seen in {n_runs} run(s); at least 2 are needed")
+    if len(d.fold_ids()) < 2:  # its runs all in one block: leave one run out
+        d = dataclasses.replace(d, folds={})
+    folds = d.fold_ids()
     fold_inputs = {}
     terms = _ranking_terms(d) if inputs is None else None
     for f in folds:
-        rows = [i for i, r in enumerate(d.runs) if r != f]
+        rows = [i for i, r in enumerate(d.runs) if d.fold(r) != f]
         fold_inputs[f] = _choose_inputs(d, rows, inputs, n_inputs, terms)[0]
     # The curves first: the best of them bounds what a grid or parametric model must reach
     # (``prune``: a candidate is dropped once its folds so far prove it cannot be chosen).
@@ -355,7 +391,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         if method == Method.AVERAGE:
             cv_scores.append(({"method": Method.AVERAGE.value, **params}, cv_eps))
     if Method(method) is Method.PROM and not np.isfinite(cv_eps):
-        return OCResult(d.name, None, [], {}, len(folds), float("nan"), float("nan"), None, ranking,
+        return OCResult(d.name, None, [], {}, n_runs, float("nan"), float("nan"), None, ranking,
                         cv_scores, note="no parametric model in cross-validation")
     trajs = _trajs(d, all_rows, chosen)
     model = fit_oc_model(method, params, trajs)
@@ -365,7 +401,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         res = [y - p for y, p in pairs]
         sigma = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
         sigma = max(sigma, 1e-9)
-        rows = [i for f in folds for i, r in enumerate(d.runs) if r == f]  # the order of ``pairs``
+        rows = [i for f in folds for i, r in enumerate(d.runs) if d.fold(r) == f]  # the order of ``pairs``
         calib = Calibration(
             sigma, float("inf"),
             peaks=tuple(peak_score(r, sigma, EWMA_ALPHA) for r in res),
@@ -373,7 +409,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
     if isinstance(model, StateSpaceModel) and not np.isfinite(cv_eps):
         note = "no stable candidate in cross-validation"
-    return OCResult(d.name, model, chosen, params, len(folds), train_eps, cv_eps, calib,
+    return OCResult(d.name, model, chosen, params, n_runs, train_eps, cv_eps, calib,
                     ranking, cv_scores, note)
 
 
@@ -399,7 +435,7 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
     for j, name in enumerate(schedule.names):
         d = OCData(name, target, list(candidates), [], [], [], [], switch=schedule.switch,
                    curves=[dict(c) for c in curves or []], proms=[dict(c) for c in proms or []],
-                   unranked=list(unranked or []))
+                   unranked=list(unranked or []), folds=run_folds(len(runs)))
         for s in segments:
             if s.oc != j:
                 continue
