@@ -28,8 +28,9 @@ The false-alarm part does not depend on either.
 ``--schedule`` and ``--noise-scale`` go to every simulation (``simulate --schedule``,
 ``--noise-scale``): the engines run that schedule's OCs, with that sensor noise. Every
 recording's truth JSON records both (and which runs it holds); a recording in the work dir
-made with other ones is simulated again, and a model whose training data changed (its stamp
-``model-METHOD.trained-on.json`` names the sha256 of the training truth JSON) is trained again.
+made with other ones is simulated again, and a model whose training data or code changed (its
+stamp ``model-METHOD.trained-on.json`` names the sha256 of the training truth JSON and of the
+``node`` package's sources) is trained again.
 """
 
 from __future__ import annotations
@@ -89,6 +90,15 @@ class Setup:
         return (digest == self.schedule.digest()
                 and truth.get("noise_scale", 1.0) == self.noise_scale
                 and [r.get("index") for r in truth.get("runs", [])] == list(range(first, first + count)))
+
+
+def _code_hash() -> str:
+    """sha256 of the node package's sources: a model trained by other code is trained again."""
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parents[1] / "node"
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()
 
 
 def _truth(rec: Path) -> dict | None:
@@ -166,8 +176,9 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
     if not setup.matches(_truth(normal), n, m):
         print(f"[engine {seed}] simulating {m} held-out normal runs ...", flush=True)
         _simulate(normal, n + m, seed, n, setup=setup)
-    trained_on = hashlib.sha256(train.with_suffix(".truth.json").read_bytes()).hexdigest()
-    old = json.loads(stamp.read_text()).get("train_truth_sha256") if stamp.exists() else None
+    truth_sha = hashlib.sha256(train.with_suffix(".truth.json").read_bytes()).hexdigest()
+    trained_on = {"train_truth_sha256": truth_sha, "code_sha256": _code_hash()}
+    old = json.loads(stamp.read_text()) if stamp.exists() else None
     if not (model / "manifest.json").exists() or old != trained_on:
         print(f"[engine {seed}] training {method} on the training runs ...", flush=True)
         stamp.unlink(missing_ok=True)
@@ -176,7 +187,7 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
                 *([] if setup.phase else ["--no-phase"])]
         if cli(argv) != 0:
             raise SystemExit(f"train failed: {argv}")
-        stamp.write_text(json.dumps({"train_truth_sha256": trained_on}) + "\n")
+        stamp.write_text(json.dumps(trained_on) + "\n")
     s = replay_offline(str(normal), str(model), None, quiet=True)
     hours = sum(b["samples"] for b in s["beds"].values()) / FS / 3600.0
     bundle = load_bundle(model)
