@@ -121,8 +121,8 @@ def _ocdata(rng: np.random.Generator, n_runs: int = 6, noise: float = 0.03) -> O
 @pytest.mark.parametrize("noise", [0.03, 0.1])
 def test_an_average_s_cv_is_its_members_cv_averaged_and_chosen_only_when_lower(noise: float):
     """The CV pairs training averages from the members' are those of fitting the average afresh
-    in every fold; the OC's model is the best of the pool (the 3 best curves and the grid's best
-    model) alone or the average of its k best, whichever has the lowest CV eps, and is then
+    in every fold; the OC's model is the best curve alone or the average of the k best of the
+    pool (the 3 best curves and the grid's best model), whichever has the lowest CV eps, and is then
     fitted on every run. With little noise the influence curve alone wins (the data are its
     law); with more, its anchor's noise and the others' errors partly cancel in an average."""
     d = _ocdata(np.random.default_rng(3), noise=noise)
@@ -138,7 +138,7 @@ def test_an_average_s_cv_is_its_members_cv_averaged_and_chosen_only_when_lower(n
     score, pairs, g = min(lasso, key=lambda x: x[0])
     pool = sorted(sorted(scored, key=lambda s: s[0])[:CURVE_AVERAGE] + [(score, "lasso", g, pairs, ["nB"])],
                   key=lambda s: s[0])
-    options = [pool[0]]
+    options = [next(p for p in pool if p[1] == "curve")]  # a grid model is a member, never alone
     for k in (2, 3):  # the members' CV predictions averaged, against the average's CV afresh
         params = average_params([(m, p, ins) for _, m, p, _, ins in pool[:k]])
         mean = [(y, sum(pool[i][3][n][1] for i in range(k)) / k) for n, (y, _) in enumerate(pool[0][3])]

@@ -135,17 +135,24 @@ def resolve_targets(spec: str | None, runs: list[Run]) -> list[str]:
     return targets
 
 
+def _member_name(member: dict) -> str:
+    """An average's member in the table: a curve's variant, else its method."""
+    if member.get("method", "curve") == "curve":
+        return str(member["params"].get("variant", "fleet"))
+    return str(member["method"])
+
+
 def _hyper_parameters(params: dict) -> str:
     """"k=v, ..."; an average of curves: each member's, "variant(k=v, ...) + ...".
 
     >>> _hyper_parameters({"levels": 3, "rcond": 1e-08})
     'levels=3, rcond=1e-08'
     >>> _hyper_parameters({"members": [{"params": {"variant": "run"}, "inputs": ["run_curve"]},
-    ...     {"params": {"variant": "fleet", "bin": 25.0}, "inputs": ["nB"]}], "inputs": ["run_curve", "nB"]})
-    'run() + fleet(bin=25)'
+    ...     {"method": "wdmd", "params": {"levels": 2}, "inputs": ["nB"]}], "inputs": ["run_curve", "nB"]})
+    'run() + wdmd(levels=2)'
     """
     if "members" in params:
-        return " + ".join(f"{m['params'].get('variant', 'fleet')}("
+        return " + ".join(f"{_member_name(m)}("
                           f"{_hyper_parameters({k: v for k, v in m['params'].items() if k != 'variant'})})"
                           for m in params["members"])
     return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items())

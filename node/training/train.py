@@ -284,12 +284,15 @@ Scored = tuple[float, str, dict, list[tuple[np.ndarray, np.ndarray]], list[str]]
 
 
 def _best_average(pool: list[Scored]) -> Scored:
-    """Of the k best of ``pool`` (best first; k = 1 .. ``CURVE_AVERAGE``), the one (k = 1) or
-    the average (``node.models.average``) with the lowest CV eps (the smaller k on a tie).
+    """Of the best curve alone and the averages (``node.models.average``) of the k best of
+    ``pool`` (best first, curves and at most one grid model; k = 2 .. ``CURVE_AVERAGE``), the
+    one with the lowest CV eps (the smaller k on a tie): a grid model that did not beat the
+    curves by ``CURVE_MARGIN`` is a member, never alone (alone its residual band, set from its
+    CV, was too narrow on new runs: engine 16's OC13 raised 2 false alarms in 10 normal runs).
     An average's pairs are its members' held-out predictions averaged as
     ``AverageModel.predict`` averages them; of curves, that is the average's own CV to the last
     bit (each fold's average is the average of the members' fold models)."""
-    best = pool[0]
+    best = next(c for c in pool if c[1] == Method.CURVE)
     for k in range(2, min(CURVE_AVERAGE, len(pool)) + 1):
         top = pool[:k]
         pairs = []
