@@ -35,3 +35,16 @@ def numpy_path_from_16_messages() -> Iterator[None]:
     old, align.SMALL_BATCH = align.SMALL_BATCH, 16
     yield
     align.SMALL_BATCH = old
+
+
+@pytest.fixture(scope="session")
+def phased(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """train.mcap (3 short runs with phase), a model trained on them (lasso on nB, curves on);
+    shared by the phase and the average tests (read only)."""
+    d = tmp_path_factory.mktemp("phase")
+    assert main(["simulate", "--runs", "3", "--seed", "5", "--plateau-scale", "0.3", "--out",
+                 str(d / "train.mcap"), "--quiet"]) == 0
+    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"), "--out",
+                 str(d / "model"), "--method", "lasso", "--inputs", "nB", "--target", "yB", "--quiet",
+                 "--workers", "1"]) == 0
+    return d

@@ -207,17 +207,6 @@ def test_a_bundle_stores_and_loads_an_average_as_json_and_arrays(tmp_path: Path)
         fit_oc_model("average", {**MIXED, "inputs": ["nB"]}, trajs)
 
 
-@pytest.fixture(scope="module")
-def phased(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    d = tmp_path_factory.mktemp("avg")
-    assert main(["simulate", "--runs", "3", "--seed", "5", "--plateau-scale", "0.3", "--out",
-                 str(d / "train.mcap"), "--quiet"]) == 0
-    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"), "--out",
-                 str(d / "model"), "--method", "lasso", "--inputs", "nB", "--target", "yB", "--quiet",
-                 "--workers", "1"]) == 0
-    return d
-
-
 @pytest.mark.parametrize("dynamic", [False, True])
 def test_the_node_runs_an_average_of_amplitude_and_vector_models_as_training_predicts_it(
         phased: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], dynamic: bool):

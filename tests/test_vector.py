@@ -134,18 +134,6 @@ def test_order_vectors_are_the_lag_convention():
     assert np.isnan(z[2])
 
 
-@pytest.fixture(scope="module")
-def phased(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """train.mcap (3 short runs with phase), a model trained on them (lasso on nB, curves on)."""
-    d = tmp_path_factory.mktemp("phase")
-    assert main(["simulate", "--runs", "3", "--seed", "5", "--plateau-scale", "0.3", "--out",
-                 str(d / "train.mcap"), "--quiet"]) == 0
-    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"), "--out",
-                 str(d / "model"), "--method", "lasso", "--inputs", "nB", "--target", "yB", "--quiet",
-                 "--workers", "1"]) == 0
-    return d
-
-
 def _monitor(rec: Path) -> list[dict]:
     with open(rec, "rb") as f:
         topics = ["testbed/bed1/monitor/yB"]
