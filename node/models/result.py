@@ -65,7 +65,7 @@ class OCResult:
         "-" without a model."""
         if self.model is None:
             return "-"
-        if "members" in self.params:  # an average of curves: "average:vector+influence"
+        if "members" in self.params:  # an average: "average:vector+influence+wdmd"
             return f"{self.model.method.value}:{member_label(self.params)}"
         variant = self.params.get("variant")
         return f"{self.model.method.value}:{variant}" if variant else self.model.method.value

@@ -239,15 +239,15 @@ class MonitorPipeline:
             H = full[:, cols]
             ok = np.all(np.isfinite(H), axis=1)
             first = int(np.argmax(ok)) if ok.any() else len(H)  # history from the first complete row
-            y = H[first:, 0]
-            if vector is not None:
+            y, U = H[first:, 0], H[first:, 1:]
+            if vector is None:
+                rt.start(y, U)
+            else:  # its past: the 1x vectors (an average's vector members), and the amplitudes
                 z = order_vectors(y, full[first:, self.channels.index(self._phase_ch)])
-            if isinstance(vector, AverageRuntime):  # its past: the amplitudes and the 1x vectors
-                vector.start(y, H[first:, 1:], z)
-            elif vector is not None:  # its past: the 1x vectors
-                rt.start(z, H[first:, 1:])
-            else:
-                rt.start(y, H[first:, 1:])
+                if isinstance(vector, AverageRuntime):
+                    vector.start(y, U, z)
+                else:
+                    vector.start(z, U)
         else:
             rt.start(np.zeros(0), np.zeros((0, len(res.inputs))))
         c = res.calibration
