@@ -319,19 +319,23 @@ def _curve_inputs(d: OCData, curve: dict) -> list[str] | None:
 
 def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | None,
              n_inputs: int, prune: bool = True) -> OCResult:
-    """Leave-one-run-out CV over ``grid`` (inputs chosen inside each fold), then the final fit.
+    """CV over ``grid`` (leave one run out, or ``d.folds``; inputs chosen inside each fold),
+    then the final fit.
 
-    The OC's curve candidates (``d.curves``) are cross-validated on the same folds; the best of
-    them is the OC's model instead (``CurveModel``) unless the grid's best has a CV eps below
-    (1 - ``CURVE_MARGIN``) x the curve's.
+    The OC's curve candidates (``d.curves``) are cross-validated on the same folds. The grid's
+    (or a parametric model's) best is the OC's model when its CV eps is below
+    (1 - ``CURVE_MARGIN``) x the best curve's; otherwise the best curve, or the average of the
+    2-3 best of the best curves and the grid's best, whichever has the lowest CV eps
+    (``_best_average``).
 
     prune: a candidate's CV stops as soon as its folds so far prove that it cannot be chosen
-    (its error energy only grows with the folds: beyond the best of its kind so far, or, for
-    a grid or parametric model, beyond (1 - ``CURVE_MARGIN``) x the best curve's eps); its
-    ``cv_scores`` entry is then inf; and a curve's folds are made from the runs' parts
-    (``_fold_fitter``). The choice, the model and its calibration are those of the full CV
-    (prune False: every candidate on every fold, each fold fitted afresh; tests); 40 runs of
-    an engine (``bench train-speed --check-full``): 56 s against 190 s, the same in 12 of 12 OCs.
+    (its error energy only grows with the folds: a curve beyond the ``CURVE_AVERAGE``-th best
+    so far, a grid model beyond the grid's best so far or that curve, a parametric model beyond
+    the best model or (1 - ``CURVE_MARGIN``) x the best curve's eps); its ``cv_scores`` entry
+    is then inf; and a curve's folds are made from the runs' parts (``_fold_fitter``). The
+    choice, the model and its calibration are those of the full CV (prune False: every
+    candidate on every fold, each fold fitted afresh; tests); 40 runs of an engine (``bench
+    train-speed --check-full``, 10 folds): 39 s against 62 s, the same in 12 of 12 OCs.
     """
     n_runs = len(set(d.runs))
     if n_runs < 2:
