@@ -19,6 +19,7 @@ BENCHMARKS = {
     "live": "bench.live",
     "soak": "bench.soak",
     "top-curves": "bench.top_curves",
+    "stiffness-drift": "bench.stiffness_drift",
 }
 
 
