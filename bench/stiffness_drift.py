@@ -27,8 +27,8 @@ from node.contract import FS, Phase
 from node.contract.schedule import Schedule, load_schedule
 from node.mcap import Run, read_runs
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import order_vectors
 from node.runtime.ocdetect import OCDetector
+from node.training.dataset import fill_gaps, target_vectors
 
 TEMPS = ["tF", "tI", "tH"]
 CH = ["nB", "yB", "yB_ph", *TEMPS]
@@ -53,18 +53,12 @@ def plateaus(run: Run, sched: Schedule) -> list[tuple[int, int, int]]:
         out.append((cur[0], cur[1], cur[2]))
     return out
 
-def held(a: np.ndarray) -> np.ndarray:
-    """Each NaN replaced by the last finite value before it."""
-    a = a.copy()
-    for i in range(1, len(a)):
-        if not np.isfinite(a[i]):
-            a[i] = a[i - 1]
-    return a
-
 def plateau_data(run: Run, sched: Schedule) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
     """Per plateau: oc, first sample after settling, the vector and temperatures from their reference."""
-    z = order_vectors(held(run.column("yB")), held(run.column("yB_ph")))
-    T = np.column_stack([held(run.column(c)) for c in TEMPS])
+    z = target_vectors(run, "yB")  # amplitude and phase held over gaps, as training holds them
+    if z is None:
+        raise SystemExit("the recordings hold no yB_ph: simulate them with the phase channels")
+    T = fill_gaps(np.column_stack([run.column(c) for c in TEMPS]))
     for oc, a, b in plateaus(run, sched):
         a0 = a + SETTLE
         if b - a0 < LONG + SHORT:

@@ -52,8 +52,26 @@ def member_label(params: Mapping) -> str:
                     else str(_method(m)) for m in params.get("members", []))
 
 
-def _on_vector(model: object) -> bool:
+def predicts_vector(model: object) -> bool:
+    """Whether an OC model predicts the order's 1x vector (a vector or influence curve, or an
+    average with one among its members): its runtime is seeded with the measured vectors."""
+    if isinstance(model, AverageModel):
+        return model.on_vector
     return isinstance(model, CurveModel) and model.variant.on_vector
+
+
+def mean_in_order(predictions: Sequence[np.ndarray]) -> np.ndarray:
+    """(p_0 + p_1 + ...) / k, summed in this order: an average's prediction from its members'
+    (K,) each (training's averaged CV pairs use it too: the same numbers to the last bit).
+
+    >>> mean_in_order([np.array([1.0, 2.0]), np.array([3.0, 6.0])])
+    array([2., 4.])
+    """
+    total = predictions[0]
+    for p in predictions[1:]:
+        total = total + p
+    out: np.ndarray = total / len(predictions)
+    return out
 
 
 def _columns(params: Mapping) -> list[list[int]]:
@@ -127,17 +145,12 @@ class AverageModel:
 
     def predict(self, traj: Trajectory) -> np.ndarray:
         """The members' predictions over the OC samples of ``traj``, averaged: (K_seg,)."""
-        preds = [m.predict(_member_traj(traj, c)) for m, c in zip(self.members, self.columns)]
-        total = preds[0]
-        for p in preds[1:]:
-            total = total + p
-        out: np.ndarray = total / len(preds)
-        return out
+        return mean_in_order([m.predict(_member_traj(traj, c)) for m, c in zip(self.members, self.columns)])
 
     @property
     def on_vector(self) -> bool:
         """Whether a member predicts the 1x vector (its runtime's ``start`` then needs them)."""
-        return any(_on_vector(m) for m in self.members)
+        return any(predicts_vector(m) for m in self.members)
 
     def runtime(self) -> AverageRuntime:
         return AverageRuntime(self)
@@ -172,7 +185,8 @@ class AverageRuntime:
     def __init__(self, model: AverageModel) -> None:
         self._rts: list[OCRuntime] = [m.runtime() for m in model.members]
         self._cols = model.columns
-        self._vec = [_on_vector(m) for m in model.members]
+        self._vec = [predicts_vector(m) for m in model.members]
+        self._vec_rts = [rt for rt, v in zip(self._rts, self._vec) if v and isinstance(rt, CurveRuntime)]
         self._k = float(len(self._rts))
         self.vector: complex = NAN_VECTOR
 
@@ -186,15 +200,14 @@ class AverageRuntime:
 
     def step(self, u: Sequence[float] | np.ndarray) -> float:
         """The members' mean prediction for this sample from its raw inputs u (m,)."""
-        total = 0.0
-        direction = 0j
-        for i, (rt, cols) in enumerate(zip(self._rts, self._cols)):
-            p = rt.step([u[c] for c in cols])
-            total = p if i == 0 else total + p
-            if self._vec[i] and isinstance(rt, CurveRuntime):
-                direction += rt.vector
+        preds = [rt.step([u[c] for c in cols]) for rt, cols in zip(self._rts, self._cols)]
+        total = preds[0]
+        for p in preds[1:]:
+            total += p
         pred = total / self._k
         self.vector = NAN_VECTOR
-        if any(self._vec) and direction == direction and direction != 0 and math.isfinite(pred):
-            self.vector = pred * direction / abs(direction)
+        if self._vec_rts:
+            direction = sum((rt.vector for rt in self._vec_rts), 0j)
+            if direction == direction and direction != 0 and math.isfinite(pred):
+                self.vector = pred * direction / abs(direction)
         return pred

@@ -54,7 +54,7 @@ class Method(StrEnum):
     LASSO = "lasso"
     CURVE = "curve"
     PROM = "prom"  # a parametric model (node.models.prom)
-    AVERAGE = "average"  # the mean of an OC's best curves (node.models.average)
+    AVERAGE = "average"  # the mean of an OC's best models (node.models.average)
 
 
 def _readonly(a: np.ndarray, dtype: type = float) -> np.ndarray:

@@ -28,9 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from node.contract import FS, Flag, Phase, Reason, phase_channel
-from node.models.average import AverageModel, AverageRuntime
+from node.models.average import AverageRuntime, predicts_vector
 from node.models.bundle import Bundle
-from node.models.curve import CurveModel, CurveRuntime
+from node.models.curve import CurveRuntime
 from node.models.ocmodel import (
     NAN_VECTOR,
     OCRuntime,
@@ -57,14 +57,6 @@ class _Active:
     model_id: str
     check: ResidualCheck
     vector: CurveRuntime | AverageRuntime | None = None  # the runtime again when it predicts the 1x vector
-
-
-def _is_vector(model: object) -> bool:
-    """Whether an OC model predicts the 1x vector (a vector or influence curve, or an average
-    with one among its members)."""
-    if isinstance(model, AverageModel):
-        return model.on_vector
-    return isinstance(model, CurveModel) and model.variant.on_vector
 
 
 def _num(x: float) -> float | None:
@@ -98,7 +90,7 @@ class MonitorPipeline:
                         ((False, bundle.checks.get("vector_step_threshold")),
                          (True, bundle.checks.get("vector_drift_threshold"))) if thr]
         self._phase_ch = phase_channel(self.target)
-        vector_models = any(_is_vector(r.model) for r in bundle.ocs)
+        vector_models = any(predicts_vector(r.model) for r in bundle.ocs)
         self._uses_phase = bool(self._vector) or vector_models
         phase = (self._phase_ch,) if self._uses_phase else ()
         self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow, *phase})
@@ -232,7 +224,7 @@ class MonitorPipeline:
         if res is None or res.model is None or res.calibration is None:
             return
         rt = res.model.runtime()
-        vector = rt if isinstance(rt, (CurveRuntime, AverageRuntime)) and _is_vector(res.model) else None
+        vector = rt if isinstance(rt, (CurveRuntime, AverageRuntime)) and predicts_vector(res.model) else None
         cols = [self.channels.index(c) for c in [self.target, *res.inputs]]
         if self._hist:
             full = np.asarray(self._hist)

@@ -24,7 +24,7 @@ from node.contract import FS, is_phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.mcap import Run
-from node.models.average import average_params
+from node.models.average import average_params, mean_in_order
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
 from node.models.curve import CurveModel, CurvePart, Variant
@@ -154,6 +154,14 @@ class OCData:
     def fold_ids(self) -> list[int]:
         return sorted({self.fold(r) for r in self.runs})
 
+    def held_out(self, f: int) -> list[int]:
+        """The segments (rows) fold ``f`` holds out."""
+        return [i for i, r in enumerate(self.runs) if self.fold(r) == f]
+
+    def fitted_on(self, f: int) -> list[int]:
+        """The segments (rows) fold ``f`` fits on: every other fold's."""
+        return [i for i, r in enumerate(self.runs) if self.fold(r) != f]
+
 
 # Leave-one-run-out CV up to MAX_FOLDS training runs; beyond, MAX_FOLDS folds of contiguous
 # runs (``run_folds``), as scikit-learn's grouped K-fold: the fits per candidate stay at
@@ -237,14 +245,12 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
     num, den = 0.0, _reference_energy(d, folds) if bound < math.inf else 0.0
     fit = _fold_fitter(d, method, params, fold_inputs, parts)
     for f in folds:
-        train_rows = [i for i, r in enumerate(d.runs) if d.fold(r) != f]
-        test_rows = [i for i, r in enumerate(d.runs) if d.fold(r) == f]
         chosen = fold_inputs[f]
         try:
-            m = fit(train_rows, chosen)
+            m = fit(d.fitted_on(f), chosen)
         except (np.linalg.LinAlgError, ValueError):
             return float("inf"), []
-        pairs = _predict_pairs(m, _trajs(d, test_rows, chosen))
+        pairs = _predict_pairs(m, _trajs(d, d.held_out(f), chosen))
         pairs_all += pairs
         if bound < math.inf:
             for y, p in pairs:  # the terms of pooled_eps's sum, in its order: a prefix of it
@@ -277,7 +283,7 @@ def _fold_fitter(d: OCData, method: str, params: dict, fold_inputs: dict[int, li
 def _reference_energy(d: OCData, folds: list[int]) -> float:
     """The pooled eps's denominator over ``folds``: the squared target of every OC sample of
     every segment, summed in fold order as ``pooled_eps`` sums it (nan when zero)."""
-    rows = [i for f in folds for i, r in enumerate(d.runs) if d.fold(r) == f]
+    rows = [i for f in folds for i in d.held_out(f)]
     return sum(float(np.sum(d.y[i][d.start[i]:] ** 2)) for i in rows) or math.nan
 
 
@@ -297,11 +303,7 @@ def _best_average(pool: list[Scored]) -> Scored:
     best = next(c for c in pool if c[1] == Method.CURVE)
     for k in range(2, min(CURVE_AVERAGE, len(pool)) + 1):
         top = pool[:k]
-        pairs = []
-        for n, (y, total) in enumerate(top[0][3]):
-            for member in top[1:]:
-                total = total + member[3][n][1]
-            pairs.append((y, total / k))
+        pairs = [(y, mean_in_order([c[3][n][1] for c in top])) for n, (y, _) in enumerate(top[0][3])]
         params = average_params([(c[1], c[2], c[4]) for c in top])
         score = pooled_eps(pairs)
         if score < best[0]:
@@ -347,8 +349,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     fold_inputs = {}
     terms = _ranking_terms(d) if inputs is None else None
     for f in folds:
-        rows = [i for i, r in enumerate(d.runs) if d.fold(r) != f]
-        fold_inputs[f] = _choose_inputs(d, rows, inputs, n_inputs, terms)[0]
+        fold_inputs[f] = _choose_inputs(d, d.fitted_on(f), inputs, n_inputs, terms)[0]
     # The curves first: the best of them bounds what a grid or parametric model must reach
     # (``prune``: a candidate is dropped once its folds so far prove it cannot be chosen).
     cv_scores: list[tuple[dict, float]] = []
@@ -410,7 +411,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         res = [y - p for y, p in pairs]
         sigma = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
         sigma = max(sigma, 1e-9)
-        rows = [i for f in folds for i, r in enumerate(d.runs) if d.fold(r) == f]  # the order of ``pairs``
+        rows = [i for f in folds for i in d.held_out(f)]  # the order of ``pairs``
         calib = Calibration(
             sigma, float("inf"),
             peaks=tuple(peak_score(r, sigma, EWMA_ALPHA) for r in res),
