@@ -78,12 +78,15 @@ def fault_effect(fault_run: Run, twin: Run, target: str, onset: float, band: np.
     """Effect of the fault (from ``onset``, epoch s) on ``target`` within ``window`` s, against ``band``.
 
     fault_run, twin: the same run with and without the fault (ValueError if they differ
-    before the onset or in their time stamps); band: (K,) from ``band_per_sample``.
+    more than one sample period before the onset, or in their time stamps); band: (K,) from
+    ``band_per_sample``.
     """
     if len(fault_run.t) != len(twin.t) or not np.array_equal(fault_run.t, twin.t):
         raise ValueError("the fault run and its twin have different time stamps")
     y, y0 = fault_run.column(target), twin.column(target)
-    pre = fault_run.t < onset
+    # a channel's clock phase stamps its samples up to one period before the simulator's grid
+    # instant: the first faulted sample may carry a stamp just before the onset
+    pre = fault_run.t < onset - 1.0 / fs
     if not np.array_equal(y[pre], y0[pre], equal_nan=True):
         raise ValueError("the fault run and its twin differ before the onset: not twins")
     m = (fault_run.t >= onset) & (fault_run.t <= onset + window)

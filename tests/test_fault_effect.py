@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from harness.fault_effect import SMOOTH_S, fault_effect
-from node.contract import SENSOR_CHANNELS
+from node.contract import FS, SENSOR_CHANNELS
 from node.mcap import Run
 from simulator.campaign import DRIFT_RATE, simulate_campaign
 
@@ -52,3 +52,20 @@ def test_runs_that_are_not_twins_are_refused() -> None:
     shifted = Run(twin.t + 0.025, twin.data, twin.channels, "bed", None)
     with pytest.raises(ValueError, match="time stamps"):
         fault_effect(run, shifted, "yB", fault["onset"], np.ones(len(run.t)))
+
+
+def test_a_sample_stamped_within_one_period_before_the_onset_may_differ() -> None:
+    """A channel's clock phase can stamp the first faulted sample just before the onset."""
+    twin, _ = _runs(None)
+    run, fault = _runs("drift")
+    onset, yb = fault["onset"], SENSOR_CHANNELS.index("yB")
+    first = int(np.argmax(run.t >= onset))  # the first sample stamped at or after the onset
+    assert onset - 1.0 / FS < run.t[first - 1] < onset and run.t[first - 2] < onset - 1.0 / FS
+    for k, accepted in ((first - 1, True), (first - 2, False)):
+        moved = Run(run.t, run.data.copy(), run.channels, "bed", None)
+        moved.data[k, yb] += 1.0
+        if accepted:
+            assert fault_effect(moved, twin, "yB", onset, np.ones(len(run.t))).peak > 0.0
+        else:
+            with pytest.raises(ValueError, match="before the onset"):
+                fault_effect(moved, twin, "yB", onset, np.ones(len(run.t)))
