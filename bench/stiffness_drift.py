@@ -1,17 +1,30 @@
-"""Issue 15 study: do stiffness losses stand out of a plateau's normal vector drift, with or
-without the slow temperatures' share of it removed?
+"""Issue 15 study: can any vector rule see a nominal stiffness loss within a minute?
 
-    python -m bench stiffness-drift [--workdir W] [--seeds 14,15,16]
+    python -m bench stiffness-drift [--workdir W[,W2]] [--seeds 14,15,16]
 
-On ``bench faults``'s recordings in W (``engine{seed}/``: training runs, normal held-out runs,
-``stiffness-{1,2,3}.mcap`` with their truth), per steady plateau (after 3 s of settling) the
-order's 1x vector minus its mean over the plateau's first 4 s (the anchored vector check's
-reference), as a 1 s mean over the noise of a 1 s mean (the training runs' first differences
-per OC): ``raw``. ``comp``: the same after removing a per-OC complex gain times the change of
-the slow temperatures (tF, tI, tH) since that reference, the gains by least squares over the
-training runs' plateaus. Per stiffness onset it prints the largest statistic within 60 s of
-the onset over the largest of any normal held-out plateau of the same OC: beyond 1, a drift
-rule with no false alarm on those runs could flag it in time. A study, not the product.
+On ``bench faults``'s recordings (``engine{seed}/`` in one of the work dirs: training runs,
+normal held-out runs whose first is each fault run's *twin*, ``stiffness-{1,2,3}.mcap`` with
+their truth), per stiffness onset, three measures over the 60 s after it:
+
+* effect: what the fault did to the order's 1x vector, the largest 1 s mean of |fault run -
+  twin| (mm/s; the runs are equal sample for sample before the onset), anywhere and within
+  the onset's own plateau, and where it is largest (OC, steady or transition);
+* drift: per steady plateau (after 3 s of settling) the 1x vector minus its mean over the
+  plateau's first 4 s (the anchored vector check's reference), as a 1 s mean over the noise
+  of a 1 s mean (the training runs' first differences per OC): ``raw``. ``comp``: the same
+  after removing a per-OC complex gain times the change of the slow temperatures (tF, tI, tH)
+  since that reference, the gains by least squares over the training runs' plateaus. The
+  largest within 60 s over the largest of any normal held-out plateau of the same OC;
+* residual: the 1x vector against an influence curve (``CurveModel``, variant influence:
+  each speed's vector an affine function of the vector over the 1 s before the OC switch)
+  fitted on the training runs, over the whole OC segment (transition and plateau), divided
+  by its leave-one-run-out sigma per 50 rpm speed bin, smoothed as the residual rule smooths
+  (``EWMA_ALPHA``); its largest |score| within 60 s over the largest of any normal held-out
+  run in the same OC.
+
+A ratio beyond 1 means a rule of that kind with a threshold just above every normal held-out
+run (no false alarm there, the most sensitive such rule could be) would flag the onset in
+time: the count of such onsets bounds what these rules can reach. A study, not the product.
 """
 
 from __future__ import annotations
@@ -23,16 +36,24 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.fault_effect import on_common_samples
 from node.contract import FS, Phase
 from node.contract.schedule import Schedule, load_schedule
 from node.mcap import Run, read_runs
 from node.models.config import RuntimeConfig
+from node.models.curve import CurveModel
+from node.models.ocmodel import Method, Trajectory
+from node.models.result import EWMA_ALPHA
 from node.runtime.ocdetect import OCDetector
 from node.training.dataset import fill_gaps, target_vectors
+from node.training.train import OCData, oc_datasets
 
 TEMPS = ["tF", "tI", "tH"]
 CH = ["nB", "yB", "yB_ph", *TEMPS]
 SETTLE, LONG, SHORT = int(3 * FS), int(4 * FS), int(1 * FS)
+WINDOW_S = 60.0  # a stiffness loss should be flagged within this, s
+INFLUENCE = {"variant": "influence", "bin": 25.0, "anchor": int(FS)}
+SIGMA_BIN = 50.0  # rpm: the residual's sigma per speed bin of this width
 
 def plateaus(run: Run, sched: Schedule) -> list[tuple[int, int, int]]:
     """(oc, first, last sample) of each steady plateau."""
@@ -42,9 +63,9 @@ def plateaus(run: Run, sched: Schedule) -> list[tuple[int, int, int]]:
     cur: list[int] | None = None
     for k, v in enumerate(sp.tolist()):
         st = det.step(v)
-        if st.phase is Phase.STEADY:
+        if st.phase is Phase.STEADY and st.oc is not None:
             if cur is None:
-                cur = [int(st.oc), k, k]
+                cur = [st.oc, k, k]
             cur[2] = k
         elif cur is not None:
             out.append((cur[0], cur[1], cur[2]))
@@ -84,10 +105,119 @@ def stat(zr: np.ndarray, Tr: np.ndarray, g: np.ndarray | None, noise: float) -> 
     out: np.ndarray = np.abs(m) / noise
     return out
 
-def study(work: Path, engines: list[int]) -> int:
+def window_mask(run: Run, first: int, n: int, onset: float) -> np.ndarray:
+    """(n,) which of run's samples first .. first + n - 1 lie within WINDOW_S of the onset."""
+    t = run.t[first:first + n]
+    return (t >= onset) & (t <= onset + WINDOW_S)
+
+
+def effect(run: Run, twin: Run, sched: Schedule, onset: float) -> tuple[float, float, str]:
+    """The fault's largest 1 s mean |vector change| within WINDOW_S (mm/s), the same within the
+    onset's own plateau, and where the first is largest ("OC7 steady")."""
+    run, twin = on_common_samples(run, twin)
+    za, zb = target_vectors(run, "yB"), target_vectors(twin, "yB")
+    assert za is not None and zb is not None
+    d = np.nan_to_num(za - zb)
+    m = np.abs(np.convolve(d, np.ones(SHORT) / SHORT, mode="full")[:len(d)])  # the 1 s before each
+    win = window_mask(run, 0, len(d), onset)
+    own = np.zeros(len(d), bool)
+    for _oc, a, b in plateaus(run, sched):
+        if run.t[a] <= onset <= run.t[b]:
+            own[a:b + 1] = True
+    k = int(np.flatnonzero(win)[np.argmax(m[win])])
+    oc, phase = OCDetector(sched, RuntimeConfig(), FS).label(run.column("nB"))
+    where = f"{sched.names[oc[k]]} {Phase.from_code(int(phase[k])).value}" if oc[k] >= 0 else "-"
+    return float(m[win].max()), float(m[win & own].max()) if (win & own).any() else 0.0, where
+
+
+def _trajectory(d: OCData, i: int) -> Trajectory:
+    return Trajectory(d.y[i], d.X[i], d.start[i], d.z[i])
+
+
+def _vector_residual(model: CurveModel, d: OCData, i: int) -> np.ndarray:
+    """(K_seg,) measured minus predicted 1x vector over segment i's OC samples."""
+    t = _trajectory(d, i)
+    rt = model.runtime()
+    rt.start(d.z[i][:t.start], t.U[:t.start])
+    pred: np.ndarray = rt.speeds_ahead(t.seg_U[:, 0])
+    return d.z[i][t.start:] - pred
+
+
+class BinSigma:
+    """Per speed bin (SIGMA_BIN rpm) sd of a complex residual's components; a bin without
+    samples (or its neighbours') takes the sd of every sample."""
+
+    def __init__(self, residuals: list[np.ndarray], speeds: list[np.ndarray]) -> None:
+        r, x = np.concatenate(residuals), np.concatenate(speeds)
+        ok = np.isfinite(r) & np.isfinite(x)
+        r, b = r[ok], np.floor(x[ok] / SIGMA_BIN).astype(int)
+        self.every = float(np.sqrt(np.mean(np.abs(r) ** 2) / 2))
+        self.table = {int(k): float(np.sqrt(np.mean(np.abs(r[b == k]) ** 2) / 2)) for k in np.unique(b)}
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        out = np.full(len(x), self.every)
+        for k, v in enumerate(x.tolist()):
+            if v == v:
+                b = int(v // SIGMA_BIN)
+                near = [self.table[j] for j in (b - 1, b, b + 1) if j in self.table]
+                out[k] = max(near) if near else self.every
+        return out
+
+
+def ewma_score(residual: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(K,) |EWMA of residual / sigma| (the residual rule's smoothing; NaN holds the score)."""
+    e, out = 0j, np.zeros(len(residual))
+    for k, (r, s) in enumerate(zip(residual.tolist(), sigma.tolist())):
+        if r == r:
+            e = (1.0 - EWMA_ALPHA) * e + EWMA_ALPHA * r / s
+        out[k] = abs(e)
+    return out
+
+
+def influence_rule(train: list[Run], sched: Schedule) -> dict[str, tuple[CurveModel, BinSigma]]:
+    """Per OC: the influence curve of every training run, and its leave-one-run-out sigma per bin."""
+    out = {}
+    for d in oc_datasets(train, sched, "yB", ["nB"]):
+        if len(d.runs) < 3 or not d.z:
+            continue
+        rows = range(len(d.runs))
+        res, speeds = [], []
+        for i in rows:
+            m = CurveModel.fit(Method.CURVE, INFLUENCE, [_trajectory(d, j) for j in rows if j != i])
+            res.append(_vector_residual(m, d, i))
+            speeds.append(d.X[i][d.start[i]:, 0])
+        out[d.name] = (CurveModel.fit(Method.CURVE, INFLUENCE, [_trajectory(d, j) for j in rows]),
+                       BinSigma(res, speeds))
+    return out
+
+
+def influence_scores(runs: list[Run], sched: Schedule, rule: dict[str, tuple[CurveModel, BinSigma]]
+                     ) -> Iterator[tuple[str, int, int, np.ndarray]]:
+    """(OC, run index, first sample in the run, EWMA |score| per OC sample) of every segment."""
+    for d in oc_datasets(runs, sched, "yB", ["nB"]):
+        if d.name not in rule:
+            continue
+        model, sigma = rule[d.name]
+        for i in range(len(d.runs)):
+            yield d.name, d.runs[i], d.at[i], ewma_score(_vector_residual(model, d, i),
+                                                         sigma(d.X[i][d.start[i]:, 0]))
+
+
+def _engine_dir(works: list[Path], seed: int) -> Path:
+    for w in works:
+        if (w / f"engine{seed}" / "stiffness-1.truth.json").exists():
+            return w / f"engine{seed}"
+    raise SystemExit(f"no stiffness recordings of engine {seed} in {', '.join(map(str, works))}: "
+                     f"run python -m bench faults --seeds {seed} --faults stiffness --workdir W first")
+
+
+def study(works: list[Path], engines: list[int]) -> int:
     rows = []
+    print("| engine | onset | effect within 60 s, mm/s | where largest | in its plateau, mm/s "
+          "| drift / normal | drift less temperatures / normal | influence residual / normal |")
+    print("|---|---|---|---|---|---|---|---|")
     for e in engines:
-        W = work / f"engine{e}"
+        W = _engine_dir(works, e)
         sched = load_schedule(W / "train.schedule.toml")
         train = read_runs(W / "train.mcap", CH)
         by_oc: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
@@ -107,38 +237,53 @@ def study(work: Path, engines: list[int]) -> int:
                 for mode, g in (("raw", None), ("comp", gains.get(oc))):
                     s = stat(zr, Tr, g, noise[oc]).max()
                     nmax[(oc, mode)] = max(nmax.get((oc, mode), 0.0), float(s))
+        rule = influence_rule(train, sched)
+        rmax: dict[str, float] = {}
+        for name, _, _, sc in influence_scores(normal, sched, rule):
+            rmax[name] = max(rmax.get(name, 0.0), float(sc.max()))
         for i in (1, 2, 3):
             truth = json.loads((W / f"stiffness-{i}.truth.json").read_text())
             f = truth["runs"][-1]["fault"]
-            run = read_runs(W / f"stiffness-{i}.mcap", CH)[-1]
+            runs = read_runs(W / f"stiffness-{i}.mcap", CH)
+            run = runs[-1]
             onset = f["onset"]
             res: dict[str, float] = {}
             for oc, a0, zr, Tr in plateau_data(run, sched):
-                t = run.t[a0:a0 + len(zr)]
-                win = (t >= onset) & (t <= onset + 60)
+                win = window_mask(run, a0, len(zr), onset)
                 if not win.any():
                     continue
                 for mode, g in (("raw", None), ("comp", gains.get(oc))):
                     s = stat(zr, Tr, g, noise[oc])[win].max()
                     ratio = s / nmax.get((oc, mode), np.inf)
                     res[mode] = max(res.get(mode, 0.0), float(ratio))
-            rows.append((e, i, f["oc"], res.get("raw", np.nan), res.get("comp", np.nan)))
-            print(f"engine {e} stiffness-{i} onset {f['oc']}: fault drift / largest normal drift of its OC: "
-                  f"raw {res.get('raw', float('nan')):.2f}, temperature-compensated "
-                  f"{res.get('comp', float('nan')):.2f}", flush=True)
-    a = np.array([(r[3], r[4]) for r in rows])
-    print(f"onsets beyond every normal plateau of their OC: raw {int((a[:, 0] > 1).sum())}, compensated "
-          f"{int((a[:, 1] > 1).sum())} of {len(rows)}")
+            for name, k, at, sc in influence_scores(runs, sched, rule):
+                win = window_mask(run, at, len(sc), onset)
+                if k == len(runs) - 1 and win.any():
+                    ratio = float(sc[win].max()) / rmax.get(name, np.inf)
+                    res["influence"] = max(res.get("influence", 0.0), ratio)
+            size, own, where = effect(run, normal[0], sched, onset)
+            row = (e, i, f["oc"], res.get("raw", 0.0), res.get("comp", 0.0), res.get("influence", 0.0), size)
+            rows.append(row)
+            print(f"| {e} | {f['oc']} | {size:.2f} | {where} | {own:.2f} | {row[3]:.2f} | {row[4]:.2f} "
+                  f"| {row[5]:.2f} |", flush=True)
+    a = np.array([r[3:] for r in rows])
+    either = (a[:, 0] > 1) | (a[:, 2] > 1)
+    print(f"onsets a rule with no false alarm on the normal runs could flag within {WINDOW_S:g} s: drift "
+          f"{int((a[:, 0] > 1).sum())}, drift less temperatures {int((a[:, 1] > 1).sum())}, influence "
+          f"residual {int((a[:, 2] > 1).sum())}, drift or residual {int(either.sum())}, of {len(rows)}")
+    for lim in (1.0, 2.0, 5.0):
+        print(f"onsets whose effect within {WINDOW_S:g} s stays below {lim:g} mm/s: "
+              f"{int((a[:, 3] < lim).sum())} of {len(rows)}")
     return 0
-
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench stiffness-drift")
-    ap.add_argument("--workdir", required=True, help="bench faults's work dir (its recordings)")
+    ap.add_argument("--workdir", required=True,
+                    help="bench faults's work dirs (their recordings), comma-separated")
     ap.add_argument("--seeds", default="14,15,16")
     args = ap.parse_args(argv)
-    return study(Path(args.workdir), [int(s) for s in args.seeds.split(",")])
+    return study([Path(w) for w in args.workdir.split(",")], [int(s) for s in args.seeds.split(",")])
 
 
 if __name__ == "__main__":
