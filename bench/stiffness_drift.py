@@ -144,8 +144,9 @@ def _vector_residual(model: CurveModel, d: OCData, i: int) -> np.ndarray:
 
 
 class BinSigma:
-    """Per speed bin (SIGMA_BIN rpm) sd of a complex residual's components; a bin without
-    samples (or its neighbours') takes the sd of every sample."""
+    """The sd of a complex residual's components per speed bin (SIGMA_BIN rpm wide). At a
+    speed: the largest of its bin's and its two neighbours'; where none of the three has
+    samples (or the speed is NaN), the sd of every sample."""
 
     def __init__(self, residuals: list[np.ndarray], speeds: list[np.ndarray]) -> None:
         r, x = np.concatenate(residuals), np.concatenate(speeds)
