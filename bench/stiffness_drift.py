@@ -22,6 +22,10 @@ their truth), per stiffness onset, three measures over the 60 s after it:
   (``EWMA_ALPHA``); its largest |score| within 60 s over the largest of any normal held-out
   run in the same OC.
 
+Last, the node's anchored vector check alone (``StepCheck``, the bundle's settings) with the
+bundle's threshold (one for every OC, pooled) against per-OC thresholds, K times the OC's
+largest training plateau peak: stiffness onsets flagged within 60 s, normal plateaus flagged.
+
 A ratio beyond 1 means a rule of that kind with a threshold just above every normal held-out
 run (no false alarm there, the most sensitive such rule could be) would flag the onset in
 time: the count of such onsets bounds what these rules can reach. A study, not the product.
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -40,11 +45,14 @@ from harness.fault_effect import on_common_samples
 from node.contract import FS, Phase
 from node.contract.schedule import Schedule, load_schedule
 from node.mcap import Run, read_runs
+from node.models.bundle import load_bundle
 from node.models.config import RuntimeConfig
 from node.models.curve import CurveModel
-from node.models.ocmodel import Method, Trajectory
+from node.models.ocmodel import Method, Trajectory, order_vectors
 from node.models.result import EWMA_ALPHA
+from node.runtime.alarms import StepCheck
 from node.runtime.ocdetect import OCDetector
+from node.training.calibrate import DRIFT_OC_FACTOR, drift_thresholds, plateau_peaks
 from node.training.dataset import fill_gaps, target_vectors
 from node.training.train import OCData, oc_datasets
 
@@ -54,6 +62,7 @@ SETTLE, LONG, SHORT = int(3 * FS), int(4 * FS), int(1 * FS)
 WINDOW_S = 60.0  # a stiffness loss should be flagged within this, s
 INFLUENCE = {"variant": "influence", "bin": 25.0, "anchor": int(FS)}
 SIGMA_BIN = 50.0  # rpm: the residual's sigma per speed bin of this width
+PER_OC = (1.5, 2.0, 2.5, 3.0)  # per-OC drift thresholds tried: these times the OC's largest training peak
 
 def plateaus(run: Run, sched: Schedule) -> list[tuple[int, int, int]]:
     """(oc, first, last sample) of each steady plateau."""
@@ -204,6 +213,61 @@ def influence_scores(runs: list[Run], sched: Schedule, rule: dict[str, tuple[Cur
                                                          sigma(d.X[i][d.start[i]:, 0]))
 
 
+def drift_peaks(run: Run, sched: Schedule, config: RuntimeConfig) -> list[tuple[int, int, np.ndarray]]:
+    """The node's anchored vector check over one run: per steady plateau long enough for it,
+    (OC, first sample, the level its statistic holds for the check's persist samples, per sample)."""
+    det = OCDetector(sched, config, FS)
+    oc, phase = det.label(run.column("nB"))
+    chk = StepCheck(math.inf, config, FS, anchored=True)
+    z = order_vectors(run.column("yB"), run.column("yB_ph"))
+    out: list[tuple[int, int, np.ndarray]] = []
+    cur: list[float] = []
+    first = 0
+    for k, (v, p) in enumerate(zip(z.tolist(), (phase == Phase.STEADY.code).tolist())):
+        stat_k = chk.step(v, p)
+        if p:
+            if not cur:
+                first = k
+            cur.append(stat_k)
+        if cur and (not p or k == len(z) - 1):
+            x = np.asarray(cur)
+            if len(x) >= chk.n_settle + chk.n_short + chk.n_long + chk.persist:
+                held = np.lib.stride_tricks.sliding_window_view(x, chk.persist).min(axis=1)
+                out.append((int(oc[first]), first, np.concatenate([np.zeros(chk.persist - 1), held])))
+            cur = []
+    return out
+
+
+def per_oc_thresholds(W: Path, sched: Schedule, train: list[Run], normal: list[Run],
+                      faults: list[tuple[dict, Run]]) -> dict[str, tuple[int, int]]:
+    """Per threshold scheme: (stiffness onsets its anchored check flags within WINDOW_S, normal
+    held-out plateaus it flags). ``pooled``: the bundle's one threshold for every OC; ``xK``:
+    K times the OC's largest training peak (``drift_thresholds`` with K for its factor; the
+    pooled one where the OC has too few plateaus)."""
+    bundle = load_bundle(W / "model-wdmd")
+    pooled = float(bundle.checks["vector_drift_threshold"])
+    found: list[tuple[int, float]] = []  # training's (OC, peak) of each plateau, as calibration finds them
+    for r in train:
+        ocs, phase = OCDetector(sched, bundle.config, FS).label(r.column("nB"))
+        z = order_vectors(r.column("yB"), r.column("yB_ph"))
+        found += plateau_peaks(z, phase, bundle.config, FS, True, ocs)
+    schemes = {"pooled": dict.fromkeys(range(len(sched.names)), pooled)}
+    for k in PER_OC:
+        per_oc = drift_thresholds([(o, k / DRIFT_OC_FACTOR * p) for o, p in found], sched.names)
+        schemes[f"x{k:g}"] = {oc: per_oc.get(name, pooled) for oc, name in enumerate(sched.names)}
+    normal_peaks = [(oc, float(h.max())) for r in normal for oc, _, h in drift_peaks(r, sched, bundle.config)]
+    fault_peaks = []
+    for f, run in faults:
+        best: dict[int, float] = {}
+        for oc, a, h in drift_peaks(run, sched, bundle.config):
+            win = window_mask(run, a, len(h), f["onset"])
+            if win.any():
+                best[oc] = max(best.get(oc, 0.0), float(h[win].max()))
+        fault_peaks.append(best)
+    return {name: (sum(any(v > thr[oc] for oc, v in b.items()) for b in fault_peaks),
+                   sum(v > thr[oc] for oc, v in normal_peaks)) for name, thr in schemes.items()}
+
+
 def _engine_dir(works: list[Path], seed: int) -> Path:
     for w in works:
         if (w / f"engine{seed}" / "stiffness-1.truth.json").exists():
@@ -214,6 +278,7 @@ def _engine_dir(works: list[Path], seed: int) -> Path:
 
 def study(works: list[Path], engines: list[int]) -> int:
     rows = []
+    schemes: dict[str, list[int]] = {}
     print("| engine | onset | effect within 60 s, mm/s | where largest | in its plateau, mm/s "
           "| drift / normal | drift less temperatures / normal | influence residual / normal |")
     print("|---|---|---|---|---|---|---|---|")
@@ -242,11 +307,13 @@ def study(works: list[Path], engines: list[int]) -> int:
         rmax: dict[str, float] = {}
         for name, _, _, sc in influence_scores(normal, sched, rule):
             rmax[name] = max(rmax.get(name, 0.0), float(sc.max()))
+        faults = []
         for i in (1, 2, 3):
             truth = json.loads((W / f"stiffness-{i}.truth.json").read_text())
             f = truth["runs"][-1]["fault"]
             runs = read_runs(W / f"stiffness-{i}.mcap", CH)
             run = runs[-1]
+            faults.append((f, run))
             onset = f["onset"]
             res: dict[str, float] = {}
             for oc, a0, zr, Tr in plateau_data(run, sched):
@@ -267,6 +334,9 @@ def study(works: list[Path], engines: list[int]) -> int:
             rows.append(row)
             print(f"| {e} | {f['oc']} | {size:.2f} | {where} | {own:.2f} | {row[3]:.2f} | {row[4]:.2f} "
                   f"| {row[5]:.2f} |", flush=True)
+        for name, (hits, false) in per_oc_thresholds(W, sched, train, normal, faults).items():
+            tot = schemes.setdefault(name, [0, 0])
+            tot[0], tot[1] = tot[0] + hits, tot[1] + false
     a = np.array([r[3:] for r in rows])
     either = (a[:, 0] > 1) | (a[:, 2] > 1)
     print(f"onsets a rule with no false alarm on the normal runs could flag within {WINDOW_S:g} s: drift "
@@ -275,6 +345,11 @@ def study(works: list[Path], engines: list[int]) -> int:
     for lim in (1.0, 2.0, 5.0):
         print(f"onsets whose effect within {WINDOW_S:g} s stays below {lim:g} mm/s: "
               f"{int((a[:, 3] < lim).sum())} of {len(rows)}")
+    print("the anchored vector check alone, with the bundle's pooled threshold or per-OC ones (xK: K times "
+          f"the OC's largest training peak; the default x{DRIFT_OC_FACTOR:g}):")
+    for name, (hits, false) in schemes.items():
+        print(f"  {name:6s}: stiffness onsets flagged within {WINDOW_S:g} s {hits}/{len(rows)}, "
+              f"normal held-out plateaus beyond the threshold {false}")
     return 0
 
 

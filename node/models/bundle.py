@@ -312,10 +312,19 @@ def _checks(d: object) -> dict:
     if not isinstance(d, dict):
         raise ValueError(f"checks must be an object, got {type(d).__name__}")
     for key in NUMERIC_CHECKS:
-        v = d.get(key)
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0):
-            raise ValueError(f"checks.{key} must be a non-negative number (0: off), got {v!r}")
+        _non_negative(f"checks.{key}", d.get(key))
+    per_oc = d.get("vector_drift_thresholds")
+    if per_oc is not None:
+        if not isinstance(per_oc, dict):
+            raise ValueError(f"checks.vector_drift_thresholds must be an object, got {type(per_oc).__name__}")
+        for name, v in per_oc.items():  # 0: off in that OC
+            _non_negative(f"checks.vector_drift_thresholds[{name!r}]", v)
     return dict(d)
+
+
+def _non_negative(what: str, v: object) -> None:
+    if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0):
+        raise ValueError(f"{what} must be a non-negative number (0: off), got {v!r}")
 
 
 def _f(x: float | None) -> float:

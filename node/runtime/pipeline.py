@@ -11,7 +11,8 @@ while the engine runs (``FlatlineCheck``, ``reason`` "flatline"); see
 ``node.runtime.alarms``. A bundle trained on recordings with the target's phase
 channel (``<target>_ph``) also watches the order's 1x vector, measured amplitude x
 exp(-j phase), on steady plateaus (``reason`` "vector"): its abrupt change (``StepCheck``)
-and its change since the plateau settled (``StepCheck`` anchored), which see an added
+and its change since the plateau settled (``StepCheck`` anchored, its threshold the OC's own
+where training set one), which see an added
 imbalance at right angles to the existing one (the amplitude hardly moves) and a mode's
 stiffness drifting in. An OC model that predicts the vector (a vector curve) is seeded
 with the measured vectors. The monitor message then carries ``measured_phase``,
@@ -85,10 +86,16 @@ class MonitorPipeline:
         self._names = bundle.schedule.names  # a tuple built on each access: keep one
         self._uses_history = any(c in HISTORY_CHANNELS for c in bundle.inputs)
         slow = SLOW_TEMPERATURES if self._uses_history or slow_temperatures else ()
-        # the vector rule: a sliding and an anchored StepCheck on the 1x vector (either may be off)
+        # the vector rule: a sliding and an anchored StepCheck on the 1x vector (either may be off);
+        # the anchored one's threshold per OC where training set one (``_switch``)
         self._vector = [StepCheck(float(thr), cfg, FS, anchored) for anchored, thr in
                         ((False, bundle.checks.get("vector_step_threshold")),
                          (True, bundle.checks.get("vector_drift_threshold"))) if thr]
+        self._drift = next((c for c in self._vector if c.anchored), None)
+        pooled = self._drift.threshold if self._drift is not None else math.inf
+        per_oc = bundle.checks.get("vector_drift_thresholds") or {}
+        self._drift_thr = [float(per_oc.get(n, pooled)) or math.inf  # 0: off in that OC
+                           for n in bundle.schedule.names]
         self._phase_ch = phase_channel(self.target)
         vector_models = any(predicts_vector(r.model) for r in bundle.ocs)
         self._uses_phase = bool(self._vector) or vector_models
@@ -200,6 +207,8 @@ class MonitorPipeline:
         prev = self._state[0]
         if oc_changed:
             self._activate(st.oc)
+            if self._drift is not None and st.oc is not None:
+                self._drift.threshold = self._drift_thr[st.oc]
         self._state = (st.oc, st.phase)
         return {"t": t, "oc": self._name(st.oc), "phase": st.phase.value, "previous": self._name(prev)}
 

@@ -17,7 +17,7 @@ Training steps the very rule objects the node runs:
 * vector (recordings with the target's phase channel): the same on the order's 1x vector,
   twice: the sliding ``StepCheck`` (an abrupt change: an added imbalance, at any angle) and
   the one anchored at each plateau's start (a slow change: a mode's stiffness drifting in),
-  each with half the rule's budget.
+  each with half the rule's budget; the anchored one also per OC (``drift_thresholds``).
 * flatline: ``FLATLINE_FACTOR`` x the longest repeat seen in training, at least
   ``FLATLINE_MIN_S``, so coarse quantisation on another test bed raises it.
 
@@ -57,6 +57,17 @@ THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
 # runs each, issue 5): 5 residual episodes in 5.2 h where a 0.25 per hour budget expects
 # 1.3, i.e. about 4 times as many. The residual rule's per-segment chance is divided by it.
 CV_UNDERCOVERAGE = 4.0
+# The anchored vector check's threshold per OC: DRIFT_OC_FACTOR x the largest peak of that OC's
+# training plateaus (OCs with DRIFT_OC_MIN_PLATEAUS or more; others keep the pooled threshold).
+# A plateau's normal drift differs much between OCs (the bow heals early in a run, the modes soften
+# with the metal near a resonance): one pooled threshold is set by the driftiest OCs and is blind
+# in the quiet ones. Chosen on development engines 41-46 (``bench stiffness-drift``, 18 stiffness
+# onsets, 60 normal held-out runs, 10.53 h), onsets the check flags within 60 s and normal plateaus
+# it flags: the pooled threshold 5 and 2; 1.5 x: 8 and 13; 2 x: 7 and 4; 2.5 x: 6 and 1; 3 x: 5
+# and 0. 2.5 is the most sensitive factor within the check's share of the false-alarm budget
+# (0.125 per hour, as ``calibrate_checks`` gives it: 1.3 plateaus in those 10.53 h).
+DRIFT_OC_FACTOR = 2.5
+DRIFT_OC_MIN_PLATEAUS = 3
 FLATLINE_MIN_S = 2.0  # a flat line shorter than this never alarms, s
 FLATLINE_FACTOR = 4.0  # limit = factor x the longest repeat in the training runs
 EULER_GAMMA = 0.5772156649
@@ -172,26 +183,30 @@ def flatline_limit(longest: int, fs: float) -> int:
 
 
 def plateau_peaks(y: np.ndarray, phase: np.ndarray, config: RuntimeConfig | None, fs: float,
-                  anchored: bool = False) -> list[float]:
-    """The peak ``StepCheck`` statistic of each steady plateau of one run long enough for it.
+                  anchored: bool = False, oc: np.ndarray | None = None) -> list[tuple[int, float]]:
+    """(OC, peak ``StepCheck`` statistic) of each steady plateau of one run long enough for it.
 
-    y: (K,) the watched values (real, or complex 1x vectors); phase: (K,) ``Phase`` codes.
+    y: (K,) the watched values (real, or complex 1x vectors); phase: (K,) ``Phase`` codes;
+    oc: (K,) OC index per sample (``OCDetector.label``; None: every plateau's OC is -1).
     """
     chk, peak = StepCheck(math.inf, config, fs, anchored), None
     full = chk.n_settle + chk.n_short + chk.n_long  # samples before the statistic exists
-    peaks: list[float] = []
-    n_steady = 0
-    for v, steady in zip(y.tolist(), (phase == Phase.STEADY.code).tolist()):
+    peaks: list[tuple[int, float]] = []
+    ocs = np.full(len(y), -1, dtype=np.int64) if oc is None else oc
+    n_steady, at = 0, -1
+    for v, steady, o in zip(y.tolist(), (phase == Phase.STEADY.code).tolist(), ocs.tolist()):
         z = chk.step(v, steady)
         if steady:
+            if peak is None:
+                at = o
             n_steady += 1
             peak = z if peak is None else max(peak, z)
         elif peak is not None:
             if n_steady >= full:  # a plateau too short for the check says nothing
-                peaks.append(peak)
+                peaks.append((at, peak))
             peak, n_steady = None, 0
     if peak is not None and n_steady >= full:
-        peaks.append(peak)
+        peaks.append((at, peak))
     return peaks
 
 
@@ -215,22 +230,22 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     """
     det = OCDetector(schedule, config, fs)
     peaks: list[float] = []
-    vector_peaks: dict[bool, list[float]] = {False: [], True: []}  # by anchored
+    vector_peaks: dict[bool, list[tuple[int, float]]] = {False: [], True: []}  # by anchored: (OC, peak)
     ph = phase_channel(target)
     with_phase = use_phase and bool(runs) and all(ph in getattr(run, "channels", ()) for run in runs)
     longest, running_s = 0, 0.0
     for run in runs:
         speed, y = run.column(schedule.switch), run.column(target)
         det.reset()
-        phase = det.label(speed)[1]  # Phase codes
+        oc, phase = det.label(speed)  # OC indices, Phase codes
         running = phase != Phase.OFF.code
         running_s += float(running.sum()) / fs
         longest = max(longest, longest_repeat(y, running))
-        peaks += plateau_peaks(y, phase, config, fs)
+        peaks += [p for _, p in plateau_peaks(y, phase, config, fs)]
         if with_phase:
             z = order_vectors(y, run.column(ph))
             for anchored, found in vector_peaks.items():
-                found += plateau_peaks(z, phase, config, fs, anchored)
+                found += plateau_peaks(z, phase, config, fs, anchored, oc)
     checks: dict = {"flatline_samples": flatline_limit(longest, fs), "longest_repeat_in_training": longest,
                     "run_scale_prior_ocs": RUN_SCALE_PRIOR_OCS}
     if len(peaks) >= 2 and running_s > 0:
@@ -240,7 +255,26 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     for anchored, found in vector_peaks.items():
         if len(found) >= 2 and running_s > 0:
             name = "vector_drift" if anchored else "vector_step"
-            checks[f"{name}_threshold"] = _budget_threshold(found, running_s, budget / 2)
-            checks[f"{name}_peaks_in_training"] = {"n": len(found), "max": max(found),
-                                                   "median": float(np.median(found))}
+            values = [p for _, p in found]
+            checks[f"{name}_threshold"] = _budget_threshold(values, running_s, budget / 2)
+            checks[f"{name}_peaks_in_training"] = {"n": len(values), "max": max(values),
+                                                   "median": float(np.median(values))}
+    if "vector_drift_threshold" in checks:
+        checks["vector_drift_thresholds"] = drift_thresholds(vector_peaks[True], schedule.names)
     return checks
+
+
+def drift_thresholds(found: Sequence[tuple[int, float]], names: Sequence[str]) -> dict[str, float]:
+    """Per OC name: ``DRIFT_OC_FACTOR`` x the largest anchored-check peak of its training
+    plateaus, for OCs with at least ``DRIFT_OC_MIN_PLATEAUS`` of them (others: none, the
+    pooled threshold holds).
+
+    >>> drift_thresholds([(0, 2.0), (0, 3.0), (0, 1.0), (1, 9.0)], ["OC1", "OC2"])
+    {'OC1': 7.5}
+    """
+    by_oc: dict[int, list[float]] = {}
+    for oc, p in found:
+        if 0 <= oc < len(names):
+            by_oc.setdefault(oc, []).append(p)
+    return {names[oc]: DRIFT_OC_FACTOR * max(v) for oc, v in sorted(by_oc.items())
+            if len(v) >= DRIFT_OC_MIN_PLATEAUS}
