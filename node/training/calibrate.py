@@ -225,8 +225,10 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     pooled, gives the step threshold for the alarm budget (per hour of running); the
     longest repeat gives the flatline limit. ``run_scale_prior_ocs`` tells the node the
     residual thresholds were calibrated with ``RunScale`` (bundles without it are run without).
-    When every run holds the target's phase channel (and ``use_phase``), the vector rule (the anchored
-    ``StepCheck`` on the 1x vector) gets its threshold the same way, with the same budget.
+    When every run holds the target's phase channel (and ``use_phase``), the vector rule's two
+    checks (the sliding and the anchored ``StepCheck`` on the 1x vector) get their thresholds the
+    same way, each with half the budget, and the anchored one also a threshold per OC
+    (``vector_drift_thresholds``, see ``drift_thresholds``).
     """
     det = OCDetector(schedule, config, fs)
     peaks: list[float] = []
