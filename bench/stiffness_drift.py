@@ -311,8 +311,7 @@ def study(works: list[Path], engines: list[int]) -> int:
         for i in (1, 2, 3):
             truth = json.loads((W / f"stiffness-{i}.truth.json").read_text())
             f = truth["runs"][-1]["fault"]
-            runs = read_runs(W / f"stiffness-{i}.mcap", CH)
-            run = runs[-1]
+            run = read_runs(W / f"stiffness-{i}.mcap", CH)[-1]
             faults.append((f, run))
             onset = f["onset"]
             res: dict[str, float] = {}
@@ -324,9 +323,9 @@ def study(works: list[Path], engines: list[int]) -> int:
                     s = stat(zr, Tr, g, noise[oc])[win].max()
                     ratio = s / nmax.get((oc, mode), np.inf)
                     res[mode] = max(res.get(mode, 0.0), float(ratio))
-            for name, k, at, sc in influence_scores(runs, sched, rule):
+            for name, _, at, sc in influence_scores([run], sched, rule):  # the fault run alone
                 win = window_mask(run, at, len(sc), onset)
-                if k == len(runs) - 1 and win.any():
+                if win.any():
                     ratio = float(sc[win].max()) / rmax.get(name, np.inf)
                     res["influence"] = max(res.get("influence", 0.0), ratio)
             size, own, where = effect(run, normal[0], sched, onset)

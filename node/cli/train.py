@@ -135,15 +135,8 @@ def resolve_targets(spec: str | None, runs: list[Run]) -> list[str]:
     return targets
 
 
-def _member_name(member: dict) -> str:
-    """An average's member in the table: a curve's variant, else its method."""
-    if member.get("method", "curve") == "curve":
-        return str(member["params"].get("variant", "fleet"))
-    return str(member["method"])
-
-
 def _hyper_parameters(params: dict) -> str:
-    """"k=v, ..."; an average of curves: each member's, "variant(k=v, ...) + ...".
+    """"k=v, ..."; an average: each member's, "name(k=v, ...) + ..." (a curve named by its variant).
 
     >>> _hyper_parameters({"levels": 3, "rcond": 1e-08})
     'levels=3, rcond=1e-08'
@@ -152,7 +145,9 @@ def _hyper_parameters(params: dict) -> str:
     'run() + wdmd(levels=2)'
     """
     if "members" in params:
-        return " + ".join(f"{_member_name(m)}("
+        from node.models.average import member_name
+
+        return " + ".join(f"{member_name(m)}("
                           f"{_hyper_parameters({k: v for k, v in m['params'].items() if k != 'variant'})})"
                           for m in params["members"])
     return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items())

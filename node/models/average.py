@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
@@ -45,11 +45,15 @@ def _method(member: Mapping) -> Method:
     return Method(member.get("method", Method.CURVE))
 
 
+def member_name(member: Mapping) -> str:
+    """One member's short name for tables: a curve's variant, else its method."""
+    return str(member["params"].get("variant", "fleet")) if _method(member) is Method.CURVE \
+        else str(_method(member))
+
+
 def member_label(params: Mapping) -> str:
-    """A short name of an average's members for tables: a curve's variant, else the method,
-    joined by '+'."""
-    return "+".join(str(m["params"].get("variant", "fleet")) if _method(m) is Method.CURVE
-                    else str(_method(m)) for m in params.get("members", []))
+    """A short name of an average's members for tables: their ``member_name`` joined by '+'."""
+    return "+".join(member_name(m) for m in params.get("members", []))
 
 
 def predicts_vector(model: object) -> bool:
@@ -60,18 +64,21 @@ def predicts_vector(model: object) -> bool:
     return isinstance(model, CurveModel) and model.variant.on_vector
 
 
-def mean_in_order(predictions: Sequence[np.ndarray]) -> np.ndarray:
-    """(p_0 + p_1 + ...) / k, summed in this order: an average's prediction from its members'
-    (K,) each (training's averaged CV pairs use it too: the same numbers to the last bit).
+_Pred = TypeVar("_Pred", float, np.ndarray)
 
-    >>> mean_in_order([np.array([1.0, 2.0]), np.array([3.0, 6.0])])
-    array([2., 4.])
+
+def mean_in_order(predictions: Sequence[_Pred]) -> _Pred:
+    """(p_0 + p_1 + ...) / k, summed in this order: an average's prediction from its members'
+    ((K,) each, or one sample's floats: the stepper's; training's averaged CV pairs use it too:
+    the same numbers to the last bit).
+
+    >>> mean_in_order([np.array([1.0, 2.0]), np.array([3.0, 6.0])]), mean_in_order([1.0, 2.0])
+    (array([2., 4.]), 1.5)
     """
     total = predictions[0]
     for p in predictions[1:]:
         total = total + p
-    out: np.ndarray = total / len(predictions)
-    return out
+    return total / len(predictions)
 
 
 def _columns(params: Mapping) -> list[list[int]]:
@@ -187,7 +194,6 @@ class AverageRuntime:
         self._cols = model.columns
         self._vec = [predicts_vector(m) for m in model.members]
         self._vec_rts = [rt for rt, v in zip(self._rts, self._vec) if v and isinstance(rt, CurveRuntime)]
-        self._k = float(len(self._rts))
         self.vector: complex = NAN_VECTOR
 
     def start(self, y_hist: np.ndarray, U_hist: np.ndarray, z_hist: np.ndarray | None = None) -> None:
@@ -200,11 +206,7 @@ class AverageRuntime:
 
     def step(self, u: Sequence[float] | np.ndarray) -> float:
         """The members' mean prediction for this sample from its raw inputs u (m,)."""
-        preds = [rt.step([u[c] for c in cols]) for rt, cols in zip(self._rts, self._cols)]
-        total = preds[0]
-        for p in preds[1:]:
-            total += p
-        pred = total / self._k
+        pred = mean_in_order([rt.step([u[c] for c in cols]) for rt, cols in zip(self._rts, self._cols)])
         self.vector = NAN_VECTOR
         if self._vec_rts:
             direction = sum((rt.vector for rt in self._vec_rts), 0j)
