@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from harness import beam as bm
-from node.cli.table import print_table
+from node.console.table import print_table
 from node.sysid import IODMD, WDMD, DelayDMD, StateSpace, eps_fd, eps_td, mac
 
 OUTPUT_NODES = [1, 7, 12, 18, 24, 30]

@@ -6,7 +6,7 @@
 
 Per simulated engine (one per seed): the first ``--train-runs`` runs train the model (the CLI's
 ``ordervib train``, cross-validation on those runs only); the next ``--normal-runs``
-are held out, fault-free, and replayed (``replay_offline``, the node's own code) to
+are held out, fault-free, and replayed (``harness.make.replay``, the node's own code) to
 count alarm episodes per hour. Then the first held-out run is simulated again with
 each fault (imbalance, stiffness, stuck-sensor, drift), ``--instances`` times with
 different onsets (``--fault-seed``), and the delay from onset to the first alarm
@@ -46,13 +46,13 @@ from pathlib import Path
 
 import numpy as np
 
+from harness import make
 from harness.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_effect, on_common_samples
-from node.cli import main as cli
-from node.cli.replay import replay_offline
 from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.mcap import Run, read_runs
 from node.models.bundle import Bundle, load_bundle
+from replay.offline import ReplayReport
 from simulator.schedule import BUILT_IN_SCHEDULE, SimSchedule, load_sim_schedule
 
 FAULTS = ("imbalance", "imbalance-90", "stiffness", "stuck-sensor", "drift")
@@ -74,9 +74,10 @@ class Setup:
         """The model's folder in an engine's work dir (with and without phase side by side)."""
         return f"model-{method}" + ("" if self.phase else "-nophase")
 
-    def argv(self) -> list[str]:
-        out = [] if self.schedule.built_in else ["--schedule", self.schedule.source]
-        return out + (["--noise-scale", repr(self.noise_scale)] if self.noise_scale != 1.0 else [])
+    def settings(self) -> dict:
+        """The simulator settings (``simulator.files.Simulation``) of this setup."""
+        return {"schedule": None if self.schedule.built_in else self.schedule.source,
+                "noise_scale": self.noise_scale}
 
     def matches(self, truth: dict | None, first: int, count: int) -> bool:
         """Whether a recording's truth JSON is this setup's, with runs first .. first + count - 1.
@@ -109,22 +110,16 @@ def _truth(rec: Path) -> dict | None:
 
 def _simulate(out: Path, runs: int, seed: int, skip: int, fault: str | None = None,
               fault_seed: int | None = None, size: float = 1.0, setup: Setup | None = None) -> dict:
-    argv = ["simulate", "--runs", str(runs), "--seed", str(seed), "--skip", str(skip),
-            "--out", str(out), "--quiet", *(setup or Setup()).argv()]
-    if fault:
-        argv += ["--fault", fault, "--fault-seed", str(fault_seed)]
-        if size != 1.0:
-            argv += ["--fault-size", repr(size)]
-    if cli(argv) != 0:
-        raise SystemExit(f"simulate failed: {argv}")
-    return json.loads(out.with_suffix(".truth.json").read_text())
+    faulty = {"fault": fault, "fault_seed": fault_seed,
+              "fault_size": size if size != 1.0 else None} if fault else {}
+    return make.simulate(out, runs=runs, seed=seed, skip=skip, **(setup or Setup()).settings(), **faulty)
 
 
 def _fault_name(fault: str, i: int, size: float) -> str:
     return f"{fault}-{i}.mcap" if size == 1.0 else f"{fault}-{i}-x{size:g}.mcap"
 
 
-def _fault_row(work: Path, seed: int, n: int, model: Path, s: dict, fault: str, i: int,
+def _fault_row(work: Path, seed: int, n: int, model: Path, s: ReplayReport, fault: str, i: int,
                size: float, bundle: Bundle, twin: Run, setup: Setup) -> tuple:
     """One fault recording (simulated unless present), replayed; its row of the table.
 
@@ -137,10 +132,10 @@ def _fault_row(work: Path, seed: int, n: int, model: Path, s: dict, fault: str, 
             or truth["runs"][-1]["fault"].get("size", 1.0) != size):
         truth = _simulate(rec, n + 1, seed, n, fault, i, size, setup)
     f = truth["runs"][-1]["fault"]
-    eps = replay_offline(str(rec), str(model), None, quiet=True)["alarm_episodes"]
+    eps = make.replay(rec, model).alarm_episodes
     # an alarm the same run raises by the same rule without the fault is not a detection
     eps = [e for e in eps if not any(n["start"] - 1.0 <= e["end"] and e["start"] <= n["end"] + 1.0
-                                     and n["reason"] == e["reason"] for n in s["alarm_episodes"])]
+                                     and n["reason"] == e["reason"] for n in s.alarm_episodes)]
     after = [e for e in eps if e["end"] >= f["onset"]]
     before = [e for e in eps if e["end"] < f["onset"]]
     first = after[0] if after else None
@@ -182,14 +177,11 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
     if not (model / "manifest.json").exists() or old != trained_on:
         print(f"[engine {seed}] training {method} on the training runs ...", flush=True)
         stamp.unlink(missing_ok=True)
-        argv = ["train", str(train), "--schedule", str(work / "train.schedule.toml"), "--out",
-                str(model), "--method", method, "--target", "yB", "--quiet",
-                *([] if setup.phase else ["--no-phase"])]
-        if cli(argv) != 0:
-            raise SystemExit(f"train failed: {argv}")
+        make.train([train], work / "train.schedule.toml", model, method=method, target="yB",
+                   phase=setup.phase)
         stamp.write_text(json.dumps(trained_on) + "\n")
-    s = replay_offline(str(normal), str(model), None, quiet=True)
-    hours = sum(b["samples"] for b in s["beds"].values()) / FS / 3600.0
+    s = make.replay(normal, model)
+    hours = sum(b["samples"] for b in s.beds.values()) / FS / 3600.0
     bundle = load_bundle(model)
     twin = read_runs(normal, [bundle.schedule.switch, bundle.target])[0]
     rows = []
@@ -199,7 +191,7 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
                 rows.append(_fault_row(work, seed, n, model, s, fault, i, size, bundle, twin, setup))
             print(f"[engine {seed}] {fault} x{size:g}: done ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
-    return rows, hours, s["alarm_episodes"]
+    return rows, hours, s.alarm_episodes
 
 
 def _sizes_of(fault: str, sizes: tuple[float, ...]) -> tuple[float, ...]:

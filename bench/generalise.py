@@ -23,8 +23,6 @@ default set) holds the others. Simulated recordings are kept in --workdir and re
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import tempfile
 import time
@@ -33,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from node.cli import main as cli
+from harness import make
+from node.contract.errors import OrdervibError
 
 SCHEDULE_B = Path(__file__).resolve().parents[1] / "harness" / "schedules" / "passoff_b.toml"
 
@@ -62,35 +61,37 @@ def simulate(e: Engine, work: Path) -> tuple[Path, Path]:
     """The engine's 8 training and 10 held-out runs (reused when already there with the order
     phases; recordings from before the phase channels are simulated again)."""
     train, test = work / f"{e.name}-train.mcap", work / f"{e.name}-test.mcap"
-    common = ["--seed", str(e.seed), "--noise-scale", str(e.noise), "--quiet"]
-    if e.schedule == "B":
-        common += ["--schedule", str(SCHEDULE_B)]
-    for rec, runs in ((train, ["--runs", "8"]), (test, ["--runs", "18", "--skip", "8"])):
+    common = {"seed": e.seed, "noise_scale": e.noise,
+              "schedule": str(SCHEDULE_B) if e.schedule == "B" else None}
+    for rec, runs in ((train, {"runs": 8}), (test, {"runs": 18, "skip": 8})):
         truth = rec.with_suffix(".truth.json")
         if rec.exists() and truth.exists() and json.loads(truth.read_text()).get("phase") is not None:
             continue
         for old in (rec, truth, rec.with_suffix(".schedule.toml")):  # this bench's own files
             old.unlink(missing_ok=True)
-        cli(["simulate", *runs, "--out", str(rec), *common])
+        make.simulate(rec, **runs, **common)
     return train, test
 
 
-def train_quietly(train: Path, schedule: Path, model: Path, extra: list[str]) -> bool:
-    """``ordervib train TRAIN --target yB`` with ``extra`` options into ``model``, its table
-    not printed; False when it failed."""
-    with contextlib.redirect_stdout(io.StringIO()):
-        return cli(["train", str(train), "--schedule", str(schedule), "--out", str(model),
-                    "--target", "yB", "--quiet", *extra]) == 0
+def train_quietly(train: Path, schedule: Path, model: Path, options: dict) -> bool:
+    """The model of TRAIN for yB with the model ``options`` into ``model``; False when it
+    failed (said in one line)."""
+    try:
+        make.train([train], schedule, model, target="yB", **options)
+    except OrdervibError as exc:
+        print(f"training failed: {exc}")
+        return False
+    return True
 
 
 def held_out(model: Path, train: Path, test: Path) -> list[tuple[str, float, str]]:
     """Per OC: (name, held-out eps_td, model kind), the history derived through the training
     runs first (as a node that ran them would have it)."""
-    from node.cli.train import load_runs
     from node.models.bundle import load_bundle
     from node.runtime.history import HISTORY_CHANNELS
     from node.training.dataset import with_history
     from node.training.evaluation import evaluate
+    from node.training.fit import load_runs
 
     b = load_bundle(model)
     tr, te = load_runs([str(train)], quiet=True), load_runs([str(test)], quiet=True)
@@ -115,9 +116,9 @@ def engine_args(name: str, default_set: str, argv: list[str] | None) -> tuple[Pa
 
 def main(argv: list[str] | None = None) -> int:
     work, set_name, engines = engine_args("generalise", "report", argv)
-    from node.cli.train import load_runs
     from node.contract.schedule import load_schedule
     from node.training.evaluation import baseline_eps
+    from node.training.fit import load_runs
 
     rows: list[tuple[str, str, float, float, float, float, str]] = []
     for e in engines:
@@ -125,8 +126,8 @@ def main(argv: list[str] | None = None) -> int:
         train, test = simulate(e, work)
         schedule = train.with_suffix(".schedule.toml")
         scores = {}
-        for name, extra in (("today", ["--no-curve-candidates", "--no-history", "--no-prom"]),
-                            ("no-phase", ["--no-phase"]), ("default", [])):
+        for name, extra in (("today", {"curves": False, "history": False, "prom": False}),
+                            ("no-phase", {"phase": False}), ("default", {})):
             model = work / f"{e.name}-{name}"
             if not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")

@@ -33,8 +33,6 @@ first. The stream is the first run of the recording from ``--offset`` seconds
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import subprocess
 import tempfile
 import time
@@ -209,7 +207,7 @@ def run_fleet(args, stream: Stream, channels: list[str], targets: list[str], tmp
 
 
 def report_fleet(f: dict, nchan: int) -> bool:
-    from node.cli.table import print_table
+    from node.console.table import print_table
     groups, served = f["groups"], f["served"]
     one_node = all(len(served[b]) == 1 and None not in served[b] for g in groups.values() for b in g)
     node_of_group = {p: {n for b in g for n in served[b]} for p, g in groups.items()}
@@ -248,7 +246,7 @@ def report_fleet(f: dict, nchan: int) -> bool:
 def report(lat: dict | None, thr: dict | None, nchan: int, gaps: int = 0) -> bool:
     """Print the latency and throughput tables; gaps: the channel values missing from one
     bed's samples when its stream goes through the node's logic offline."""
-    from node.cli.table import print_table
+    from node.console.table import print_table
     ok = True
     if lat is not None:
         z, n = lat["zenoh"], lat["node"]
@@ -330,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fleet-beds", type=int, default=40, help="beds of the fleet part (default 40)")
     ap.add_argument("--only", choices=["latency", "throughput", "fleet"])
     args = ap.parse_args(argv)
-    from node.cli import main as cli
+    from harness import make
     from node.contract import sensor_key
     from node.models.bundle import load_model
     from node.runtime.core import NodeCore
@@ -339,10 +337,9 @@ def main(argv: list[str] | None = None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-live-"))
     if not args.model:
         args.model = str(tmp / "model")
-        with contextlib.redirect_stdout(io.StringIO()):  # the training report is not the bench's
-            cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
-                 str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
-                 "--method", "lasso", "--target", "yB", "--quiet"])
+        recs = ROOT / "recordings"
+        make.train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", args.model,
+                   method="lasso", target="yB")
     model = load_model(args.model)
     needed = {c for b in model.bundles for c in MonitorPipeline(b).sensor_channels}  # what a bed publishes
     target = model.targets[0]  # the latency and throughput parts time this target's messages

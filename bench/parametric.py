@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from harness import beam as bm
-from node.cli.table import print_table
+from node.console.table import print_table
 from node.sysid import WDMD, ParametricROM, StateSpace, eps_fd, eps_td
 
 log = logging.getLogger(__name__)

@@ -335,10 +335,10 @@ def _recordings(data: Path, e: str) -> tuple[Path, Path]:
 
 def engine_segments(data: Path, e: str) -> tuple[Schedule, list[list[Seg]], list[Run], list[Run]]:
     """The schedule, per OC its segments (runs 0-7 training, 8-17 held-out), and the runs."""
-    from node.cli.train import load_runs
     from node.contract.schedule import load_schedule
     from node.runtime.history import HISTORY_CHANNELS
     from node.training.dataset import with_history
+    from node.training.fit import load_runs
     from node.training.train import oc_datasets
 
     train, test = _recordings(data, e)

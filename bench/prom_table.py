@@ -32,10 +32,10 @@ import numpy as np
 from bench.generalise import SETS, held_out, simulate, train_quietly
 
 VARIANTS = {
-    "pROM": ["--method", "prom", "--no-curve-candidates"],
-    "WDMD": ["--method", "wdmd", "--no-curve-candidates", "--no-prom"],
-    "Delay-DMD": ["--method", "delay-dmd", "--no-curve-candidates", "--no-prom"],
-    "default": [],
+    "pROM": {"method": "prom", "curves": False},
+    "WDMD": {"method": "wdmd", "curves": False, "prom": False},
+    "Delay-DMD": {"method": "delay-dmd", "curves": False, "prom": False},
+    "default": {},
 }
 
 
@@ -50,9 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--engines", default=None, help="engine names of the set, comma-separated (default: all)")
     ap.add_argument("--workdir", help="keep recordings and models here (default: a new temp folder)")
     args = ap.parse_args(argv)
-    from node.cli.train import load_runs
     from node.contract.schedule import load_schedule
     from node.training.evaluation import baseline_eps
+    from node.training.fit import load_runs
 
     work = Path(args.workdir or tempfile.mkdtemp(prefix="ordervib-prom-table-"))
     work.mkdir(parents=True, exist_ok=True)

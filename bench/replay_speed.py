@@ -36,17 +36,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model")
     ap.add_argument("--repeat", type=int, default=3, help="runs per figure, the best kept (default 3)")
     args = ap.parse_args(argv)
-    from node.cli import main as cli
-    from node.cli.replay import replay_offline
+    from harness import make
     from node.mcap import iter_messages_fast
-    from replay.offline import default_workers
+    from replay.offline import ReplayReport, default_workers
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-replay-"))
     if not args.model:
         args.model = str(tmp / "model")
-        cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
-             str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
-             "--method", "lasso", "--target", "yB", "--quiet"])
+        recs = ROOT / "recordings"
+        make.train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", args.model,
+                   method="lasso", target="yB")
 
     def read_decode() -> float:
         t0 = time.perf_counter()
@@ -54,11 +53,11 @@ def main(argv: list[str] | None = None) -> int:
             orjson.loads(m.payload)
         return time.perf_counter() - t0
 
-    summary: dict = {}
+    last: list[ReplayReport] = []
 
     def replay(out: str | None, workers: int) -> float:
-        summary.update(replay_offline(args.recording, args.model, out, True, workers))
-        return summary["seconds"]
+        last[:] = [make.replay(args.recording, args.model, out, workers)]
+        return last[0].seconds
 
     workers = default_workers()
     steps = [("read + decode (ceiling)", read_decode),
@@ -71,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         for name, run in steps:
             best[name] = min(best[name], run())
     n = sum(1 for _ in iter_messages_fast(args.recording))
-    span = sum(b["samples"] for b in summary["beds"].values()) / FS  # engine time, gaps excluded
+    span = sum(b["samples"] for b in last[0].beds.values()) / FS  # engine time, gaps excluded
     print(f"{args.recording}: {n} messages, {span:.0f} s of data; best of {args.repeat} runs each")
     print("| step | s | messages/s | x real time |")
     print("|---|---|---|---|")

@@ -41,7 +41,7 @@ from harness.rotor import (
     oc_errors,
     simulate_run,
 )
-from node.cli.table import print_table
+from node.console.table import print_table
 
 NOISE_PCT = [0, 5, 10, 15, 20, 40]
 

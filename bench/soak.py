@@ -16,8 +16,6 @@ Without ``--model`` a Lasso bundle is trained on the committed sample runs first
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import tempfile
 from pathlib import Path
 
@@ -36,15 +34,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hours", type=float, default=4.0, help="sensor data to push, h (default 4)")
     ap.add_argument("--speed", type=float, default=40.0, help="x real time (default 40)")
     args = ap.parse_args(argv)
-    from node.cli import main as cli
-    from node.cli.table import print_table
+    from harness import make
+    from node.console.table import print_table
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-soak-"))
     if not args.model:
         args.model = str(tmp / "model")
-        with contextlib.redirect_stdout(io.StringIO()):
-            cli(["train", str(ROOT / "recordings" / "engine1_runs.mcap"), "--schedule",
-                 str(ROOT / "recordings" / "engine1_runs.schedule.toml"), "--out", args.model,
-                 "--method", "lasso", "--target", "yB", "--quiet"])
+        recs = ROOT / "recordings"
+        make.train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", args.model,
+                   method="lasso", target="yB")
     r = soak(args.model, args.recording, args.hours, args.speed, tmp)
     after_warmup = [m for s, m in r.rss_mb if s >= 60.0] or [m for _, m in r.rss_mb]
     growth = after_warmup[-1] - after_warmup[0]

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from node.cli import main as cli
+from harness import make
 from node.contract import FS
 
 
@@ -33,19 +33,18 @@ def main(argv: list[str] | None = None) -> int:
                          "every fold, each fold fitted afresh) and say whether every OC's choice is "
                          "the same")
     args = ap.parse_args(argv)
-    from node.cli.train import load_runs
     from node.contract.schedule import load_schedule
     from node.training.calibrate import calibrate_checks
     from node.training.evaluation import baseline_eps, evaluate
+    from node.training.fit import load_runs
     from node.training.train import fleet_curve, history_config, train
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-bench-"))
     if not args.train:
         n = args.runs
         print(f"simulating {n} training and 3 held-out runs (seed 11) ...", flush=True)
-        cli(["simulate", "--runs", str(n), "--seed", "11", "--out", str(tmp / "train.mcap"), "--quiet"])
-        cli(["simulate", "--runs", str(n + 3), "--skip", str(n), "--seed", "11",
-             "--out", str(tmp / "test.mcap"), "--quiet"])
+        make.simulate(tmp / "train.mcap", runs=n, seed=11)
+        make.simulate(tmp / "test.mcap", runs=n + 3, skip=n, seed=11)
         args.train, args.test = str(tmp / "train.mcap"), str(tmp / "test.mcap")
         args.schedule = str(tmp / "train.schedule.toml")
     schedule = load_schedule(args.schedule)

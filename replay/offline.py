@@ -327,3 +327,21 @@ def node_alarms(recordings: list[str], model: Bundle | Model, workers: int | Non
         out.samples += samples
         out.per_file.append((rec, len(r.alarm_episodes), samples))
     return out
+
+
+def replay_model_file(recording: str, model: str, out: str | None = None, workers: int | None = None,
+                      engine_state: str | None = None,
+                      progress: Callable[[float, int], None] | None = None) -> ReplayReport:
+    """``replay`` with the model folder ``model`` and, optionally, each bed's engine history from
+    a live node's state file ``engine_state`` (read only; default: the recording's first run is
+    a cold start)."""
+    from node.models.bundle import load_model
+
+    bundle = load_model(model)
+    engines = None
+    if engine_state is not None:
+        from node.live.engine_file import load_engine_states
+        if not os.path.isfile(engine_state):
+            raise OrdervibError(f"--engine-state {engine_state}: no such file")
+        engines = load_engine_states(engine_state)
+    return replay(recording, bundle, out, workers, engines, progress)

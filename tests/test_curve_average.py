@@ -214,7 +214,7 @@ def test_the_node_runs_an_average_of_amplitude_and_vector_models_as_training_pre
     on the training runs): replay's monitor messages carry training's predictions, to the last
     bit for the curves alone (a state-space stepper folds the input scaling into its matrix:
     rounding apart), and the predicted phase is the vector member's."""
-    from node.cli.train import load_runs
+    from node.training.fit import load_runs
     from node.training.train import oc_datasets
 
     bundle = load_bundle(phased / "model")

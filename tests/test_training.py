@@ -183,7 +183,7 @@ def test_train_with_history_stores_the_cooling_and_the_node_replays_it(tmp_path,
     with open(node_out, "rb") as f:
         node = {round(json.loads(m.data)["t"], 6): json.loads(m.data)["predicted"]
                 for _, ch, m in make_reader(f).iter_messages(topics=["testbed/bed1/monitor/yB"])}
-    from node.cli.train import load_runs
+    from node.training.fit import load_runs
     preds = predict_segments(bundle.ocs, load_runs([str(rec)], quiet=True), bundle.schedule, "yB",
                              bundle.curve, bundle.config)
     pairs = [(node.get(round(float(t), 6)), p) for s in preds for t, p in zip(s.t, s.predicted)]

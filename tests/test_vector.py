@@ -162,7 +162,7 @@ def test_a_model_trained_with_phase_predicts_the_vector_in_the_node_as_in_traini
             zp = order_vectors(np.array([m["predicted"]]), np.array([m["predicted_phase"]]))[0]
             assert m["vector_residual"] == pytest.approx(abs(zm - zp), rel=1e-6, abs=1e-9)
     node = {round(m["t"], 6): m["predicted"] for m in msgs}
-    from node.cli.train import load_runs
+    from node.training.fit import load_runs
     runs = load_runs([str(phased / "train.mcap")], quiet=True)
     preds = predict_segments(bundle.ocs, runs, bundle.schedule, "yB", bundle.curve, bundle.config)
     pairs = [(node.get(round(float(t), 6)), p) for s in preds for t, p in zip(s.t, s.predicted)]

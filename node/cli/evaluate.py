@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from node.cli.outputs import check_output, replacing
-from node.cli.table import print_table
+from node.console.table import print_table
 from node.contract import OrdervibError
 
 if TYPE_CHECKING:
@@ -33,8 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.cli.train import load_runs
     from node.models.bundle import load_model
+    from node.training.fit import load_runs
     from replay.offline import node_alarms
 
     model = load_model(args.model)

@@ -9,8 +9,6 @@
   temporary file is removed and an existing output is left as it was.
 - ``replacing_dir(path)`` does the same for a directory (a model bundle).
 
-``warn_unfinished`` is the one warning every reader of a recording gives for an unfinished file.
-
 >>> import tempfile, os
 >>> d = tempfile.mkdtemp()
 >>> out = os.path.join(d, "a.txt")
@@ -31,7 +29,6 @@
 from __future__ import annotations
 
 import glob
-import logging
 import os
 import shutil
 from collections.abc import Iterable, Iterator
@@ -136,9 +133,3 @@ def replacing_dir(path: str) -> Iterator[str]:
             os.replace(old, path)
         _remove(tmp)
         _remove(old)
-
-
-def warn_unfinished(logger: logging.Logger, path: str, read: str) -> None:
-    """Say that recording ``path`` is unfinished (no footer) and what was read of it."""
-    logger.warning("%s is unfinished (no footer: its writer was stopped or killed): read %s, up to "
-                   "its last complete record; `ordervib recover` writes a finished copy", path, read)

@@ -152,7 +152,7 @@ def _fill(args: argparse.Namespace, model: Model, profile: Profile) -> InputFill
     if not paths:
         raise OrdervibError(f"the profile lacks {', '.join(lacking)}, which the model takes: add them as "
                             "columns, or give --train REC.mcap (recordings of this engine) to fill them from")
-    from node.cli.train import load_runs
+    from node.training.fit import load_runs
     runs = load_runs(paths, args.quiet)
     want = sorted({*lacking, *(c for c in SLOW_TEMPERATURES if c not in profile.channels)})
     fill = InputFill.fit(runs, model.schedule, want)
@@ -196,7 +196,7 @@ def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
     """The CSV, the plots, and the per-OC table on stdout."""
     import numpy as np
 
-    from node.cli.table import print_table
+    from node.console.table import print_table
     from node.training.prediction import write_csv
 
     with replacing(args.out) as tmp:

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import os
 from typing import Any
 
-from node.cli.outputs import check_output, replacing, warn_unfinished
+from node.cli.outputs import check_output, replacing
 from node.contract import FS
 from node.contract.errors import OrdervibError
+from node.mcap import warn_unfinished
 
 log = logging.getLogger(__name__)
 
@@ -52,17 +52,8 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
 
     workers: 1 runs the logic in a worker process, 0 in this one; None picks (see replay.offline).
     """
-    from node.models.bundle import load_model
-    from replay.offline import replay
-
-    bundle = load_model(model)
-    engines = None
-    if engine_state is not None:
-        from node.live.engine_file import load_engine_states
-        if not os.path.isfile(engine_state):
-            raise OrdervibError(f"--engine-state {engine_state}: no such file")
-        engines = load_engine_states(engine_state)
     from node.cli.logs import Progress
+    from replay.offline import replay_model_file
     bar = Progress("replay", log)
 
     def progress(fraction: float, n: int) -> None:
@@ -70,10 +61,10 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
             bar(fraction, n, "messages")
 
     if out is None:
-        r = replay(recording, bundle, None, workers, engines, progress)
+        r = replay_model_file(recording, model, None, workers, engine_state, progress)
     else:
         with replacing(out) as tmp:  # an existing output is replaced only by a complete one
-            r = replay(recording, bundle, tmp, workers, engines, progress)
+            r = replay_model_file(recording, model, tmp, workers, engine_state, progress)
     if r.truncated:
         warn_unfinished(log, recording, f"{r.inputs} sensor messages")
     summary = {"inputs": r.inputs, "published": r.published, "malformed": r.malformed,

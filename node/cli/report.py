@@ -43,9 +43,9 @@ def _targets(spec: str | None, available: list[str]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.cli.train import load_runs
     from node.mcap import open_recording
     from node.models.bundle import load_model
+    from node.training.fit import load_runs
 
     for rec in args.recordings:  # one line for a missing or non-MCAP file, before any output
         with open_recording(rec):

@@ -111,7 +111,7 @@ def infer(runs: list[Run], switch: str, tol: float, min_len: int) -> Schedule:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.cli.train import load_runs
+    from node.training.fit import load_runs
     if args.out:
         check_output(args.out, "--out", inputs=args.recordings)
     runs = load_runs(args.recordings, quiet=True)

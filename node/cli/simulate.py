@@ -13,22 +13,17 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import os
-import re
 import time
 
 from node.cli.logs import Progress
 from node.cli.outputs import check_output, replacing
-from node.contract.errors import OrdervibError
+from simulator.files import Simulation, simulate_files
 
 log = logging.getLogger(__name__)
 
 NAME = "simulate"
 HELP = "write pass-off runs of the built-in three-shaft turbofan simulator to an MCAP recording"
-
-_BED_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
-MAX_RUNS = 100
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -105,79 +100,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
-def _channels(arg: str | None, phase: bool) -> tuple[str, ...] | None:
-    from node.contract import PHASE_CHANNELS, SENSOR_CHANNELS
-
-    if arg is None:
-        return None
-    known = SENSOR_CHANNELS + (PHASE_CHANNELS if phase else ())
-    names = tuple(c.strip() for c in arg.split(",") if c.strip())
-    unknown = [c for c in names if c not in known]
-    if unknown or not names or len(set(names)) != len(names):
-        without = " (--no-phase leaves out the phases)" if not phase else ""
-        raise OrdervibError(
-            f"--channels must be distinct names among {','.join(known)}{without}, got {arg!r}"
-        )
-    return names
-
-
-def _check(args: argparse.Namespace) -> None:
-    if not 1 <= args.runs <= MAX_RUNS:
-        raise OrdervibError(f"--runs must be between 1 and {MAX_RUNS}, got {args.runs}")
-    if args.seed < 0:
-        raise OrdervibError(f"--seed must be >= 0, got {args.seed}")
-    if args.fault_seed is not None and (args.fault is None or args.fault_seed < 0):
-        raise OrdervibError("--fault-seed needs --fault and must be >= 0")
-    if args.fault_size is not None and (
-        args.fault is None or not (math.isfinite(args.fault_size) and args.fault_size > 0)
-    ):
-        raise OrdervibError("--fault-size needs --fault and must be > 0 and finite")
-    if args.fault == "stiffness" and args.fault_size is not None and args.fault_size >= 10.0:
-        raise OrdervibError(
-            f"--fault-size must be < 10 for a stiffness fault (no stiffness left), "
-            f"got {args.fault_size:g}"
-        )
-    if not _BED_RE.match(args.bed):
-        raise OrdervibError(f"--bed must be letters, digits, '_', '-' or '.', got {args.bed!r}")
-    if not 0.05 <= args.plateau_scale <= 10.0:
-        raise OrdervibError(f"--plateau-scale must be between 0.05 and 10, got {args.plateau_scale}")
-    if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
-        raise OrdervibError(f"--noise-scale must be > 0 and finite, got {args.noise_scale:g}")
-    if not 0 <= args.skip < args.runs:
-        raise OrdervibError(f"--skip must be between 0 and runs - 1, got {args.skip}")
-    inputs = [args.schedule] if args.schedule else []
-    check_output(args.out, "--out", suffix=".mcap", inputs=inputs)
+def _simulation(args: argparse.Namespace) -> Simulation:
+    return Simulation(runs=args.runs, seed=args.seed, fault=args.fault, fault_seed=args.fault_seed,
+                      fault_size=args.fault_size, schedule=args.schedule, noise_scale=args.noise_scale,
+                      bed=args.bed, plateau_scale=args.plateau_scale, skip=args.skip,
+                      channels=args.channels, phase=not args.no_phase)
 
 
 def run(args: argparse.Namespace) -> int:
-    _check(args)
-    channels = _channels(args.channels, not args.no_phase)
-    from simulator.campaign import simulate_campaign
-    from simulator.export import write_recording, write_sidecars
-    from simulator.schedule import load_sim_schedule
-
-    schedule = None if args.schedule is None else load_sim_schedule(args.schedule)
-
+    sim = _simulation(args)
+    sim.check()
+    check_output(args.out, "--out", suffix=".mcap", inputs=[args.schedule] if args.schedule else [])
     start = time.perf_counter()
-    campaign = simulate_campaign(
-        args.runs,
-        args.seed,
-        args.fault,
-        args.plateau_scale,
-        args.fault_seed,
-        fault_size=1.0 if args.fault_size is None else args.fault_size,
-        schedule=schedule,
-        noise_scale=args.noise_scale,
-        phase=not args.no_phase,
-    )
     progress = Progress(NAME, log)
     with replacing(args.out) as part:
-        count = write_recording(
-            campaign, part, args.bed, args.seed, args.skip, progress, channels=channels
-        )
-    schedule_path, truth_path = write_sidecars(
-        campaign, args.out, args.bed, args.seed, args.skip, channels
-    )
+        count, schedule_path, truth_path = simulate_files(sim, args.out, progress, part)
     log.info(
         "simulate: %d runs, %d messages -> %s (+ %s, %s) in %.1f s",
         args.runs - args.skip, count, args.out, os.path.basename(schedule_path),

@@ -18,8 +18,9 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
-from node.cli.outputs import check_output, replacing, warn_unfinished
+from node.cli.outputs import check_output, replacing
 from node.contract import OrdervibError, monitor_key, phase_channel, sensor_key
+from node.mcap import warn_unfinished
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule

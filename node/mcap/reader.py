@@ -19,6 +19,8 @@ with one line.
 
 from __future__ import annotations
 
+import hashlib
+import logging
 import mmap
 import os
 import struct
@@ -67,12 +69,14 @@ class Message(NamedTuple):
 
 @dataclass
 class ReadStats:
-    """What a read met: messages, malformed payloads skipped, an unfinished file."""
+    """What a read met: messages, malformed payloads skipped, an unfinished file; the file's
+    sha256 (hex) when the read was asked for it (``read_payloads(..., sha256=True)``)."""
 
     messages: int = 0
     malformed: int = 0
     truncated: bool = False
     unknown_topics: set[str] = field(default_factory=set)
+    sha256: str | None = None
 
 
 def _string(buf: Buffer, pos: int) -> tuple[str, int]:
@@ -247,11 +251,17 @@ def iter_messages_fast(source: Source, stats: ReadStats | None = None) -> Iterat
     return iter_messages(source, stats=stats)
 
 
-def read_payloads(source: Source, stats: ReadStats | None = None) -> dict[str, list[bytes]]:
-    """Every message payload of a recording by topic (in channel order), in file order (no decoding)."""
+def read_payloads(source: Source, stats: ReadStats | None = None, sha256: bool = False
+                  ) -> dict[str, list[bytes]]:
+    """Every message payload of a recording by topic (in channel order), in file order (no decoding).
+
+    sha256: also hash the whole file from the same mapping into ``stats.sha256`` (one read).
+    """
     stats = stats if stats is not None else ReadStats()
     sink: defaultdict[int, list[bytes]] = defaultdict(list)
     with open_recording(source) as rec:
+        if sha256:
+            stats.sha256 = hashlib.sha256(rec.buf).hexdigest()
         for channel, _, _, _, data in rec.messages(stats):
             sink[channel.id].append(data)
         out: dict[str, list[bytes]] = {}
@@ -302,3 +312,10 @@ def message_time_span(path: str) -> tuple[int, int] | None:
     if stats is None or stats.message_count == 0:
         return None
     return int(stats.message_start_time), int(stats.message_end_time)
+
+
+def warn_unfinished(logger: logging.Logger, path: str, read: str) -> None:
+    """Say that recording ``path`` is unfinished (no footer) and what was read of it: the one
+    warning every reader of a recording gives for an unfinished file."""
+    logger.warning("%s is unfinished (no footer: its writer was stopped or killed): read %s, up to "
+                   "its last complete record; `ordervib recover` writes a finished copy", path, read)

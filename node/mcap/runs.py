@@ -109,6 +109,7 @@ def read_runs(
     path: Source,
     channels: Sequence[str] | None = None,
     stats: ReadStats | None = None,
+    sha256: bool = False,
 ) -> list[Run]:
     """The pass-off runs of a recording's sensor streams, in time order.
 
@@ -117,9 +118,10 @@ def read_runs(
     below 5 % of its maximum over the file; those off samples are dropped.
     shutdown_before = first "on" sample of the run - (last "on" sample of the
     previous run + 1/40 s). Several beds in one file give separate runs.
+    sha256: also the file's hash into ``stats.sha256``, from the same read.
     """
     stats = stats if stats is not None else ReadStats()
-    by_topic = read_payloads(path, stats)
+    by_topic = read_payloads(path, stats, sha256)
     per_bed: dict[str, dict[str, list[bytes]]] = {}
     for topic, payloads in by_topic.items():
         parsed = parse_sensor_key(topic)
