@@ -20,8 +20,8 @@ Failures (README "Health and liveliness"):
 - outputs are published with Zenoh's ``CongestionControl.DROP``: a subscriber that stops
   reading loses live messages (after Zenoh's ``wait_before_drop``, 1 ms), it never stalls
   the node. With ``BLOCK`` one hung subscriber held the worker 5 s in ``put`` (Zenoh's
-  ``wait_before_close``, then it closes that link) -- the 5 s stall of issue 12 -- while
-  inputs queued up and every other subscriber waited too. The recording keeps every output;
+  ``wait_before_close``, then it closes that link) while inputs queued up and every other
+  subscriber waited too. The recording keeps every output;
 - a worker pass longer than ``STALL_S`` is logged with where its time went;
 - a worker thread that dies withdraws the node's liveliness token at once;
   ``run_node``'s watchdog notices it within ``WATCHDOG_S``, stops the node and

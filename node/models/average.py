@@ -5,7 +5,8 @@ candidates, the CV-best curves and the grid's CV-best model (a WDMD), and keeps 
 its CV eps (the members' CV predictions averaged) is lower (``node.training.train``). Models
 of different kinds err differently on a new run: the fleet curve by the run's own level, an
 anchored curve by its anchor's noise, a vector curve where the phase is noisy, a dynamic
-model where its free run drifts; their mean errs less than the best of them (issue 13).
+model where its free run drifts; their mean errs less than the best of them (study:
+docs/tuning.md#curve_average).
 
 Members may be of any kind (``node.models.kinds``), predict the amplitude or the order's 1x
 vector (a vector curve) and read different inputs: the model's inputs are their union

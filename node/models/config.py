@@ -34,7 +34,7 @@ class RuntimeConfig:
     Attributes:
         align_wait_s: newer data after which an incomplete 40 Hz slot is emitted anyway (and
             a run's first slot; complete slots go out at once). 0.25 s covers a reordering
-            of 0.2 s at any clock phases (the earlier 0.1 s left a 0.1 s one borderline).
+            of 0.2 s at any clock phases (0.1 s, format 1's value, leaves a 0.1 s one borderline).
         history_s: measured past kept to seed an OC's model at a switch.
         residual_clear_s: a residual alarm clears after this long back under its threshold.
         episode_gap_s: alarm samples of one rule less than this apart form one episode.

@@ -28,9 +28,9 @@ from node.sysid import WDMD, ParametricROM, StateSpace
 from node.sysid.memo import ContentMemo
 from node.sysid.observer import estimate_state
 
-# Matching tolerance: the per-run models of one quasi-static OC share no physical modes (real
-# poles at 0.20, 0.43, 0.69 across runs at one level, ``bench prom-engine``); the default 0.5
-# dropped every mode, so modes are paired by the assignment whatever it costs.
+# Matching tolerance: the per-run models of one quasi-static OC share no physical modes (their
+# real poles scatter across runs at one level); ``ParametricROM``'s default 0.5 drops every
+# mode, so modes are paired by the assignment whatever it costs. (study: docs/tuning.md#match_tol)
 MATCH_TOL = 10.0
 
 

@@ -30,9 +30,8 @@ from node.models.config import RuntimeConfig
 
 _NAN = float("nan")
 # Fewer messages of one bed than this go to push one by one: numpy's fixed cost per call
-# (about 100 us a batch) is more than the 1.4 us a message of ``push``. 20 beds interleaved
-# into NodeCore.handle_batch, us per message at batches of 16 / 64 / 256 / 1024 / 4096
-# messages: with 16 here 4.6 / 6.2 / 5.9 / 3.3 / 2.0, with 256 4.3 / 2.8 / 2.2 / 1.8 / 1.9.
+# (about 100 us a batch) is more than the 1.4 us a message of ``push``.
+# (study: docs/tuning.md#small_batch)
 SMALL_BATCH = 256
 
 

@@ -53,19 +53,16 @@ THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score
 # Leave-one-run-out CV over a handful of runs under-states how often a *new* run's residual
 # peaks beyond a level: its held-out run is always close to the other training runs, while
 # a new run may bring an ambient, a thermal state or an imbalance phase none of them had.
-# Measured on development engines 11-13 (bench/faults.py, 8 training + 10 normal held-out
-# runs each, issue 5): 5 residual episodes in 5.2 h where a 0.25 per hour budget expects
-# 1.3, i.e. about 4 times as many. The residual rule's per-segment chance is divided by it.
+# New runs exceed a CV-calibrated level about 4 times as often as the CV runs do; the residual
+# rule's per-segment chance is divided by it. (study: docs/tuning.md#cv_undercoverage)
 CV_UNDERCOVERAGE = 4.0
 # The anchored vector check's threshold per OC: DRIFT_OC_FACTOR x the largest peak of that OC's
 # training plateaus (OCs with DRIFT_OC_MIN_PLATEAUS or more; others keep the pooled threshold).
 # A plateau's normal drift differs much between OCs (the bow heals early in a run, the modes soften
 # with the metal near a resonance): one pooled threshold is set by the driftiest OCs and is blind
-# in the quiet ones. Chosen on development engines 41-46 (``bench stiffness-drift``, 18 stiffness
-# onsets, 60 normal held-out runs, 10.53 h), onsets the check flags within 60 s and normal plateaus
-# it flags: the pooled threshold 5 and 2; 1.5 x: 8 and 13; 2 x: 7 and 4; 2.5 x: 6 and 1; 3 x: 5
-# and 0. 2.5 is the most sensitive factor within the check's share of the false-alarm budget
-# (0.125 per hour, as ``calibrate_checks`` gives it: 1.3 plateaus in those 10.53 h).
+# in the quiet ones. 2.5 is the most sensitive factor (stiffness onsets flagged within 60 s)
+# whose normal plateaus flagged stay within the check's share of the false-alarm budget (0.125
+# per hour, as ``calibrate_checks`` gives it). (study: docs/tuning.md#drift_oc_factor)
 DRIFT_OC_FACTOR = 2.5
 DRIFT_OC_MIN_PLATEAUS = 3
 FLATLINE_MIN_S = 2.0  # a flat line shorter than this never alarms, s

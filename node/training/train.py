@@ -67,38 +67,20 @@ CURVE_CANDIDATES: list[dict] = [
     {"variant": Variant.INFLUENCE.value, "bin": 25.0, "anchor": int(10 * FS)},
 ]
 # The vector curves (the anchored curve on the 1x vector) only where every training run holds
-# the target's phase channel. Chosen on the development engines with phase (23: schedule B,
-# noise x1; 24: B, x2.5; 25: A, x2.5; WDMD, 8 training and 10 held-out runs each), mean held-out
-# eps_td: without the vector curves 0.184, 0.226, 0.286; with the two anchored on the last
-# second 0.104, 0.195, 0.239; with the two longer anchors (10 s, 60 s: the run's unbalance seen
-# over more speeds) too 0.105, 0.190, 0.227. The influence curves (the vector at each speed an
-# affine function of the vector at the switch, per bin: a linear rotor's response to the run's
-# own unbalance; anchors 1 s and 10 s; the ridge 1e-3 or 1e-2 on engines 23-25 gave the
-# same) added on all seven development engines with phase (11, 12, 21-25; 75 OCs): mean
-# held-out eps_td 0.158 without them, 0.146 with them (better on six engines, 0.190 against 0.191 on 24; OCs
-# worse than the characteristic curve by > 5 %: 1 either way).
+# the target's phase channel: a run's imbalance and bow turn its vector, not just scale it; the
+# longer anchors (10 s, 60 s) see the run's unbalance over more speeds. The influence curves: the
+# vector at each speed an affine function of the vector at the switch, per bin (a linear rotor's
+# response to the run's own unbalance). (study: docs/tuning.md#curve_candidates)
 # A state-space or regression model keeps an OC only when its CV eps is below (1 - margin) x
 # the best curve's: on new runs a free-running model's error exceeds its leave-one-run-out CV
-# error more often than a curve's does. Chosen on the development engines of ``bench
-# generalise`` (11, 12: schedule A, noise x1; 21: B, x2.5; 22: A, x2.5; 45 OCs; WDMD, 8
-# training and 10 held-out runs each), mean held-out eps_td and OCs worse than the
-# characteristic curve by > 5 %: margin 0: 0.184, 4; 0.2: 0.166, 2; 0.5: 0.165, 1; a curve
-# always (margin 1): 0.167, 1. With three more dev engines (23: B, x1; 24: B, x2.5; 25: A,
-# x2.5; 75 OCs) 0.2 led (0.189, 3 against 0.194, 2), but on the first report engines rerun
-# with 0.2 it did worse (engine 14: 0.159 against 0.144; 31: 0.219 against 0.174): 0.5 stays,
-# the default every figure of session 6 was measured with.
+# error more often than a curve's does. (study: docs/tuning.md#curve_margin)
 CURVE_MARGIN = 0.5
 
 # Where no grid or parametric model beats the curves by CURVE_MARGIN, the OC's model is the best
 # curve or the average (``node.models.average``) of the 2 or 3 best of a pool (the
 # CURVE_AVERAGE CV-best curves and the grid's CV-best model), whichever has the lowest CV eps
-# (``_best_average``). Chosen on the development engines of ``bench top-curves`` (11, 12, 21-25;
-# 8 training and 10 held-out runs each, 75 OCs), mean held-out eps_td and OCs worse than the
-# characteristic curve by > 5 %: the best curve 0.1459, 1; averages of the curves alone 0.1405,
-# 0 (of members of the best's kind only, amplitude or vector: 0.1430, 1); with the grid's best
-# in the pool 0.1366, 0, but the grid model alone (best of the pool) raised the false alarms on
-# engines 14-16 from 0.75 to 1.13 per hour; as a member only (the default) 0.1375, 0, and 0.75
-# per hour (the best subset of the pool instead of the k best: 0.1385, 1).
+# (``_best_average``): models of different kinds err differently on a new run, so their mean
+# errs less than the best of them. (study: docs/tuning.md#curve_average)
 CURVE_AVERAGE = 3
 
 # The parametric candidates of every OC's CV (``ParametricOCModel`` params, dissertation section
@@ -107,15 +89,15 @@ CURVE_AVERAGE = 3
 # (``regress``) or piecewise-linear interpolation (``linear``), or to two of them (the
 # least-squares plane); one real mode, interpolated as
 # it is (``direct``), the static gain kept; seeded on the last 10 samples (0.25 s) of past.
-# The settings are those ``bench prom-engine`` chose most often by leave-one-run-out CV on the
-# development engines 23-25 (docs/prom_engine_study.md); like the grid's models, a parametric
-# model keeps an OC only when its CV eps beats the best curve's by ``CURVE_MARGIN``.
+# The settings are those ``bench prom-engine`` chose most often by leave-one-run-out CV; like the
+# grid's models, a parametric model keeps an OC only when its CV eps beats the best curve's by
+# ``CURVE_MARGIN``. (study: docs/tuning.md#prom_candidates, docs/prom_engine_study.md)
 PROM_PARAMS = ("hist_thermal", "hist_shutdown", "hist_energy")
 PROM_CANDIDATES: list[dict] = [
     {"param": p, "levels": lv, "weights": w, "pairs": 0, "real": 1, "scheme": "direct", "seed": 10}
     for p in PROM_PARAMS for lv in (1, 2) for w in ("regress", "linear")
 ] + [  # two parameters: the least-squares plane (thin-plate interpolation through scattered
-    # runs extrapolated wildly in the study: one OC at eps_td 2e7)
+    # runs extrapolates wildly; study: docs/tuning.md#prom_candidates)
     {"param": f"{p},{q}", "levels": lv, "weights": "regress", "pairs": 0, "real": 1, "scheme": "direct",
      "seed": 10} for p, q in itertools.combinations(PROM_PARAMS, 2) for lv in (1, 2)
 ]
@@ -166,7 +148,7 @@ class OCData:
 # Leave-one-run-out CV up to MAX_FOLDS training runs; beyond, MAX_FOLDS folds of contiguous
 # runs (``run_folds``), as scikit-learn's grouped K-fold: the fits per candidate stay at
 # MAX_FOLDS whatever the runs, each on (1 - 1/MAX_FOLDS) of them (40 runs of an engine: the CV
-# of 10 folds of 4 runs; every study of the defaults used 8 runs, leave-one-run-out).
+# of 10 folds of 4 runs; 8 runs: leave-one-run-out). (study: docs/tuning.md#max_folds)
 MAX_FOLDS = 10
 
 
@@ -296,7 +278,7 @@ def _best_average(pool: list[Scored]) -> Scored:
     ``pool`` (best first, curves and at most one grid model; k = 2 .. ``CURVE_AVERAGE``), the
     one with the lowest CV eps (the smaller k on a tie): a grid model that did not beat the
     curves by ``CURVE_MARGIN`` is a member, never alone (alone its residual band, set from its
-    CV, was too narrow on new runs: engine 16's OC13 raised 2 false alarms in 10 normal runs).
+    CV, is too narrow on new runs: false alarms; study: docs/tuning.md#curve_average).
     An average's pairs are its members' held-out predictions averaged as
     ``AverageModel.predict`` averages them; of curves, that is the average's own CV to the last
     bit (each fold's average is the average of the members' fold models)."""
@@ -336,8 +318,8 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     the best model or (1 - ``CURVE_MARGIN``) x the best curve's eps); its ``cv_scores`` entry
     is then inf; and a curve's folds are made from the runs' parts (``_fold_fitter``). The
     choice, the model and its calibration are those of the full CV (prune False: every
-    candidate on every fold, each fold fitted afresh; tests); 40 runs of an engine (``bench
-    train-speed --check-full``, 10 folds): 39 s against 62 s, the same in 12 of 12 OCs.
+    candidate on every fold, each fold fitted afresh; tests; ``bench train-speed --check-full``
+    compares the two: docs/tuning.md#max_folds).
     """
     n_runs = len(set(d.runs))
     if n_runs < 2:
@@ -585,7 +567,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     them as inputs); ``runs`` are then one engine's.
 
     prune: stop a candidate's CV once it cannot be chosen, and make the curves' folds from the
-    runs' parts (``train_oc``; the same models; False: the CV as before, slower).
+    runs' parts (``train_oc``; the same models; False: the full CV, slower).
 
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
