@@ -214,7 +214,8 @@ def _budget_threshold(peaks: list[float], running_s: float, budget: float) -> fl
 
 
 def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALSE_ALARMS_PER_HOUR,
-                     fs: float = FS, config: RuntimeConfig | None = None, use_phase: bool = True) -> dict:
+                     fs: float = FS, config: RuntimeConfig | None = None, use_phase: bool = True,
+                     labels: Sequence[tuple[np.ndarray, np.ndarray]] | None = None) -> dict:
     """The model-free checks' limits from training runs (objects with ``column(name)`` (K,)).
 
     Steps the very ``StepCheck`` and OC detector the node runs (with ``config``, default
@@ -226,6 +227,9 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     checks (the sliding and the anchored ``StepCheck`` on the 1x vector) get their thresholds the
     same way, each with half the budget, and the anchored one also a threshold per OC
     (``vector_drift_thresholds``, see ``drift_thresholds``).
+
+    labels: each run's (OC index, Phase code) arrays as this detector gives them
+    (``node.training.dataset.label_runs`` with default settings); None: labelled here.
     """
     det = OCDetector(schedule, config, fs)
     peaks: list[float] = []
@@ -233,10 +237,13 @@ def calibrate_checks(runs: Sequence, schedule, target: str, budget: float = FALS
     ph = phase_channel(target)
     with_phase = use_phase and bool(runs) and all(ph in getattr(run, "channels", ()) for run in runs)
     longest, running_s = 0, 0.0
-    for run in runs:
-        speed, y = run.column(schedule.switch), run.column(target)
-        det.reset()
-        oc, phase = det.label(speed)  # OC indices, Phase codes
+    for i, run in enumerate(runs):
+        y = run.column(target)
+        if labels is None:
+            det.reset()
+            oc, phase = det.label(run.column(schedule.switch))  # OC indices, Phase codes
+        else:
+            oc, phase = labels[i]
         running = phase != Phase.OFF.code
         running_s += float(running.sum()) / fs
         longest = max(longest, longest_repeat(y, running))

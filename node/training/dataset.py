@@ -55,16 +55,29 @@ def fill_gaps(X: np.ndarray) -> np.ndarray:
     return out
 
 
-def segment_runs(runs: list[Run], schedule: Schedule, min_samples: int = 40) -> list[Segment]:
-    """Label every run with the causal OC detector and cut it into OC segments.
+Labels = tuple[np.ndarray, np.ndarray]  # a run's (K,) OC index per sample (-1: none), (K,) Phase code
 
-    Segments shorter than ``min_samples`` (1 s at 40 Hz) are dropped.
-    """
-    segs: list[Segment] = []
+
+def label_runs(runs: list[Run], schedule: Schedule) -> list[Labels]:
+    """Every run labelled by the causal OC detector (default settings, a fresh one per run), as
+    the node labels it: once per training, for the segments, run_curve and the checks alike."""
+    out: list[Labels] = []
     for r, run in enumerate(runs):
         if schedule.switch not in run.channels:
             raise OrdervibError(f"run {r} has no {schedule.switch!r} channel, needed to find the OCs")
-        oc, ph = OCDetector(schedule).label(run.column(schedule.switch))
+        out.append(OCDetector(schedule).label(run.column(schedule.switch)))
+    return out
+
+
+def segment_runs(runs: list[Run], schedule: Schedule, min_samples: int = 40,
+                 labels: list[Labels] | None = None) -> list[Segment]:
+    """Cut every run into OC segments by its labels (``label_runs``; None: labelled here).
+
+    Segments shorter than ``min_samples`` (1 s at 40 Hz) are dropped.
+    """
+    labels = label_runs(runs, schedule) if labels is None else labels
+    segs: list[Segment] = []
+    for r, (oc, ph) in enumerate(labels):
         k = 0
         K = len(oc)
         while k < K:

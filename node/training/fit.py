@@ -215,6 +215,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
     """The model of ``runs`` with the model options ``o`` (``MODEL_OPTIONS``), and per target its
     OCs' results; training's provenance is left to the caller."""
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
+    from node.training.dataset import label_runs
     from node.training.train import (
         CURVE_CANDIDATES,
         DEFAULT_GRIDS,
@@ -247,6 +248,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
     bundles: list[Bundle] = []
     trained: list[tuple[str, list[OCResult]]] = []
     use_prom = o["prom"] or method == "prom"
+    labels = label_runs(runs, schedule)  # once for every target: segments, run_curve, checks
     n_models = (_count(grid) if grid else 0) + (len(PROM_CANDIDATES) if use_prom else 0)
     for target in targets:
         log.info("training %s for %s on %d run(s), %d OCs, leave-one-run-out CV over %d model candidates "
@@ -268,14 +270,14 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
                         n_inputs=o["n_inputs"], grid=grid, workers=workers, progress=progress,
                         false_alarms_per_hour=per_rule, cv_undercoverage=under,
                         fleet=curve, curves=o["curves"], config=config, history=o["history"],
-                        phase=o["phase"], prom=use_prom)
+                        phase=o["phase"], prom=use_prom, labels=labels)
         if not any(r.model is not None for r in results) and not allow_empty:
             notes = sorted({r.note for r in results if r.note})
             which = f"target {target}: " if len(targets) > 1 else ""
             raise OrdervibError(f"{which}no OC could be trained ({'; '.join(notes) or 'no segment'}): "
                                 f"no model written (--allow-empty writes one that flags every sample "
                                 f"no-model)")
-        checks = calibrate_checks(runs, schedule, target, per_rule, use_phase=o["phase"])
+        checks = calibrate_checks(runs, schedule, target, per_rule, use_phase=o["phase"], labels=labels)
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
         bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks))
         trained.append((target, results))

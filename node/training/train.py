@@ -37,7 +37,16 @@ from node.runtime.ocdetect import OCDetector
 from node.runtime.runcurve import add_run_curve
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, peak_score, set_thresholds
-from node.training.dataset import Segment, run_arrays, segment_runs, target_vectors, time_order, with_history
+from node.training.dataset import (
+    Labels,
+    Segment,
+    label_runs,
+    run_arrays,
+    segment_runs,
+    target_vectors,
+    time_order,
+    with_history,
+)
 from node.training.features import Term, combine_terms, segment_term
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
@@ -541,8 +550,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           cv_undercoverage: float = CV_UNDERCOVERAGE,
           fleet: tuple[np.ndarray, np.ndarray] | None = None,
           config: RuntimeConfig | None = None, curves: bool = True,
-          history: bool = False, phase: bool = True, prom: bool = True, prune: bool = True
-          ) -> list[OCResult]:
+          history: bool = False, phase: bool = True, prom: bool = True, prune: bool = True,
+          labels: list[Labels] | None = None) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
@@ -569,6 +578,9 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     prune: stop a candidate's CV once it cannot be chosen, and make the curves' folds from the
     runs' parts (``train_oc``; the same models; False: the full CV, slower).
 
+    labels: each run's OC labels (``label_runs``; None: labelled here), computed once per
+    training by the caller that trains several targets.
+
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
     """
@@ -578,8 +590,9 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
         raise OrdervibError("no runs to train on")
     if any(target not in r.channels for r in runs):
         raise OrdervibError(f"target channel {target!r} is missing from some run")
+    labels = label_runs(runs, schedule) if labels is None else labels
     if fleet is not None:
-        runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
+        runs = [add_run_curve(r, schedule, target, fleet, codes) for r, (codes, _) in zip(runs, labels)]
     if history or prom:
         runs = with_history(runs, schedule, config or RuntimeConfig())
     candidates = candidate_channels(runs, target, schedule.switch)
@@ -593,7 +606,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     if len(candidates) == len(unranked):
         raise OrdervibError("no usable input channel in the recordings")
     grid = grid or DEFAULT_GRIDS[meth]
-    datas = oc_datasets(runs, schedule, target, candidates,
+    datas = oc_datasets(runs, schedule, target, candidates, segment_runs(runs, schedule, labels=labels),
                         history_s=(config or RuntimeConfig()).history_s,
                         curves=CURVE_CANDIDATES if curves else None, phase=phase,
                         proms=PROM_CANDIDATES if prom else None, unranked=unranked)
