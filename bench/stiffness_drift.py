@@ -44,11 +44,12 @@ import numpy as np
 from harness.fault_effect import on_common_samples
 from node.contract import FS, Phase
 from node.contract.schedule import Schedule, load_schedule
+from node.contract.vector import order_vectors
 from node.mcap import Run, read_runs
 from node.models.bundle import load_bundle
 from node.models.config import RuntimeConfig
 from node.models.curve import CurveModel
-from node.models.ocmodel import Method, Trajectory, order_vectors
+from node.models.ocmodel import Method, Trajectory
 from node.models.result import EWMA_ALPHA
 from node.runtime.alarms import StepCheck
 from node.runtime.ocdetect import OCDetector

@@ -32,10 +32,10 @@ from typing import Any
 import numpy as np
 import orjson
 
-from node.contract import FS, OrdervibError, is_monitor_key
+from node.contract import FS, OrdervibError, is_monitor_key, log_time_ns
 from node.mcap import ReadStats, RecordingWriter, iter_messages_fast, message_time_span
 from node.models.bundle import Bundle, Model
-from node.runtime.core import NodeCore
+from node.runtime.core import NodeCore, recording_order
 
 BATCH = 4096  # messages per batch
 IN_FLIGHT = 2  # batches handed to the worker and not yet written
@@ -70,7 +70,7 @@ class _Logic:
     def _outputs(self, outs) -> list[Encoded]:
         if not self.encode:
             return []
-        return [(key, round(msg["t"] * 1e9), orjson.dumps(msg)) for key, msg in outs]
+        return [(key, log_time_ns(msg["t"]), orjson.dumps(msg)) for key, msg in outs]
 
     def batch(self, keys, payloads) -> list[tuple[int, list[Encoded]]]:
         return [(i, self._outputs(outs)) for i, outs in self.core.handle_batch(keys, payloads).done]
@@ -183,22 +183,18 @@ def default_workers() -> int:
 def _write_batch(writer: RecordingWriter, columns: tuple[list, np.ndarray, np.ndarray, list],
                  done: list[tuple[int, list[Encoded]]]) -> None:
     """The batch's inputs (keys, log times, publish times, payloads), each completing input
-    followed by its monitor messages (published when that input arrived)."""
+    followed by its monitor messages (published when that input arrived): ``recording_order``."""
     keys, logs, pubs, payloads = columns
     if done:
         k, pl, after, out_logs = [], [], [], []
-        prev = 0
-        for i, outs in done:
-            k += keys[prev:i + 1]
-            pl += payloads[prev:i + 1]
+        for start, stop, outs in recording_order(len(keys), done):
+            k += keys[start:stop]
+            pl += payloads[start:stop]
             for key, log, data in outs:
                 k.append(key)
                 pl.append(data)
-                after.append(i)
+                after.append(stop - 1)
                 out_logs.append(log)
-            prev = i + 1
-        k += keys[prev:]
-        pl += payloads[prev:]
         at = np.array(after, dtype=np.int64)
         keys, payloads = k, pl
         logs, pubs = np.insert(logs, at + 1, out_logs), np.insert(pubs, at + 1, logs[at])

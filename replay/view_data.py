@@ -39,6 +39,7 @@ from node.contract import (
     topic_kind,
 )
 from node.contract.schedule import Schedule
+from node.contract.vector import order_vectors, wrap_degrees
 from node.mcap import ReadStats, read_payloads
 from node.runtime.ocdetect import OCDetector
 
@@ -159,7 +160,7 @@ class Vectors:
     t: s since the epoch; speed: the switch speed (rpm) at t; run: run number (0-based, runs
     split by gaps >= RUN_GAP in the speed); amplitude (target unit) and phase (degrees lag from
     the once-per-rev mark, in [-180, 180)) measured, predicted_amplitude and predicted_phase the
-    model's; NaN where none. The vector is ``vector(amplitude, phase)``.
+    model's; NaN where none. The vector is ``order_vectors(amplitude, phase)``.
     """
 
     t: np.ndarray
@@ -172,11 +173,11 @@ class Vectors:
 
     def measured(self) -> np.ndarray:
         """The measured 1x vector, complex (N,), NaN where amplitude or phase is missing."""
-        return vector(self.amplitude, self.phase)
+        return order_vectors(self.amplitude, self.phase)
 
     def predicted(self) -> np.ndarray:
         """The predicted 1x vector, complex (N,), NaN where the model gives none."""
-        return vector(self.predicted_amplitude, self.predicted_phase)
+        return order_vectors(self.predicted_amplitude, self.predicted_phase)
 
     def has_predicted(self) -> bool:
         """Whether any predicted vector is there."""
@@ -186,27 +187,6 @@ class Vectors:
         """Lowest and highest speed (rpm) of the samples with a vector, measured or predicted."""
         ok = np.isfinite(self.measured()) | np.isfinite(self.predicted())
         return float(np.nanmin(self.speed[ok])), float(np.nanmax(self.speed[ok]))
-
-
-def vector(amplitude: np.ndarray, phase: np.ndarray) -> np.ndarray:
-    """The 1x vector amplitude * exp(-1j * radians(phase)): complex, the shape of the inputs.
-
-    A phase lag turns the vector clockwise: 90 degrees points it down (-Im).
-
-    >>> vector(np.array([2.0, 1.0]), np.array([90.0, -180.0])).round(9).tolist()
-    [-2j, (-1+0j)]
-    """
-    return np.asarray(amplitude, dtype=float) * np.exp(-1j * np.radians(phase))
-
-
-def wrap_degrees(x: np.ndarray) -> np.ndarray:
-    """Angles (degrees) wrapped into [-180, 180), the shape of x.
-
-    >>> wrap_degrees(np.array([180.0, 190.0, -190.5, 359.0])).tolist()
-    [-180.0, -170.0, 169.5, -1.0]
-    """
-    out = np.mod(np.asarray(x, dtype=float) + 180.0, 360.0) - 180.0
-    return np.where(out >= 180.0, out - 360.0, out)  # np.mod gives 360 for tiny negative inputs
 
 
 # ----------------------------------------------------------------------------- decoding
@@ -382,7 +362,7 @@ def vectors_of(data: ViewData) -> Vectors | None:
         pamp = pphase = np.full(len(t), np.nan)
     else:
         return None
-    if not np.isfinite(np.concatenate([vector(amp, phase), vector(pamp, pphase)])).any() or \
+    if not np.isfinite(np.concatenate([order_vectors(amp, phase), order_vectors(pamp, pphase)])).any() or \
             not np.isfinite(data.speed.v).any():
         return None
     gap_ends = data.speed.t[np.flatnonzero(np.diff(data.speed.t) >= RUN_GAP) + 1]

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from node.contract import ORDER_CHANNELS, PHASE_CHANNELS, SENSOR_CHANNELS, phase_channel
+from node.contract.vector import wrap_degrees
 from simulator import gaspath, rotor, thermal
 from simulator.engine import SHAFTS, Engine, build_engine
 from simulator.schedule import (
@@ -175,7 +176,7 @@ def _measure_phase(
     for j, name in enumerate(ORDER_CHANNELS):
         amp = clean[name]
         noisy = clean[phase_channel(name)] + rng.standard_normal(k) * phase_sigma(amp, noise_scale)
-        col = np.round(rotor.wrap_degrees(noisy), PHASE_DECIMALS)
+        col = np.round(wrap_degrees(noisy), PHASE_DECIMALS)
         col[col >= 180.0] = -180.0  # rounded up to the bound: the same angle
         col[amp < PHASE_MIN_AMPLITUDE] = np.nan
         data[:, j] = col

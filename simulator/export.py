@@ -16,7 +16,7 @@ from collections.abc import Callable
 import numpy as np
 import orjson
 
-from node.contract import FS, PHASE_CHANNELS, is_phase_channel, sensor_key
+from node.contract import FS, PHASE_CHANNELS, is_phase_channel, log_times_ns, sensor_key
 from node.mcap import RecordingWriter
 from simulator.campaign import (
     NOISE,
@@ -68,7 +68,7 @@ def run_messages(
     scan = first + np.arange(c)
     latency = LATENCY_BASE + LATENCY_SCAN * scan + rng.exponential(LATENCY_TAIL, (k, c))
     res = LATENCY_RESOLUTION_NS
-    publish = np.rint(t * 1e9).astype(np.int64) + np.rint(latency * 1e9 / res).astype(np.int64) * res
+    publish = log_times_ns(t) + np.rint(latency * 1e9 / res).astype(np.int64) * res
     order = np.argsort(publish, axis=None, kind="stable")
     col = np.broadcast_to(scan, (k, c)).ravel()[order]
     return col, t.ravel()[order], data.ravel()[order], publish.ravel()[order]

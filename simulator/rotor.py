@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from node.contract.vector import wrap_degrees
 from simulator.lag import lag
 
 T_REF = 15.0  # metal temperature at which the modes have their cold frequency, °C
@@ -113,14 +114,3 @@ def tracked_phase(total: np.ndarray) -> np.ndarray:
     np.float64(60.0)
     """
     return wrap_degrees(-np.degrees(np.angle(lag(total, TAU_TRACKER, 0.0))))
-
-
-def wrap_degrees(x: np.ndarray) -> np.ndarray:
-    """Angles (degrees) wrapped into [-180, 180), any shape.
-
-    >>> wrap_degrees(np.array([180.0, -180.0, 190.0, -190.5, 359.0]))
-    array([-180. , -180. , -170. ,  169.5,   -1. ])
-    """
-    out = np.mod(np.asarray(x, dtype=float) + 180.0, 360.0) - 180.0
-    return np.where(out >= 180.0, out - 360.0, out)  # np.mod gives 360 for tiny negative inputs
-

@@ -10,9 +10,9 @@ import pytest
 
 from node.contract import FS, Phase
 from node.contract.errors import OrdervibError
+from node.contract.vector import order_vectors
 from node.mcap import Run, read_runs
 from node.models.bundle import Bundle, load_bundle, save_bundle
-from node.models.ocmodel import order_vectors
 from node.runtime.alarms import StepCheck
 from node.runtime.align import AlignedSample
 from node.runtime.ocdetect import OCDetector

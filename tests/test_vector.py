@@ -12,9 +12,10 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from node.cli import main
+from node.contract.vector import order_vectors
 from node.models.bundle import load_bundle
 from node.models.curve import CurveModel
-from node.models.ocmodel import Method, Trajectory, order_vectors
+from node.models.ocmodel import Method, Trajectory
 from node.runtime.alarms import StepCheck
 from node.training.evaluation import predict_segments
 
@@ -189,7 +190,7 @@ def test_no_phase_trains_an_amplitude_only_model_whose_messages_have_no_vector_f
 def test_a_huge_finite_value_neither_raises_nor_stops_the_checks():
     """1e300 passes the payload rule (finite); squaring it with ** would raise OverflowError.
     The check goes on, and on the next plateau it finds a step as before."""
-    from node.runtime.pipeline import order_vector
+    from node.contract.vector import order_vector
     rng = np.random.default_rng(3)
     for huge in (1e300, complex(1e300, -1e300)):
         chk = StepCheck(threshold=8.0)

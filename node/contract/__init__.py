@@ -3,7 +3,9 @@
 Imports nothing else from the project. Keys and channels (``keys``), the sensor
 payload rule (``payload``), the published messages and their JSON Schemas
 (``messages``), the pass-off schedule file (``schedule``) and the one-line error
-every command ends with (``errors``).
+every command ends with (``errors``). Imported by their module's path: the 1x vector
+and phase-lag rule (``vector``), the 40 Hz slot rule (``slotting``) and the project's
+own JSON files (``documents``).
 """
 
 from node.contract.errors import OrdervibError

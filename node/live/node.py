@@ -58,7 +58,7 @@ from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle, Model
-from node.runtime.core import NodeCore
+from node.runtime.core import NodeCore, recording_order
 
 log = logging.getLogger(__name__)
 
@@ -208,7 +208,8 @@ class LiveNode:
         return bed
 
     def _handle(self, batch: list[tuple[str, bytes, int]]) -> None:
-        """One batch: each input recorded, then the outputs it completed published and recorded."""
+        """One batch: each input recorded, then the outputs it completed published and recorded
+        (``recording_order``)."""
         keys, payloads, recv = zip(*batch, strict=True)
         self.stats.received += len(batch)
         for key, r in dict(zip(keys, recv, strict=True)).items():  # each key's newest receipt
@@ -220,13 +221,12 @@ class LiveNode:
         self._spent["core"] += time.perf_counter() - t0
         # each input's log time (ns) as log_time_ns takes it; a malformed one at its receive time
         log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
-        start = 0
-        for i, outs in [*result.done, (len(batch) - 1, [])]:
-            if i >= start:  # the inputs up to the one that completed these outputs
-                self._record_many(zip(keys[start:i + 1], log_ns[start:i + 1], recv[start:i + 1],
-                                      payloads[start:i + 1]), i + 1 - start)
-            start = i + 1
+        for start, stop, outs in recording_order(len(batch), result.done):
+            if stop > start:  # the inputs up to the one that completed these outputs
+                self._record_many(zip(keys[start:stop], log_ns[start:stop], recv[start:stop],
+                                      payloads[start:stop]), stop - start)
             if outs:
+                i = stop - 1
                 for key, msg in outs:
                     self._publish(key, msg)
                 lag = (time.time_ns() - recv[i]) / 1e6

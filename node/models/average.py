@@ -23,8 +23,9 @@ from typing import ClassVar, TypeVar
 
 import numpy as np
 
+from node.contract.vector import NAN_VECTOR
 from node.models.curve import CurveModel, CurveRuntime
-from node.models.ocmodel import NAN_VECTOR, Method, OCModel, OCRuntime, Trajectory
+from node.models.ocmodel import Method, OCModel, OCRuntime, Trajectory
 
 
 def average_params(members: Sequence[tuple[str, dict, Sequence[str]]]) -> dict:

@@ -27,6 +27,7 @@ from typing import ClassVar
 import numpy as np
 
 from node.contract import FS
+from node.contract.vector import NAN_VECTOR
 from node.models.ocmodel import Method, Trajectory, _readonly
 
 
@@ -383,7 +384,7 @@ def _levels(traj: Trajectory, vector: bool) -> np.ndarray:
     if not vector:
         return traj.y
     if traj.z is None:  # no phase recorded: as the node without it, no anchor
-        return np.full(traj.y.shape, complex(np.nan, np.nan))
+        return np.full(traj.y.shape, NAN_VECTOR)
     return traj.z
 
 

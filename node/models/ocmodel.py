@@ -24,8 +24,6 @@ by the seeded state and not pulled towards the training runs' mean.
 
 from __future__ import annotations
 
-import cmath
-import math
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -93,40 +91,6 @@ class Trajectory:
         if form is InputForm.ABSOLUTE:
             return self
         return Trajectory(self.y, self.U - self.reference(), self.start, self.z)
-
-
-NAN_VECTOR = complex(math.nan, math.nan)  # the 1x vector of a sample without amplitude or phase
-
-
-def order_vector(amplitude: float, phase_deg: float) -> complex:
-    """An order's 1x vector from its amplitude and phase lag (degrees): A exp(-j phase); NaN if either is.
-
-    >>> order_vector(2.0, 90.0)
-    (1.2246467991473532e-16-2j)
-    """
-    if not math.isfinite(phase_deg):  # (math.cos raises on inf; the payload rule lets none through)
-        return NAN_VECTOR
-    rad = math.radians(phase_deg)
-    return amplitude * complex(math.cos(rad), -math.sin(rad))
-
-
-def lag_degrees(v: complex) -> float:
-    """The phase lag (degrees, in [-180, 180)) of a 1x vector A exp(-j phase); NaN for NaN or 0."""
-    if not (cmath.isfinite(v) and v != 0):
-        return math.nan
-    lag = -math.degrees(cmath.phase(v))
-    return lag - 360.0 if lag >= 180.0 else lag
-
-
-def order_vectors(amplitude: np.ndarray, phase_deg: np.ndarray) -> np.ndarray:
-    """(K,) complex 1x vectors A exp(-j phase) (the phase a lag: ``Trajectory.z``); NaN where either is.
-
-    >>> order_vectors(np.array([2.0, 1.0]), np.array([90.0, np.nan])).round(12)
-    array([ 0. -2.j, nan+nanj])
-    """
-    rad = np.radians(phase_deg)
-    out: np.ndarray = amplitude * (np.cos(rad) - 1j * np.sin(rad))
-    return np.where(np.isfinite(out), out, complex(np.nan, np.nan))
 
 
 @dataclass(frozen=True, eq=False)

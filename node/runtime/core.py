@@ -9,14 +9,14 @@ pipeline: the targets share schedule and settings, so their detectors agree); it
 each message's decoded time and the monitor messages each message completed. ``handle`` is
 a batch of one. Malformed payloads are counted (per bed) and skipped; keys that are no
 sensor keys are counted (node-wide) and ignored, so are channels no model needs. The live node and offline
-replay both drive this class, through ``handle_batch``.
+replay both drive this class, through ``handle_batch``, and record what it did in ``recording_order``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 
@@ -35,6 +35,31 @@ class Batch(NamedTuple):
 
     t: np.ndarray  # (n,) each payload's sensor time, s; NaN where malformed
     done: list[tuple[int, list[Output]]]  # (i, outputs) of each message i that completed outputs
+
+
+Out = TypeVar("Out")  # what a message completed: outputs, or their encoded form
+
+
+def recording_order(n: int, done: Iterable[tuple[int, Sequence[Out]]]
+                    ) -> Iterator[tuple[int, int, Sequence[Out]]]:
+    """The order in which a node records a batch of n messages and what they completed: steps
+    (start, stop, outputs), the messages [start, stop) and then the outputs message stop - 1
+    completed (none in a last step of the messages after the last that completed any).
+
+    done: (i, outputs) in message order, as ``Batch.done``. The live node and offline replay
+    both write their recordings in this order, so they write the same bytes.
+
+    >>> list(recording_order(5, [(1, ["a", "b"]), (3, ["c"])]))
+    [(0, 2, ['a', 'b']), (2, 4, ['c']), (4, 5, ())]
+    >>> list(recording_order(2, [(1, ["a"])]))
+    [(0, 2, ['a'])]
+    """
+    start = 0
+    for i, outs in done:
+        yield start, i + 1, outs
+        start = i + 1
+    if start < n:
+        yield start, n, ()
 
 
 @dataclass

@@ -29,16 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from node.contract import FS, Flag, Phase, Reason, phase_channel
+from node.contract.vector import NAN_VECTOR, lag_degrees, order_vector, order_vectors
 from node.models.average import AverageRuntime, predicts_vector
 from node.models.bundle import Bundle
 from node.models.curve import CurveRuntime
-from node.models.ocmodel import (
-    NAN_VECTOR,
-    OCRuntime,
-    lag_degrees,
-    order_vector,
-    order_vectors,
-)
+from node.models.ocmodel import OCRuntime
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker

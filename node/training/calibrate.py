@@ -39,8 +39,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from node.contract import FS, Phase, phase_channel
+from node.contract.vector import order_vectors
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import order_vectors
 from node.models.result import Calibration, OCResult
 from node.runtime.alarms import RUN_SCALE_PRIOR_OCS, ResidualCheck, RunScale, StepCheck
 from node.runtime.ocdetect import OCDetector

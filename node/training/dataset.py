@@ -15,9 +15,9 @@ import numpy as np
 from node.contract import Phase, phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
+from node.contract.vector import order_vectors
 from node.mcap import Run
 from node.models.config import RuntimeConfig
-from node.models.ocmodel import order_vectors
 from node.runtime.history import add_history
 from node.runtime.ocdetect import OCDetector
 
