@@ -50,8 +50,8 @@ from harness import make
 from harness.fault_effect import SMOOTH_S, FaultEffect, band_per_sample, fault_effect, on_common_samples
 from node.contract import FS
 from node.contract.errors import OrdervibError
-from node.mcap import Run, read_runs
 from node.models.bundle import Bundle, load_bundle
+from node.training.runs import Run, read_runs
 from replay.offline import ReplayReport
 from simulator.schedule import BUILT_IN_SCHEDULE, SimSchedule, load_sim_schedule
 

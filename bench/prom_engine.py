@@ -50,7 +50,6 @@ import numpy as np
 
 from node.contract import FS
 from node.contract.schedule import Schedule
-from node.mcap import Run
 from node.models.config import RuntimeConfig
 from node.models.curve import CurveModel, Variant
 from node.models.ocmodel import (
@@ -64,6 +63,7 @@ from node.sysid import WDMD, ParametricROM, StateSpace
 from node.sysid.metrics import pooled_eps
 from node.sysid.observer import estimate_state
 from node.sysid.parametric import ParametricModel
+from node.training.runs import Run
 from node.training.train import CURVE_CANDIDATES
 
 log = logging.getLogger(__name__)

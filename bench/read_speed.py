@@ -15,7 +15,8 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from node.mcap import ReadStats, read_runs
+from node.mcap import ReadStats
+from node.training.runs import read_runs
 
 DEFAULT = Path(__file__).resolve().parent.parent / "recordings" / "engine1_runs.mcap"
 

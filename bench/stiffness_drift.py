@@ -45,7 +45,6 @@ from harness.fault_effect import on_common_samples
 from node.contract import FS, Phase
 from node.contract.schedule import Schedule, load_schedule
 from node.contract.vector import order_vectors
-from node.mcap import Run, read_runs
 from node.models.bundle import load_bundle
 from node.models.config import RuntimeConfig
 from node.models.curve import CurveModel
@@ -55,6 +54,7 @@ from node.runtime.alarms import StepCheck
 from node.runtime.ocdetect import OCDetector
 from node.training.calibrate import DRIFT_OC_FACTOR, drift_thresholds, plateau_peaks
 from node.training.dataset import fill_gaps, target_vectors
+from node.training.runs import Run, read_runs
 from node.training.train import OCData, oc_datasets
 
 TEMPS = ["tF", "tI", "tH"]

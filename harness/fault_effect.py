@@ -18,9 +18,9 @@ import numpy as np
 
 from node.contract import FS
 from node.contract.schedule import Schedule
-from node.mcap import Run
 from node.models.bundle import Bundle
 from node.runtime.ocdetect import OCDetector
+from node.training.runs import Run
 
 SMOOTH_S = 2.0  # the effect is averaged over this window (s) before it is set against the band
 

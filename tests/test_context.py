@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from node.contract.schedule import load_schedule
-from node.mcap import read_runs
 from node.training.context import (
     NIGPrior,
     batch_means_se,
@@ -18,6 +17,7 @@ from node.training.context import (
     nig_posterior,
     out_of_order,
 )
+from node.training.runs import read_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = ROOT / "recordings" / "engine1_runs.mcap"
@@ -81,7 +81,7 @@ def test_clusters_follow_one_another_in_time_within_an_oc():
     # the figures of panel I draw them (3 panels per OC; mu and sigma per OC)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from replay.context_plots import fig_context_clusters, fig_context_timeline, fig_context_violins
+    from replay.views.context_plots import fig_context_clusters, fig_context_timeline, fig_context_violins
     fig = fig_context_clusters(ctx[:2])
     assert len(fig.axes) == 6 and fig.axes[0].get_title(loc="left").startswith("OC2a")
     FigureCanvasAgg(fig).draw()

@@ -11,13 +11,13 @@ import pytest
 from node.contract import FS, Phase
 from node.contract.errors import OrdervibError
 from node.contract.vector import order_vectors
-from node.mcap import Run, read_runs
 from node.models.bundle import Bundle, load_bundle, save_bundle
 from node.runtime.alarms import StepCheck
 from node.runtime.align import AlignedSample
 from node.runtime.ocdetect import OCDetector
 from node.runtime.pipeline import MonitorPipeline
 from node.training.calibrate import DRIFT_OC_FACTOR, DRIFT_OC_MIN_PLATEAUS
+from node.training.runs import Run, read_runs
 
 
 def _plateau_peaks_by_hand(run: Run, bundle: Bundle) -> list[tuple[str, float]]:

@@ -7,7 +7,7 @@ import pytest
 
 from harness.fault_effect import SMOOTH_S, fault_effect
 from node.contract import FS, SENSOR_CHANNELS
-from node.mcap import Run
+from node.training.runs import Run
 from simulator.campaign import DRIFT_RATE, simulate_campaign
 
 

@@ -10,7 +10,6 @@ import orjson
 import pytest
 
 from node.contract.schedule import OperatingCondition, Schedule
-from node.mcap import Run
 from node.models.bundle import Bundle
 from node.models.config import RuntimeConfig
 from node.models.ocmodel import InputScaling, RegressionModel
@@ -25,6 +24,7 @@ from node.runtime.history import (
     estimate_cooling,
 )
 from node.training.dataset import with_history
+from node.training.runs import Run
 
 FS = 40.0
 SLOW = (100.0, 200.0, 30.0)

@@ -16,10 +16,10 @@ from hypothesis import strategies as st
 
 from node.contract import FS, RUN_GAP, decode_samples, parse_sensor_key, sensor_key
 from node.contract.slotting import ChannelPhase
-from node.mcap import read_runs
 from node.mcap.writer import RecordingWriter
 from node.models.config import RuntimeConfig
 from node.runtime.align import AlignedSample, Aligner
+from node.training.runs import read_runs
 
 pytestmark = pytest.mark.usefixtures("numpy_path_from_16_messages")
 

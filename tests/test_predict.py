@@ -11,7 +11,6 @@ import pytest
 
 from node.cli import main
 from node.contract import OrdervibError
-from node.mcap import read_runs
 from node.models.bundle import load_model
 from node.runtime.history import HISTORY_CHANNELS
 from node.training.prediction import (
@@ -22,6 +21,7 @@ from node.training.prediction import (
     schedule_profile,
     stated_history,
 )
+from node.training.runs import read_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = ROOT / "recordings" / "engine1_runs.mcap"
@@ -150,7 +150,7 @@ def test_held_out_run_predicted_from_its_own_profile_against_its_measurement(mod
     np.testing.assert_array_equal(chained.measured[:, 0], run.column("yB"))
     p = chained.prediction
     assert p.filled == () and p.t.size == run.t.size and set(p.oc.tolist()) == set(range(-1, 12))
-    from replay.prediction_plots import fig_prediction
+    from replay.views.prediction_plots import fig_prediction
     fig = fig_prediction(chained)  # panel IV: speed, then measured and predicted yB with eps in the title
     assert len(fig.axes) == 2 and "eps_td" in fig.axes[1].get_title(loc="left")
     # a stated shutdown reaches the history channels the node derives

@@ -8,10 +8,10 @@ import orjson
 import pytest
 
 from node.contract import FS
-from node.mcap import Run
 from node.models.kinds import model_from_arrays
 from node.models.ocmodel import Trajectory
 from node.models.prom import ParametricOCModel
+from node.training.runs import Run
 from node.training.train import CURVE_CANDIDATES, PROM_CANDIDATES, OCData, train_oc
 
 HIST = 100  # samples of past before each OC

@@ -13,7 +13,8 @@ from mcap.reader import make_reader
 from node.cli import main
 from node.contract import log_time_ns, parse_sensor_key, sensor_key
 from node.contract.errors import OrdervibError
-from node.mcap import ReadStats, RecordingWriter, iter_messages, read_payloads, read_runs
+from node.mcap import ReadStats, RecordingWriter, iter_messages, read_payloads
+from node.training.runs import read_runs
 
 T0 = 1767600000.0
 

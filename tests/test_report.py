@@ -157,8 +157,8 @@ def test_several_targets_give_a_part_per_target_in_every_panel(made: tuple[Path,
     panel holds a part per target, in the order asked."""
     import dataclasses
 
-    from node.training.fit import load_runs
     from node.models.bundle import Model, load_bundle
+    from node.training.fit import load_runs
     from replay.offline import NodeAlarms
     from replay.report.build import build_report
     from replay.report.panels import RunSet
@@ -188,10 +188,10 @@ def test_the_node_carries_the_engine_history_from_one_recording_to_the_next(made
     import numpy as np
     from mcap.reader import make_reader
 
-    from node.training.fit import load_runs
     from node.contract import monitor_key
     from node.models.bundle import load_model
     from node.training.evaluation import predict_segments
+    from node.training.fit import load_runs
     from replay.offline import node_alarms, replay
 
     d, _ = made

@@ -9,12 +9,12 @@ import orjson
 import pytest
 
 from node.contract.schedule import OperatingCondition, Schedule
-from node.mcap import Run
 from node.models.bundle import Bundle
 from node.models.ocmodel import InputScaling, RegressionModel
 from node.models.result import Calibration, OCResult
 from node.runtime.core import NodeCore
 from node.runtime.runcurve import RUN_CURVE, RunCurve, add_run_curve
+from node.training.runs import Run
 
 FLEET = (np.array([0.0, 10000.0]), np.array([1.0, 1.0]))  # the fleet says 1.0 everywhere
 

@@ -14,7 +14,7 @@ from mcap.reader import NonSeekingReader, make_reader
 
 from node.cli import main
 from node.contract import ORDER_CHANNELS, PHASE_CHANNELS, SENSOR_CHANNELS
-from node.mcap import read_runs
+from node.training.runs import read_runs
 from simulator.campaign import simulate_campaign
 
 KEY = re.compile(r"^testbed/([^/]+)/sensor/([^/]+)$")
@@ -447,7 +447,7 @@ def test_bench_faults_compares_twinson_common_samples() -> None:
     (read_runs trims off samples against each file's top speed); the twins are compared on the
     samples both hold, and runs that are not twins are left for fault_effect to refuse."""
     from harness.fault_effect import on_common_samples
-    from node.mcap import Run
+    from node.training.runs import Run
 
     t = 1000.0 + 0.025 * np.arange(400)
     data = np.arange(800.0).reshape(400, 2)

@@ -12,9 +12,9 @@ from node.cli import main
 from node.contract import SENSOR_CHANNELS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import OperatingCondition, Schedule
-from node.mcap import Run
 from node.models.bundle import Bundle, load_bundle, save_bundle
 from node.training.evaluation import predict_segments
+from node.training.runs import Run
 from node.training.train import train
 from simulator.campaign import simulate_campaign
 

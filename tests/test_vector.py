@@ -211,9 +211,9 @@ def test_a_huge_finite_value_neither_raises_nor_stops_the_checks():
 def test_extreme_values_on_any_channel_never_stop_a_phase_pipeline(phased: Path, hits: list) -> None:
     """Finite extremes pass the payload rule: every sample still gets its monitor message."""
     from node.contract import Flag
-    from node.mcap import read_runs
     from node.runtime.align import AlignedSample
     from node.runtime.pipeline import MonitorPipeline
+    from node.training.runs import read_runs
     bundle = load_bundle(phased / "model")
     run = read_runs(phased / "train.mcap")[1]
     pipe = MonitorPipeline(bundle)

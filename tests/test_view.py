@@ -14,7 +14,7 @@ import pytest
 from node.cli import main
 from node.contract import log_time_ns, sensor_key
 from node.mcap import RecordingWriter
-from replay.rerun_view import GAP_SHOWN, Clock
+from replay.views.rerun_view import GAP_SHOWN, Clock
 
 ROOT = Path(__file__).resolve().parents[1]
 FAULT = ROOT / "recordings" / "engine1_fault.mcap"
@@ -161,8 +161,8 @@ def _origins(container) -> list[str]:
 
 
 def test_no_phase_view_is_unchanged(node_rec: Path, tmp_path: Path, capsys) -> None:
-    from replay.rerun_view import blueprint
-    from replay.view_data import load_view_data, vectors_of
+    from replay.views.rerun_view import blueprint
+    from replay.views.view_data import load_view_data, vectors_of
 
     data, _, _ = load_view_data(str(node_rec))
     assert vectors_of(data) is None
@@ -221,7 +221,7 @@ def test_no_display_suggests_save(node_rec: Path, monkeypatch, capsys) -> None:
 
 def test_sensor_series_follow_the_payload_rule() -> None:
     from node.contract import decode_samples
-    from replay.view_data import series_of
+    from replay.views.view_data import series_of
 
     payloads = [b'{"t": 3.0, "v": 1.5}', b'{"t": 1.0, "v": null}', b'{"t": 2.0, "v": "x"}',
                 b'{"t": true, "v": 1}', b'{"t": -1.0, "v": 1}', b'not json', b'{"t": 2, "v": 7}']

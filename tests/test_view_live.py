@@ -25,7 +25,7 @@ def test_the_live_view_logs_each_stretch_once_as_the_file_view_does(node_rec: Pa
     every sample once (its counts add up to the file view's) and the same entities."""
     import rerun as rr
 
-    from replay.live_view import LiveView
+    from replay.views.live_view import LiveView
 
     msgs = _messages(node_rec)
     rr.init("ordervib_view_test", spawn=False)

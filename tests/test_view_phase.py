@@ -13,7 +13,7 @@ from node.cli import main
 from node.contract import log_time_ns, monitor_key, phase_channel, sensor_key
 from node.mcap import RecordingWriter
 from replay import rerun_view
-from replay.view_data import load_view_data, vectors_of
+from replay.views.view_data import load_view_data, vectors_of
 
 T0 = 1767600000.0
 RUN = 1200  # samples per run (30 s)

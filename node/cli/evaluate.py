@@ -14,9 +14,9 @@ from node.console.table import print_table
 from node.contract import OrdervibError
 
 if TYPE_CHECKING:
-    from node.mcap import Run
     from node.models.bundle import Bundle
     from node.training.evaluation import SegmentPrediction
+    from node.training.runs import Run
 
 log = logging.getLogger(__name__)
 

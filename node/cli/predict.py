@@ -13,10 +13,10 @@ from node.cli.outputs import check_output, replacing
 from node.contract.errors import OrdervibError
 
 if TYPE_CHECKING:
-    from node.mcap import Run
     from node.models.bundle import Model
     from node.runtime.history import EngineState
     from node.training.prediction import InputFill, Prediction, Profile
+    from node.training.runs import Run
 
 log = logging.getLogger(__name__)
 
@@ -213,8 +213,8 @@ def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
     print_table(header, list(table.values()))
     print(f"prediction written to {args.out} ({rows} rows)")
     if args.png or args.history_png:
-        from replay.phase_plots import save_png
-        from replay.prediction_plots import fig_history, fig_prediction
+        from replay.views.phase_plots import save_png
+        from replay.views.prediction_plots import fig_history, fig_prediction
         for path, fig in ((args.png, fig_prediction), (args.history_png, fig_history)):
             if path:
                 with replacing(path) as tmp:

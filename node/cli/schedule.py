@@ -13,7 +13,7 @@ from node.contract import FS
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
-    from node.mcap import Run
+    from node.training.runs import Run
 
 log = logging.getLogger(__name__)
 

@@ -1,11 +1,11 @@
 """``ordervib view``: a recording in Rerun (viewer, or a saved ``.rrd``).
 
-The arrays come from ``replay.view_data.load_view_data`` and the Rerun calls from
-``replay.rerun_view``. A sensor-only recording shows its OCs when a schedule is given
+The arrays come from ``replay.views.view_data.load_view_data`` and the Rerun calls from
+``replay.views.rerun_view``. A sensor-only recording shows its OCs when a schedule is given
 (``--schedule``, or ``REC.schedule.toml`` beside it): the node's own OC detector is run
 over the speed. With the order's phase (the target's phase channel, e.g. ``yB_ph``) the view
 adds the polar plot and the Bode pair; ``--plots DIR`` writes them as PNG files
-(``DIR/<bed>-<target>-polar.png``, ``-bode.png``; ``replay.phase_plots``) and starts no viewer.
+(``DIR/<bed>-<target>-polar.png``, ``-bode.png``; ``replay.views.phase_plots``) and starts no viewer.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ from node.mcap import warn_unfinished
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
-    from replay.live_view import LiveView
-    from replay.view_data import Vectors, ViewData
+    from replay.views.live_view import LiveView
+    from replay.views.view_data import Vectors, ViewData
 
 log = logging.getLogger(__name__)
 
@@ -120,7 +120,7 @@ def _write_plots(data: ViewData, vectors: Vectors, paths: list[str]) -> str:
     """The polar and Bode plots to paths, each replaced only by a complete file; the summary line."""
     import numpy as np
 
-    from replay.phase_plots import bode_figure, polar_figure, save_png
+    from replay.views.phase_plots import bode_figure, polar_figure, save_png
 
     title = f"{data.bed} {data.target}: 1x vector"
     figures = (polar_figure(vectors, title, data.switch, data.target_unit),
@@ -137,7 +137,7 @@ def _write_plots(data: ViewData, vectors: Vectors, paths: list[str]) -> str:
 
 def _vectors(data: ViewData) -> Vectors:
     """The target's 1x vectors for --plots; one-line OrdervibError when the recording has no phase."""
-    from replay.view_data import vectors_of
+    from replay.views.view_data import vectors_of
 
     vectors = vectors_of(data)
     if vectors is None:
@@ -161,7 +161,7 @@ def _log(data: ViewData) -> dict[str, int]:
     """Log the view to the Rerun sink opened (saved file or viewer), then disconnect."""
     import rerun as rr
 
-    from replay.rerun_view import log_view
+    from replay.views.rerun_view import log_view
 
     try:
         return log_view(data)
@@ -175,7 +175,7 @@ def _live(args: argparse.Namespace) -> tuple[LiveView, dict[str, int]]:
 
     from node.contract import MONITOR_SUBSCRIPTION, SENSOR_SUBSCRIPTION
     from node.live.zenoh import open_session, zenoh_config
-    from replay.live_view import LiveView
+    from replay.views.live_view import LiveView
 
     view = LiveView(args.bed, args.target, args.switch, _schedule_for(args))
     session = open_session(zenoh_config(None, [args.connect], args.zenoh_config))
@@ -242,7 +242,7 @@ def _add_counts(counts: dict[str, int], new: dict[str, int] | None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from replay.view_data import load_view_data
+    from replay.views.view_data import load_view_data
 
     _check(args)
     if args.connect is not None:
@@ -265,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
 
     import rerun as rr
 
-    from replay.rerun_view import blueprint
+    from replay.views.rerun_view import blueprint
 
     bp = blueprint(data)
     rr.init("ordervib_view", spawn=False)

@@ -20,7 +20,7 @@ an exact integer whatever the order of additions: ``ChannelPhase.slot`` (one sam
 ``ChannelPhase.slots`` (many, with numpy) give bit-identical slots and states.
 
 This module is in the contract (the bottom layer) because the node's aligner
-(``node.runtime``) and training's ``read_runs`` (``node.mcap``) must share it and neither
+(``node.runtime``) and training's ``read_runs`` (``node.training.runs``) must share it and neither
 layer may import the other; and because it is part of what a test bed may rely on.
 
 Guarantee (see README, "Clock phases"): if every sample of a channel lies within J < 1/4

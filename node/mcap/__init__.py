@@ -5,7 +5,6 @@
 - ``reader``: one walk over the records in file order (``open_recording``), and ``iter_messages``,
   ``iter_messages_fast``, ``read_payloads`` and ``copy_messages`` on it; ``message_time_span``
   from a finished file's summary (progress); ``warn_unfinished``, the warning for an unfinished file;
-- ``runs``: ``read_runs``, the pass-off runs of a recording as time-major arrays, for training;
 - ``rotation``: ``RotatingRecorder``, a recording split into successive files.
 """
 
@@ -23,12 +22,11 @@ from node.mcap.reader import (
     warn_unfinished,
 )
 from node.mcap.rotation import RotatingRecorder, rotated_path
-from node.mcap.runs import Run, read_runs
 from node.mcap.writer import McapWriter, RecordingWriter
 
 __all__ = [
     "LIBRARY", "MAGIC", "Channel", "Compression", "Opcode", "Schema", "Message", "ReadStats", "Recording",
     "copy_messages", "iter_messages", "iter_messages_fast", "message_time_span", "open_recording",
     "read_payloads", "warn_unfinished",
-    "RotatingRecorder", "rotated_path", "Run", "read_runs", "McapWriter", "RecordingWriter",
+    "RotatingRecorder", "rotated_path", "McapWriter", "RecordingWriter",
 ]

@@ -11,7 +11,7 @@ outliers (section 3.4.1, figure 3.6).
 
 ``context_curves`` does it for every OC; ``gibbs_student_t`` is the sampler alone and
 ``out_of_order`` measures how sequential the clusters are. Pure numerics: no files, no plots
-(``replay.context_plots`` draws the figures).
+(``replay.views.context_plots`` draws the figures).
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import numpy as np
 
 from node.contract import FS
 from node.contract.schedule import Schedule
-from node.mcap import Run
 from node.training.dataset import fill_gaps, segment_runs
+from node.training.runs import Run
 
 log = logging.getLogger(__name__)
 

@@ -16,10 +16,10 @@ from node.contract import Phase, phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.contract.vector import order_vectors
-from node.mcap import Run
 from node.models.config import RuntimeConfig
 from node.runtime.history import add_history
 from node.runtime.ocdetect import OCDetector
+from node.training.runs import Run
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,6 @@ import numpy as np
 from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
 from node.models.ocmodel import Trajectory
@@ -20,6 +19,7 @@ from node.runtime.runcurve import RUN_CURVE, add_run_curve
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import alarm_mask
 from node.training.dataset import run_arrays, segment_runs, target_vectors, with_history
+from node.training.runs import Run
 
 
 @dataclass

@@ -25,10 +25,11 @@ from typing import Any
 from node.console.durations import duration_text
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.mcap import ReadStats, Run, read_runs, warn_unfinished
+from node.mcap import ReadStats, warn_unfinished
 from node.models.bundle import Bundle, Model, load_model, save_model
 from node.models.config import RuntimeConfig
 from node.models.result import OCResult
+from node.training.runs import Run, read_runs
 
 log = logging.getLogger(__name__)
 

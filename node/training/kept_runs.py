@@ -30,7 +30,7 @@ import numpy as np
 
 from node.contract.documents import parse_document
 from node.contract.errors import OrdervibError
-from node.mcap import Run
+from node.training.runs import Run
 
 RUNS_ARRAYS = "training-runs.npz"
 RUNS_META = "training-runs.json"

@@ -51,7 +51,6 @@ import numpy as np
 from node.contract import FS, RUN_GAP, monitor_key, phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.align import AlignedSample
@@ -69,6 +68,7 @@ from node.runtime.pipeline import MonitorPipeline
 from node.runtime.runcurve import hold_last
 from node.sysid.metrics import pooled_eps
 from node.training.dataset import Segment, segment_runs, time_order
+from node.training.runs import Run
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,6 @@ import numpy as np
 from node.contract import FS, is_phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.mcap import Run
 from node.models.average import average_params, mean_in_order
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
@@ -48,6 +47,7 @@ from node.training.dataset import (
     with_history,
 )
 from node.training.features import Term, combine_terms, segment_term
+from node.training.runs import Run
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
     Method.WDMD: {"levels": [1, 2, 3, 4, 5], "rcond": [1e-8]},

@@ -12,8 +12,8 @@ from collections.abc import Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from node.mcap import Run
 from node.training.evaluation import SegmentPrediction
+from node.training.runs import Run
 
 
 def run_colours(n: int) -> list[tuple[float, float, float, float]]:

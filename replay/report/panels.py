@@ -18,13 +18,13 @@ import numpy as np
 
 from node.contract import parse_monitor_key
 from node.contract.schedule import Schedule
-from node.mcap import Run
 from node.models.baseline import CharacteristicCurve
 from node.models.bundle import Bundle
 from node.runtime.history import HISTORY_CHANNELS
 from node.sysid.metrics import pooled_eps, pooled_r2
 from node.training.dataset import Segment, segment_runs
 from node.training.evaluation import curve_predictions, derived_runs, evaluate
+from node.training.runs import Run
 from replay.offline import NodeAlarms
 from replay.report.document import Block, Figure, Heading, Paragraph, Table
 from replay.report.figures import (
@@ -116,7 +116,7 @@ def context_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str)
 def _context_blocks(runs: list[Run], schedule: Schedule, target: str) -> list[Block]:
     """The mixture clusters on the temperatures and their posteriors (or why there are none)."""
     from node.training.context import TEMPERATURES, context_curves
-    from replay.context_plots import fig_context_clusters, fig_context_timeline, fig_context_violins
+    from replay.views.context_plots import fig_context_clusters, fig_context_timeline, fig_context_violins
 
     missing = [c for c in TEMPERATURES if any(c not in r.channels for r in runs)]
     if missing:
@@ -301,7 +301,7 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
         schedule_profile,
         stated_history,
     )
-    from replay.prediction_plots import fig_history, fig_prediction
+    from replay.views.prediction_plots import fig_history, fig_prediction
 
     blocks: list[Block] = []
     try:

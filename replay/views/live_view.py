@@ -2,7 +2,7 @@
 
 ``ordervib view --connect ENDPOINT`` subscribes to ``testbed/*/sensor/**`` and
 ``testbed/*/monitor/**``, keeps every payload by topic, and once per refresh builds the very
-``ViewData`` the file view builds from a recording (``replay.view_data.view_data_of``): the
+``ViewData`` the file view builds from a recording (``replay.views.view_data.view_data_of``): the
 time series get only their new stretch (``rows_after``), the 2-D views (characteristic curve,
 polar, Bode) are logged again whole (they are static, so each replaces the last). The layout
 is the file view's blueprint, sent once the first data tell what there is to show.
@@ -28,11 +28,11 @@ from node.contract import (
     parse_sensor_key,
     phase_channel,
 )
-from replay.view_data import TIME_SERIES
+from replay.views.view_data import TIME_SERIES
 
 if TYPE_CHECKING:
     from node.contract.schedule import Schedule
-    from replay.view_data import ViewData
+    from replay.views.view_data import ViewData
 
 # the sensor channels a view can draw (its speed, its target and the target's phase); the
 # other channels' payloads are not kept (each refresh decodes everything kept)
@@ -85,8 +85,8 @@ class LiveView:
 
         import rerun as rr
 
-        from replay.rerun_view import Clock, blueprint, log_plots, log_series
-        from replay.view_data import rows_after, view_data_of
+        from replay.views.rerun_view import Clock, blueprint, log_plots, log_series
+        from replay.views.view_data import rows_after, view_data_of
 
         with self._lock:
             snapshot = {k: list(v) for k, v in self._by_topic.items()}

@@ -1,5 +1,5 @@
 """Figures of the contextual characteristic curves (the toolbox's panel I, figures 3.4-3.6;
-matplotlib Figures on no canvas, no pyplot, no file I/O: ``replay.phase_plots.save_png``).
+matplotlib Figures on no canvas, no pyplot, no file I/O: ``replay.views.phase_plots.save_png``).
 
 - ``fig_context_clusters``: per OC one row: (a) the clusters in temperature space (two of the
   channels, the third as the marker size), (b) carried onto the speed profile over time

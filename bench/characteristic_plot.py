@@ -1,6 +1,6 @@
 """Characteristic curve (yB against nB) of several simulated runs, to a PNG.
 
-    .venv/bin/python -m simulator.plot_characteristic [--recording REC.mcap]
+    .venv/bin/python -m bench.characteristic_plot [--recording REC.mcap]
         [--runs 6] [--seed 1] [--out docs/characteristic_curve.png]
 
 Without --recording the runs are simulated in memory (full-length plateaus).
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from node.contract import SENSOR_CHANNELS
-from node.mcap import read_runs
+from node.training.runs import read_runs
 from simulator.gaspath import NB_TOP
 
 log = logging.getLogger(__name__)
@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        log.error("plot_characteristic: matplotlib is not installed")
+        log.error("characteristic_plot: matplotlib is not installed")
         return 2
 
     runs = _runs(args)

@@ -1,4 +1,4 @@
-"""Pass-off runs of a recording, for training: ``read_runs`` and ``Run``.
+"""Pass-off runs of a recording, the training dataset: ``read_runs`` and ``Run``.
 
 ``read_runs`` reads every sensor payload (``read_payloads``), decodes them with the
 contract's payload rule (``node.contract.decode_samples``), puts them on the 40 Hz

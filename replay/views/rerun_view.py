@@ -37,7 +37,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from node.contract import RUN_GAP, Flag
-from replay.view_data import Health, OcSwitches, Vectors, ViewData, speed_at, vectors_of
+from replay.views.view_data import Health, OcSwitches, Vectors, ViewData, speed_at, vectors_of
 
 GAP_SHOWN = 10.0  # s: what a gap between runs shrinks to on engine_time
 ALARM_RED = (230, 40, 40)

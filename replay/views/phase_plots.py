@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.projections.polar import PolarAxes
 from matplotlib.ticker import MaxNLocator
 
-from replay.view_data import Vectors
+from replay.views.view_data import Vectors
 
 DPI = 100
 LAG_LABELS = ["0°", "45°", "90°", "135°", "±180°", "-135°", "-90°", "-45°"]  # every 45° clockwise from 0

@@ -1,5 +1,5 @@
 """Figures of the prediction for a planned run (the toolbox's panel IV; matplotlib Figures on
-no canvas, no pyplot, no file I/O: ``replay.phase_plots.save_png`` writes one).
+no canvas, no pyplot, no file I/O: ``replay.views.phase_plots.save_png`` writes one).
 
 - ``fig_prediction``: the speed profile on top, then per target the expected amplitude over
   the profile, one line per stated history, the OCs shaded and named; with a recorded run
