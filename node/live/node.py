@@ -49,7 +49,6 @@ from node.contract import (
     liveliness_key,
     log_time_ns,
     log_times_ns,
-    parse_sensor_key,
     sensor_subscription,
 )
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
@@ -107,7 +106,6 @@ class LiveNode:
         self.token: Any = None
         self._stop = threading.Event()
         self._publishers: dict[str, Any] = {}
-        self._bed_of: dict[str, str | None] = {}  # key -> bed (None: no sensor key)
         self._lag: dict[str, deque[float]] = {}  # bed -> receive-to-publish latencies, ms
         self._lag_max: dict[str, float] = {}  # bed -> the largest latency since its last health, ms
         self._last_recv: dict[str, int] = {}  # bed -> receive time of its newest message, ns
@@ -201,11 +199,9 @@ class LiveNode:
         return self.queue.take(BATCH_MAX, timeout=0.05)
 
     def _bed(self, key: str) -> str | None:
-        bed = self._bed_of.get(key, "")
-        if bed == "":
-            parsed = parse_sensor_key(key)
-            bed = self._bed_of[key] = parsed[0] if parsed else None
-        return bed
+        """The bed of a sensor key, None for any other key (the core's one parse of the key)."""
+        route = self.core.route(key)
+        return route[0] if route else None
 
     def _handle(self, batch: list[tuple[str, bytes, int]]) -> None:
         """One batch: each input recorded, then the outputs it completed published and recorded

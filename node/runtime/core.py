@@ -133,7 +133,7 @@ class NodeCore:
         if len(keys) != len(payloads):
             raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
         t, v, ok = decode_samples(payloads)
-        routes = {key: self._route(key) for key in set(keys)}
+        routes = {key: self.route(key) for key in set(keys)}
         bed_of_key = {key: route[0] for key, route in routes.items() if route}
         channel_of = {key: route[1] for key, route in routes.items() if route}
         names = set(bed_of_key.values())
@@ -205,8 +205,15 @@ class NodeCore:
         out.update({name: b.pipeline.history.state for name, b in self.beds.items()})
         return out
 
-    def _route(self, key: str) -> tuple[str, str] | tuple[()]:
-        """(bed, channel) of a sensor key, () for any other key (cached)."""
+    def route(self, key: str) -> tuple[str, str] | tuple[()]:
+        """(bed, channel) of a sensor key, () for any other key: each key parsed once, here (the
+        live node asks too); counts nothing.
+
+        >>> from node.contract.schedule import OperatingCondition, Schedule
+        >>> core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []))
+        >>> core.route("testbed/b1/sensor/nB"), core.route("other/key"), core.foreign
+        (('b1', 'nB'), (), 0)
+        """
         route = self._routes.get(key)
         if route is None:
             route = self._routes[key] = parse_sensor_key(key) or ()
