@@ -50,6 +50,7 @@ import numpy as np
 
 from node.contract import FS
 from node.contract.schedule import Schedule
+from node.contract.vector import NAN_VECTOR
 from node.models.config import RuntimeConfig
 from node.models.curve import CurveModel, Variant
 from node.models.ocmodel import (
@@ -366,7 +367,7 @@ def curve_track(model: CurveModel, s: Seg) -> np.ndarray:
     """The anchored vector curve's predicted amplitude (K,) over the whole trajectory: anchored
     on the past as at the switch, then looked up at every sample's speed (past ones too)."""
     rt = model.runtime()
-    z = s.z if s.z is not None else np.full(len(s.y), complex(np.nan, np.nan))
+    z = s.z if s.z is not None else np.full(len(s.y), NAN_VECTOR)
     rt.start(z[:s.start], s.U[:s.start, :1])
     return np.array([rt.step([x]) for x in s.U[:, 0].tolist()], dtype=float)
 

@@ -48,7 +48,9 @@ class GapShortener:
 
 def publish_recording(path: str, connect: str | None, speed: float, quiet: bool = False,
                       wait_s: float = 5.0, config_file: str | None = None, max_gap_s: float | None = None,
-                      progress: Callable[[float, int], None] | None = None) -> int:
+                      progress: Callable[[float, int], None] | None = None,
+                      pace: tuple[Callable[[], float], Callable[[float], None]] = (time.monotonic, time.sleep)
+                      ) -> int:
     """Publish a recording's sensor messages in their original timing (``speed`` x; 0: flat out).
 
     Connects to ``connect``, else to the endpoints of ``config_file``, else to DEFAULT_ENDPOINT.
@@ -57,7 +59,8 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
     max_gap_s: in real timing, a gap longer than this between messages (the engine standing
     between runs) is shortened to it (``GapShortener``). progress: called now and then with the
     fraction of the recording's time span published (when its summary tells the span) and the
-    messages sent.
+    messages sent. pace: the clock (s) and the sleep that pace the messages (a test gives a
+    virtual pair to read the schedule without waiting for it).
     """
     endpoints: list[str] | None
     if connect:
@@ -71,7 +74,9 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
     sent = 0
     clock = GapShortener(max_gap_s)
     span = message_time_span(path) if progress is not None else None
+    now, sleep = pace
     start = time.monotonic()
+    paced_from = now()
     try:
         for m in iter_messages(path):
             if parse_sensor_key(m.topic) is None:
@@ -90,10 +95,10 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
                                             f"{wait_s:g} s: nothing published (is the node running? "
                                             "--wait S waits longer)")
             if speed > 0:
-                due = start + clock.due(m.log_time) / 1e9 / speed
-                delay = due - time.monotonic()
+                due = paced_from + clock.due(m.log_time) / 1e9 / speed
+                delay = due - now()
                 if delay > 0:
-                    time.sleep(delay)
+                    sleep(delay)
             pub.put(m.payload)
             sent += 1
             if progress is not None and span is not None and sent % 1000 == 0:

@@ -12,7 +12,7 @@ from test_view import _entities, _verify
 from node.cli import main
 from node.contract import log_time_ns, monitor_key, phase_channel, sensor_key
 from node.mcap import RecordingWriter
-from replay import rerun_view
+from replay.views import rerun_view
 from replay.views.view_data import load_view_data, vectors_of
 
 T0 = 1767600000.0
