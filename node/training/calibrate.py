@@ -82,7 +82,7 @@ def gumbel_quantile(peaks: Sequence[float], p: float) -> float:
     return mu - beta * math.log(-math.log(1.0 - p))
 
 
-def predictive_gumbel_level(maxima: Sequence[float], alpha: float, grid: int = 160) -> float:
+def predictive_gumbel_level(maxima: Sequence[float], alpha: float, grid: int = 80) -> float:
     """Level a new run's largest peak exceeds with chance ``alpha``, given the training runs'
     largest peaks (one a run): the Gumbel law's posterior predictive (prior 1 / beta, on a grid
     of location and log scale), so that few runs give a higher level than the plug-in fit.
