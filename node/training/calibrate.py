@@ -71,7 +71,7 @@ EULER_GAMMA = 0.5772156649
 # The residual threshold: the level a new run's largest peak exceeds with the run's share of the
 # budget, from the Gumbel law's posterior predictive over the training runs' largest CV peaks (few
 # runs: a higher level), not the plug-in fit over segments. (study: docs/tuning.md#predictive)
-THRESHOLD_RULE = "plug-in"  # or "predictive" (see above); "plug-in": a Gumbel law fitted to the segments' peaks
+THRESHOLD_RULE = "plug-in"  # or "predictive" (see above); plug-in: a Gumbel law on the segments' peaks
 
 
 def gumbel_quantile(peaks: Sequence[float], p: float) -> float:
