@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         check_output(str(path), "--png", suffix=".png", inputs=[args.model, *args.recordings])
     runs, recordings, source = read_sourced(args.recordings, args.quiet)
     kinds = run_provenance(model, runs, [recordings[i]["sha256"] for i in source])
-    for line in _provenance_lines(kinds, [recordings[i]["path"] for i in source]):
+    for line in _provenance_lines(kinds, source, [r["path"] for r in recordings]):
         print(line)
     preds = []
     for bundle in model.bundles:
@@ -76,13 +76,16 @@ def _counts(kinds: list[str]) -> str:
     return ", ".join(f"{kinds.count(k)} {k}" for k in PROVENANCES if k in kinds)
 
 
-def _provenance_lines(kinds: list[str], paths: list[str]) -> list[str]:
-    """A line per recording with its runs' provenance; a line when no run is held out, and one
-    when the model cannot tell (trained before it recorded its runs)."""
+def _provenance_lines(kinds: list[str], source: list[int], paths: list[str]) -> list[str]:
+    """A line per recording (``paths``; run i is of ``paths[source[i]]``) with its runs'
+    provenance; a line when no run is held out, and one when the model cannot tell (trained
+    before it recorded its runs)."""
     from node.training.provenance import HELD_OUT, UNKNOWN
 
-    lines = [f"{path}: {paths.count(path)} run(s), "
-             f"{_counts([k for k, p in zip(kinds, paths) if p == path])}" for path in dict.fromkeys(paths)]
+    lines = []
+    for i, path in enumerate(paths):
+        mine = [k for k, s in zip(kinds, source) if s == i]
+        lines.append(f"{path}: {len(mine)} run(s)" + (f", {_counts(mine)}" if mine else ""))
     if HELD_OUT not in kinds:
         known = " known to be" if UNKNOWN in kinds else ""
         lines.append(f"none of the {len(kinds)} run(s) is{known} held out ({_counts(kinds)}): CV eps_td is "
