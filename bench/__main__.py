@@ -20,6 +20,7 @@ BENCHMARKS = {
     "soak": "bench.soak",
     "top-curves": "bench.top_curves",
     "stiffness-drift": "bench.stiffness_drift",
+    "thresholds": "bench.thresholds",
 }
 
 

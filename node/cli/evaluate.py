@@ -121,13 +121,13 @@ def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word
     base_eps = [float("nan")] * len(evals)
     if bundle.curve is not None:
         base_eps = curve_eps(bundle.curve, runs, preds, bundle.schedule, bundle.target)
-    header = ["OC", "model", "segments", f"{word} eps_td", "CV eps_td", "baseline eps_td"]
+    header = ["OC", "model", "segments", f"{word} eps_td", "CV eps_td", "baseline eps_td", "outside"]
     rows = []
     hold, base = [], []
     for e, b in zip(evals, base_eps):
         res = bundle.oc(e.name)
         rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps),
-                     _f(res.cv_eps if res else float("nan")), _f(b)])
+                     _f(res.cv_eps if res else float("nan")), _f(b), _share(e.outside, e.samples)])
         if np.isfinite(e.eps):
             hold.append(e.eps)
             base.append(b)
@@ -135,6 +135,15 @@ def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word
     if hold:
         print(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
               f"(characteristic-curve baseline {np.nanmean(base):.3f})")
+    outside, samples = sum(e.outside for e in evals), sum(e.samples for e in evals if np.isfinite(e.eps))
+    if samples:
+        print(f"outside the training runs' envelope: {_share(outside, samples)} of {samples} modelled "
+              f"samples (predicted with the inputs held at its edge, the band widened)")
+
+
+def _share(part: int, whole: int) -> str:
+    """'12.5 %' of a count; '-' of none."""
+    return f"{100.0 * part / whole:.1f} %" if whole else "-"
 
 
 def _f(x: float) -> str:

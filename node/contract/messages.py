@@ -78,7 +78,12 @@ class MonitorMessage(TypedDict):
     flag: Annotated[Flag, "ok, alarm, or no-model"]
     score: NotRequired[Annotated[float | None, "smoothed standardized residual, sigma units"]]
     band: NotRequired[Annotated[float | None, "the residual rule's alarm half-width around predicted"]]
-    model: NotRequired[Annotated[str | None, "the model in force, method:OC"]]
+    model: NotRequired[Annotated[str | None, "the model in force, method:OC; method:OC@envelope where "
+                                             "envelope > 1: its inputs held at the envelope's edge, "
+                                             "the band widened"]]
+    envelope: NotRequired[Annotated[float | None, "how far the model's inputs and the time since the OC "
+                                                  "switch lie from the region its training runs "
+                                                  "covered: 1 at its edge, above 1 outside"]]
     reason: NotRequired[Annotated[Reason | None, "the rule that raised the alarm"]]
     run_scale: NotRequired[Annotated[float | None, "how unusual this run has been so far (>= 1)"]]
     measured_phase: NotRequired[Annotated[float | None, "measured phase of the target order, degrees"]]

@@ -27,6 +27,7 @@ from node.contract import FS
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.models.config import V1_SETTINGS, RuntimeConfig
+from node.models.envelope import Envelope
 from node.models.kinds import model_from_arrays
 from node.models.ocmodel import RUN_CURVE
 from node.models.result import Calibration, OCResult
@@ -38,6 +39,7 @@ MULTI_VERSION = 3  # several targets: one format-2 bundle per target, in a sub-f
 _TARGET_NAME = re.compile(r"^[A-Za-z0-9_]+$")  # a target's sub-folder name: no path of its own
 MANIFEST = "manifest.json"
 ARRAYS = "arrays.npz"
+ENVELOPE_PREFIX = "envelope:"  # an OC's envelope arrays: "envelope:<OC>/<name>"
 
 
 def sha256_file(path: str | os.PathLike) -> str:
@@ -91,6 +93,11 @@ def _manifest_oc(r: OCResult) -> dict:
         d["residual"] = {"sigma": c.sigma, "threshold": c.threshold,
                          "ewma_alpha": c.ewma_alpha, "persist": c.persist,
                          "cv_peaks": c.peaks}
+    if r.envelope is not None:
+        env = r.envelope.manifest()
+        if r.outside_cv is not None:
+            env["cv_outside"] = {"sum_z2": r.outside_cv[0], "samples": r.outside_cv[1]}
+        d["envelope"] = env
     return d
 
 
@@ -107,6 +114,9 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike) -> Path:
         if r.model is not None:
             for k, v in r.model.arrays().items():
                 arrays[f"{r.name}/{k}"] = np.asarray(v, dtype=float)
+        if r.envelope is not None:
+            for k, v in r.envelope.arrays().items():
+                arrays[f"{ENVELOPE_PREFIX}{r.name}/{k}"] = v
     if bundle.curve is not None:
         arrays["curve/speed"], arrays["curve/mean"] = bundle.curve
     buf = io.BytesIO()
@@ -284,9 +294,23 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
                 c = d["residual"]
                 calib = Calibration(c["sigma"], c["threshold"], c["ewma_alpha"], c["persist"],
                                     tuple(float(x) for x in c.get("cv_peaks", [])))
+            envelope, outside = None, None
+            if d.get("envelope") is not None:  # (bundles before it had none: no envelope)
+                e = d["envelope"]
+                if not isinstance(e, dict):
+                    raise ValueError(f"{d['name']}: envelope must be an object")
+                mine = {k.split("/", 1)[1]: v for k, v in arrays.items()
+                        if k.split("/", 1)[0] == f"{ENVELOPE_PREFIX}{d['name']}"}
+                envelope = Envelope.from_stored(e, mine)
+                if list(envelope.inputs) != list(d["inputs"]):
+                    raise ValueError(f"{d['name']}: the envelope's inputs are not the model's")
+                cv = e.get("cv_outside")
+                if isinstance(cv, dict):
+                    outside = (float(cv["sum_z2"]), int(cv["samples"]))
             ocs.append(OCResult(d["name"], model, list(d["inputs"]), dict(d["params"]), d["n_runs"],
                                 _f(d["train_eps"]), _f(d["cv_eps"]), calib,
-                                [(c, _f(s)) for c, s in d.get("ranking", [])], [], d.get("note", "")))
+                                [(c, _f(s)) for c, s in d.get("ranking", [])], [], d.get("note", ""),
+                                envelope, outside))
         curve = None
         if "curve/speed" in arrays:
             curve = (arrays["curve/speed"], arrays["curve/mean"])

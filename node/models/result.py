@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from node.contract import FS
 from node.models.average import member_label
+from node.models.envelope import Envelope
 from node.models.ocmodel import OCModel
 
 EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
@@ -58,6 +59,8 @@ class OCResult:
     ranking: list[tuple[str, float]] = field(default_factory=list)
     cv_scores: list[tuple[dict, float]] = field(default_factory=list)
     note: str = ""
+    envelope: Envelope | None = None  # the region its training runs covered (node.models.envelope)
+    outside_cv: tuple[float, int] | None = None  # CV samples beyond their fold's envelope: sum z^2, count
 
     @property
     def kind(self) -> str:

@@ -33,6 +33,7 @@ from node.contract.vector import NAN_VECTOR, lag_degrees, order_vector, order_ve
 from node.models.average import AverageRuntime, predicts_vector
 from node.models.bundle import Bundle
 from node.models.curve import CurveRuntime
+from node.models.envelope import HELD, OUTSIDE, Envelope
 from node.models.ocmodel import OCRuntime
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
@@ -53,6 +54,8 @@ class _Active:
     model_id: str
     check: ResidualCheck
     vector: CurveRuntime | AverageRuntime | None = None  # the runtime again when it predicts the 1x vector
+    envelope: Envelope | None = None  # the region its training runs covered (None: not known)
+    since: int = 0  # samples since the OC switch
 
 
 def _num(x: float) -> float | None:
@@ -136,7 +139,7 @@ class MonitorPipeline:
         msg = {"t": sample.t, "oc": self._name(st.oc), "phase": st.phase.value,
                "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
                "score": None, "band": None, "model": None, "reason": None,
-               "run_scale": None}
+               "run_scale": None, "envelope": None}
         z = NAN_VECTOR
         if self._uses_phase:
             phase_deg = sample.values.get(self._phase_ch, _NAN)
@@ -145,6 +148,7 @@ class MonitorPipeline:
                        vector_score=None)
         if self._active is not None:
             self._predict(self._active, vals, measured, msg, z)
+            self._active.since += 1
         if self._jump is not None:
             self._jump.step(measured, st.phase is Phase.STEADY)
             if self._jump.flagged:
@@ -162,11 +166,18 @@ class MonitorPipeline:
         u = [vals[c] for c in a.inputs]
         if not all(x - x == 0.0 for x in u):  # an input never seen yet in this run
             return
+        env, model_id, widen, e = a.envelope, a.model_id, 1.0, None
+        if env is not None:  # beyond it: inputs held at its edge, the band widened, both said
+            e = env.distance(u, a.since / FS)
+            u = env.clamp(u)
+            if e > OUTSIDE:
+                model_id, widen = model_id + HELD, env.band_factor
         pred = a.runtime.step(u)
         r = measured - pred if math.isfinite(measured) and math.isfinite(pred) else _NAN
-        score, raised = a.check.step(r)
-        msg.update(predicted=_num(pred), residual=None if r != r else r, score=score, band=a.check.band,
-                   model=a.model_id, run_scale=a.check.run_scale)
+        score, raised = a.check.step(r / widen if widen != 1.0 else r)
+        msg.update(predicted=_num(pred), residual=None if r != r else r, score=score,
+                   band=a.check.band * widen if widen != 1.0 else a.check.band,
+                   model=model_id, run_scale=a.check.run_scale, envelope=e)
         if a.vector is not None:
             v = a.vector.vector
             msg.update(predicted_phase=_num(lag_degrees(v)), vector_residual=_num(abs(z - v)))
@@ -249,4 +260,5 @@ class MonitorPipeline:
         c = res.calibration
         scale = 1.0 if self._runscale is None else self._runscale.factor
         check = ResidualCheck(c.sigma, c.threshold, c.ewma_alpha, c.persist, self._clear, scale)
-        self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check, vector)
+        self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check, vector,
+                               res.envelope)

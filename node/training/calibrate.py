@@ -68,6 +68,10 @@ DRIFT_OC_MIN_PLATEAUS = 3
 FLATLINE_MIN_S = 2.0  # a flat line shorter than this never alarms, s
 FLATLINE_FACTOR = 4.0  # limit = factor x the longest repeat in the training runs
 EULER_GAMMA = 0.5772156649
+# The residual threshold: the level a new run's largest peak exceeds with the run's share of the
+# budget, from the Gumbel law's posterior predictive over the training runs' largest CV peaks (few
+# runs: a higher level), not the plug-in fit over segments. (study: docs/tuning.md#predictive)
+THRESHOLD_RULE = "plug-in"  # or "predictive" (see above); "plug-in": a Gumbel law fitted to the segments' peaks
 
 
 def gumbel_quantile(peaks: Sequence[float], p: float) -> float:
@@ -78,20 +82,78 @@ def gumbel_quantile(peaks: Sequence[float], p: float) -> float:
     return mu - beta * math.log(-math.log(1.0 - p))
 
 
+def predictive_gumbel_level(maxima: Sequence[float], alpha: float, grid: int = 160) -> float:
+    """Level a new run's largest peak exceeds with chance ``alpha``, given the training runs'
+    largest peaks (one a run): the Gumbel law's posterior predictive (prior 1 / beta, on a grid
+    of location and log scale), so that few runs give a higher level than the plug-in fit.
+
+    >>> m = [3.1, 3.6, 2.8, 4.0]
+    >>> predictive_gumbel_level(m, 0.05) > gumbel_quantile(m, 0.05)
+    True
+    >>> predictive_gumbel_level(m * 10, 0.05) < predictive_gumbel_level(m, 0.05)  # more runs: lower
+    True
+    """
+    x = np.asarray(maxima, dtype=float)
+    x = x[np.isfinite(x)]
+    if len(x) < 2:
+        raise ValueError("a predictive level needs the maxima of at least two runs")
+    sd = max(float(np.std(x)), 1e-6 * (abs(float(np.mean(x))) + 1.0))
+    n = len(x)
+    span = 8.0 * sd / math.sqrt(n) + 6.0 * sd
+    mu = np.linspace(float(np.mean(x)) - span, float(np.mean(x)) + span, grid)
+    log_beta = np.linspace(math.log(sd) - 4.0, math.log(sd) + 3.0 + 6.0 / math.sqrt(n), grid)
+    M, LB = np.meshgrid(mu, log_beta, indexing="ij")
+    B = np.exp(LB)
+    z = (x[None, None, :] - M[..., None]) / B[..., None]
+    logp = -n * LB - z.sum(axis=-1) - np.exp(-z).sum(axis=-1)  # + log prior 1/beta: d log_beta
+    w = np.exp(logp - logp.max())
+    w /= w.sum()
+    mus, betas, ws = M.ravel(), B.ravel(), w.ravel()
+
+    def exceed(level: float) -> float:
+        return float(np.dot(ws, -np.expm1(-np.exp(-(level - mus) / betas))))
+
+    top = float(x.max())
+    lo, hi = float(x.min()), top + sd
+    while exceed(hi) > alpha and hi < 1e6:
+        hi = top + 2.0 * (hi - top)
+    for _ in range(80):  # exceed() falls with the level
+        mid = (lo + hi) / 2.0
+        lo, hi = (mid, hi) if exceed(mid) > alpha else (lo, mid)
+    return float(hi)
+
+
 def pooled_thresholds(peaks: dict[str, list[float]], segments_per_hour: float,
                       budget: float = FALSE_ALARMS_PER_HOUR,
-                      undercoverage: float = CV_UNDERCOVERAGE) -> dict[str, float]:
+                      undercoverage: float = CV_UNDERCOVERAGE,
+                      runs: dict[str, list[int]] | None = None,
+                      hours_per_run: float | None = None) -> dict[str, float]:
     """Per-OC thresholds (sigma units) from every OC's CV peak scores and the alarm budget.
 
     peaks: OC name -> peak |smoothed score| of each held-out CV segment.
     segments_per_hour: OC segments a normal hour of running holds (from the training runs).
     undercoverage: how many times more often new runs exceed a CV-calibrated level.
+    runs, hours_per_run: OC name -> the run of each peak, and the OC time of a run (h); given,
+    the level is the one a new run's largest peak exceeds with chance
+    budget x hours_per_run / undercoverage (``predictive_gumbel_level`` over the runs'
+    largest peaks), else the plug-in level of a segment's peak.
     """
     every = [v for vals in peaks.values() for v in vals if math.isfinite(v)]
     if not every:
         return {}
     p = min(0.5, budget / max(segments_per_hour, 1e-9) / max(undercoverage, 1.0))
-    common = gumbel_quantile(every, p) if len(every) > 1 else every[0]
+    if len(every) == 1:
+        common = every[0]
+    elif runs is not None and hours_per_run is not None and len(set(_flat(runs))) >= 2:
+        largest: dict[int, float] = {}
+        for name, vals in peaks.items():
+            for v, r in zip(vals, runs[name]):
+                if math.isfinite(v):
+                    largest[r] = max(largest.get(r, -math.inf), v)
+        alpha = min(0.5, budget * hours_per_run / max(undercoverage, 1.0))
+        common = predictive_gumbel_level(list(largest.values()), alpha)
+    else:
+        common = gumbel_quantile(every, p)
     return {name: max(common, THRESHOLD_MARGIN * max(vals)) for name, vals in peaks.items() if vals}
 
 
@@ -138,20 +200,34 @@ def run_scaled_peaks(calibs: dict[str, Calibration]) -> dict[str, list[float]]:
 
 
 def set_thresholds(results: list[OCResult], datas: list[OCData], budget: float,
-                   undercoverage: float = CV_UNDERCOVERAGE) -> list[OCResult]:
+                   undercoverage: float = CV_UNDERCOVERAGE, rule: str | None = None) -> list[OCResult]:
     """The results with every calibrated OC's threshold set from the pooled CV peaks and the
     alarm budget (and its peaks scaled by the run, see ``run_scaled_peaks``)."""
     hours = sum(y.size - s for d in datas for y, s in zip(d.y, d.start)) / FS / 3600.0
     segments = sum(len(d.runs) for d in datas)
-    per_hour = segments / hours if hours > 0 else 1.0
     calibs = {r.name: r.calibration for r in results if r.calibration is not None}
-    for name, scaled in run_scaled_peaks(calibs).items():
-        calibs[name] = replace(calibs[name], peaks=tuple(scaled))
-    levels = pooled_thresholds({n: list(c.peaks) for n, c in calibs.items()}, per_hour, budget,
-                               undercoverage)
-    calibs = {name: replace(c, threshold=levels[name]) for name, c in calibs.items()}
+    calibs = threshold_levels(calibs, hours, segments, budget, undercoverage, rule)
     return [replace(r, calibration=calibs[r.name]) if r.calibration is not None else r
             for r in results]
+
+
+def threshold_levels(calibs: dict[str, Calibration], hours: float, segments: int, budget: float,
+                     undercoverage: float = CV_UNDERCOVERAGE, rule: str | None = None
+                     ) -> dict[str, Calibration]:
+    """Each OC's calibration with its threshold (and run-scaled peaks) for the alarm budget
+    (per hour) over the CV's ``segments`` in ``hours`` of OC time. rule: ``THRESHOLD_RULE``'s
+    choices ("predictive", "plug-in"); None: ``THRESHOLD_RULE``."""
+    per_hour = segments / hours if hours > 0 else 1.0
+    calibs = dict(calibs)
+    for name, scaled in run_scaled_peaks(calibs).items():
+        calibs[name] = replace(calibs[name], peaks=tuple(scaled))
+    runs = {n: [seg[0] for seg in c.segments] for n, c in calibs.items() if len(c.segments) == len(c.peaks)}
+    n_runs = len(set(_flat(runs)))
+    predictive = (rule or THRESHOLD_RULE) == "predictive" and len(runs) == len(calibs) and n_runs
+    levels = pooled_thresholds({n: list(c.peaks) for n, c in calibs.items()}, per_hour, budget,
+                               undercoverage, runs if predictive else None,
+                               hours / n_runs if predictive else None)
+    return {name: replace(c, threshold=levels[name]) for name, c in calibs.items()}
 
 
 def longest_repeat(y: np.ndarray, running: np.ndarray) -> int:
@@ -284,3 +360,7 @@ def drift_thresholds(found: Sequence[tuple[int, float]], names: Sequence[str]) -
             by_oc.setdefault(oc, []).append(p)
     return {names[oc]: DRIFT_OC_FACTOR * max(v) for oc, v in sorted(by_oc.items())
             if len(v) >= DRIFT_OC_MIN_PLATEAUS}
+
+
+def _flat(runs: dict[str, list[int]]) -> list[int]:
+    return [r for rs in runs.values() for r in rs]

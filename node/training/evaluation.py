@@ -12,6 +12,7 @@ from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.models.baseline import CharacteristicCurve
 from node.models.config import RuntimeConfig
+from node.models.envelope import OUTSIDE
 from node.models.ocmodel import Trajectory
 from node.models.result import OCResult
 from node.runtime.history import HISTORY_CHANNELS
@@ -29,6 +30,14 @@ class SegmentPrediction:
     t: np.ndarray  # (K,) s
     measured: np.ndarray  # (K,)
     predicted: np.ndarray  # (K,)
+    envelope: np.ndarray | None = None  # (K,) the model's envelope value (None: the model has none)
+
+    def widened(self, res: OCResult) -> np.ndarray:
+        """(K,) the residual over the band's widening (``Envelope.band_factor`` where outside)."""
+        r = self.measured - self.predicted
+        if self.envelope is None or res.envelope is None:
+            return r
+        return np.where(self.envelope > OUTSIDE, r / res.envelope.band_factor, r)
 
 
 @dataclass
@@ -38,6 +47,7 @@ class OCEvaluation:
     n_segments: int
     alarm_samples: int  # samples flagged (persistent smoothed score beyond threshold)
     samples: int
+    outside: int = 0  # samples beyond the model's envelope (predicted with its inputs held at the edge)
 
 
 def derived_runs(runs: list[Run], schedule: Schedule, target: str, channels: list[str],
@@ -80,11 +90,16 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
         cols = [inputs_needed.index(c) for c in res.inputs]
         lo = max(0, s.start - hist)
         z = vectors[s.run]
-        traj = Trajectory(ra.y[lo:s.stop], ra.U[lo:s.stop][:, cols], s.start - lo,
-                          None if z is None else z[lo:s.stop])
+        U = ra.U[lo:s.stop][:, cols]
+        env = None
+        if res.envelope is not None:  # as the node: from the switch on, inputs held at its edge
+            seg = U[s.start - lo:]
+            env = res.envelope.distances(seg, np.arange(len(seg)) / FS)
+            U = np.concatenate([U[:s.start - lo], res.envelope.clamp_rows(seg)])
+        traj = Trajectory(ra.y[lo:s.stop], U, s.start - lo, None if z is None else z[lo:s.stop])
         with np.errstate(all="ignore"):
             pred = res.model.predict(traj)
-        out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], traj.seg_y, pred))
+        out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], traj.seg_y, pred, env))
     return out
 
 
@@ -111,9 +126,10 @@ def score_segments(results: list[OCResult], schedule: Schedule, preds: list[Segm
         if not mine or res is None or res.calibration is None:
             out.append(OCEvaluation(name, float("nan"), len(mine), 0, sum(p.t.size for p in mine)))
             continue
-        alarms = sum(int(alarm_mask(p.measured - p.predicted, res).sum()) for p in mine)
+        alarms = sum(int(alarm_mask(p.widened(res), res).sum()) for p in mine)
+        outside = sum(int(np.sum(p.envelope > OUTSIDE)) for p in mine if p.envelope is not None)
         out.append(OCEvaluation(name, pooled_eps([(p.measured, p.predicted) for p in mine]),
-                                len(mine), alarms, sum(p.t.size for p in mine)))
+                                len(mine), alarms, sum(p.t.size for p in mine), outside))
     return out
 
 

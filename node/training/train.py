@@ -46,6 +46,7 @@ from node.training.dataset import (
     time_order,
     with_history,
 )
+from node.training.envelope import band_factors, cv_outside, fit_envelope
 from node.training.features import Term, combine_terms, segment_term
 from node.training.runs import Run
 
@@ -410,8 +411,10 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     note = f"{model.repaired} unstable pole(s) moved inside" if model.repaired else ""
     if isinstance(model, StateSpaceModel) and not np.isfinite(cv_eps):
         note = "no stable candidate in cross-validation"
+    envelope = fit_envelope(d, all_rows, chosen)
+    outside = cv_outside(d, folds, chosen, res, sigma) if calib is not None else None
     return OCResult(d.name, model, chosen, params, n_runs, train_eps, cv_eps, calib,
-                    ranking, cv_scores, note)
+                    ranking, cv_scores, note, envelope, outside)
 
 
 def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: list[str],
@@ -633,6 +636,9 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
             if progress:
                 progress(r, i + 1, len(jobs))
     out = [r for r in results if r is not None]
+    factors = band_factors([r.outside_cv for r in out])
+    out = [dataclasses.replace(r, envelope=r.envelope.with_band_factor(f)) if r.envelope is not None else r
+           for r, f in zip(out, factors)]
     return set_thresholds(out, datas, false_alarms_per_hour, cv_undercoverage)
 
 
