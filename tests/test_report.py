@@ -77,6 +77,9 @@ def test_report_has_four_panels_each_with_a_figure_and_nothing_external(made: tu
     assert all(link.startswith(("data:", "#")) for link in p.links)  # no server, no network
     assert "http://" not in html and "https://" not in html and "<script" not in html
     assert "engine1_fault #1" in html and "OC10" in html  # the runs and OCs are named
+    val = html[html.index('id="panel-validation"'):html.index('id="panel-prediction"')]
+    assert "Held-out runs (not among the model&#x27;s training runs): engine1_runs #1" in val
+    assert "held-out eps_td" in val and "in-sample" not in val  # the model was trained on other runs
     assert "pending" not in html
     ctx = html[html.index('id="panel-context"'):html.index('id="panel-parameters"')]
     assert "Contextual characteristic curves" in ctx

@@ -1,4 +1,9 @@
-"""``ordervib evaluate``: a trained model on held-out recordings: per-OC errors, false alarms, PNG."""
+"""``ordervib evaluate``: a trained model on recordings: per-OC errors, false alarms, PNG.
+
+Each run is held-out or in-sample (among the model's training runs), by the one rule of
+``node.training.provenance``; each kind has its own table and mean line, named by it, so an
+in-sample error is never printed as a held-out one.
+"""
 
 from __future__ import annotations
 
@@ -21,12 +26,14 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 NAME = "evaluate"
-HELP = "evaluate a trained model on held-out recordings (table, false alarms, PNG)"
+HELP = ("evaluate a trained model on recordings (a table of the held-out runs, one of the in-sample ones, "
+        "false alarms, PNG)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", metavar="MODEL", help="model bundle directory")
-    p.add_argument("recordings", nargs="+", metavar="REC.mcap", help="held-out recordings")
+    p.add_argument("recordings", nargs="+", metavar="REC.mcap",
+                   help="recordings (a run among the model's training runs is in-sample, others held-out)")
     p.add_argument("--png", default=None, metavar="OUT.png",
                    help="plot of predicted against measured per OC (default MODEL/evaluation.png)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -34,7 +41,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from node.models.bundle import load_model
-    from node.training.fit import load_runs
+    from node.training.fit import read_sourced
+    from node.training.provenance import run_provenance
     from replay.offline import node_alarms
 
     model = load_model(args.model)
@@ -45,29 +53,75 @@ def run(args: argparse.Namespace) -> int:
     pngs = [png.with_name(f"{png.stem}-{t}{png.suffix}") if several else png for t in model.targets]
     for path in pngs:
         check_output(str(path), "--png", suffix=".png", inputs=[args.model, *args.recordings])
-    runs = load_runs(args.recordings, args.quiet)
+    runs, recordings, source = read_sourced(args.recordings, args.quiet)
+    kinds = run_provenance(model, runs, [recordings[i]["sha256"] for i in source])
+    for line in _provenance_lines(kinds, source, [r["path"] for r in recordings]):
+        print(line)
     preds = []
     for bundle in model.bundles:
         if several:
             print(f"target {bundle.target}:")
-        preds.append(_table(bundle, runs))
-    print(node_alarms(args.recordings, model).line())
+        preds.append(_tables(bundle, runs, kinds))
+    print(f"{node_alarms(args.recordings, model).line()} (over {_counts(kinds)} run(s))")
     for bundle, mine, path in zip(model.bundles, preds, pngs):
         if _plot(bundle, mine, path):
             print(f"plot written to {path}")
     return 0
 
 
-def _table(bundle: Bundle, runs: list[Run]) -> list[SegmentPrediction]:
-    """Print the per-OC held-out table of one target's bundle over ``runs``; its predictions."""
-    from node.training.evaluation import curve_eps, evaluate
+def _counts(kinds: list[str]) -> str:
+    """``"1 held-out, 4 in-sample"``: how many runs of each provenance there are (none: left out)."""
+    from node.training.provenance import PROVENANCES
 
-    evals, preds = evaluate(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve,
-                            bundle.config)
+    return ", ".join(f"{kinds.count(k)} {k}" for k in PROVENANCES if k in kinds)
+
+
+def _provenance_lines(kinds: list[str], source: list[int], paths: list[str]) -> list[str]:
+    """A line per recording (``paths``; run i is of ``paths[source[i]]``) with its runs'
+    provenance; a line when no run is held out, and one when the model cannot tell (trained
+    before it recorded its runs)."""
+    from node.training.provenance import HELD_OUT, UNKNOWN
+
+    lines = []
+    for i, path in enumerate(paths):
+        mine = [k for k, s in zip(kinds, source) if s == i]
+        lines.append(f"{path}: {len(mine)} run(s)" + (f", {_counts(mine)}" if mine else ""))
+    if HELD_OUT not in kinds:
+        known = " known to be" if UNKNOWN in kinds else ""
+        lines.append(f"none of the {len(kinds)} run(s) is{known} held out ({_counts(kinds)}): CV eps_td is "
+                     "the model's cross-validated estimate")
+    if UNKNOWN in kinds:
+        lines.append(f"unknown provenance: {kinds.count(UNKNOWN)} run(s): the model records its training "
+                     "recordings' sha256 but not its runs (trained by an older ordervib), and these "
+                     "recordings are not among them")
+    return lines
+
+
+def _tables(bundle: Bundle, runs: list[Run], kinds: list[str]) -> list[SegmentPrediction]:
+    """Print one target's per-OC table of each provenance present (held-out first); all runs'
+    predictions (predicted together, in time order, as the node runs them)."""
+    from node.training.evaluation import predict_segments
+    from node.training.provenance import IN_SAMPLE, PROVENANCES, TABLE_WORDS
+
+    preds = predict_segments(bundle.ocs, runs, bundle.schedule, bundle.target, bundle.curve,
+                             bundle.config)
+    for kind in (k for k in PROVENANCES if k in kinds):
+        among = " (among the model's training runs)" if kind == IN_SAMPLE else ""
+        print(f"{TABLE_WORDS[kind]} runs: {kinds.count(kind)} of {len(kinds)}{among}")
+        _table(bundle, runs, [p for p in preds if kinds[p.run] == kind], TABLE_WORDS[kind])
+    return preds
+
+
+def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word: str) -> None:
+    """Print the per-OC table of one target's bundle over the predictions ``preds`` of some of
+    ``runs``, their eps_td named ``word`` (e.g. held-out), and its mean line."""
+    from node.training.evaluation import curve_eps, score_segments
+
+    evals = score_segments(bundle.ocs, bundle.schedule, preds)
     base_eps = [float("nan")] * len(evals)
     if bundle.curve is not None:
         base_eps = curve_eps(bundle.curve, runs, preds, bundle.schedule, bundle.target)
-    header = ["OC", "model", "segments", "held-out eps_td", "CV eps_td", "baseline eps_td", "outside"]
+    header = ["OC", "model", "segments", f"{word} eps_td", "CV eps_td", "baseline eps_td", "outside"]
     rows = []
     hold, base = [], []
     for e, b in zip(evals, base_eps):
@@ -79,13 +133,12 @@ def _table(bundle: Bundle, runs: list[Run]) -> list[SegmentPrediction]:
             base.append(b)
     print_table(header, rows)
     if hold:
-        print(f"mean held-out eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
+        print(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
               f"(characteristic-curve baseline {np.nanmean(base):.3f})")
     outside, samples = sum(e.outside for e in evals), sum(e.samples for e in evals if np.isfinite(e.eps))
     if samples:
         print(f"outside the training runs' envelope: {_share(outside, samples)} of {samples} modelled "
               f"samples (predicted with the inputs held at its edge, the band widened)")
-    return preds
 
 
 def _share(part: int, whole: int) -> str:

@@ -45,7 +45,7 @@ def _targets(spec: str | None, available: list[str]) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     from node.mcap import open_recording
     from node.models.bundle import load_model
-    from node.training.fit import load_runs
+    from node.training.fit import read_sourced
 
     for rec in args.recordings:  # one line for a missing or non-MCAP file, before any output
         with open_recording(rec):
@@ -60,18 +60,19 @@ def run(args: argparse.Namespace) -> int:
     from replay.report.build import build_report
     from replay.report.panels import RunSet
 
-    runs, labels = [], []
+    runs, labels, hashes = [], [], []
     for rec in args.recordings:
-        found = load_runs([rec], args.quiet)
+        found, read, _ = read_sourced([rec], args.quiet)
         runs += found
         labels += [RunSet.label(rec, i) for i in range(len(found))]
+        hashes += [read[0]["sha256"]] * len(found)  # whether a run is in-sample: by it and its span
     needed = [model.schedule.switch, *targets]
     for i, r in enumerate(runs):
         missing = [c for c in needed if c not in r.channels]
         if missing:
             raise OrdervibError(f"run {labels[i]} has no channel {', '.join(missing)} "
                                 f"(the schedule's switch and the targets are needed)")
-    page = build_report(model, RunSet(runs, labels), args.recordings, targets, args.model,
+    page = build_report(model, RunSet(runs, labels, hashes), args.recordings, targets, args.model,
                         progress=Progress("report", log))
     with replacing(args.out) as tmp:  # an existing report is replaced only by a complete one
         with open(tmp, "w", encoding="utf-8") as f:

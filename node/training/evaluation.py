@@ -43,7 +43,7 @@ class SegmentPrediction:
 @dataclass
 class OCEvaluation:
     name: str
-    eps: float  # pooled over the held-out segments; nan when the OC has no model or data
+    eps: float  # pooled over the segments evaluated; nan when the OC has no model or data
     n_segments: int
     alarm_samples: int  # samples flagged (persistent smoothed score beyond threshold)
     samples: int
@@ -107,8 +107,17 @@ def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
              target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
              config: RuntimeConfig | None = None
              ) -> tuple[list[OCEvaluation], list[SegmentPrediction]]:
-    """Per-OC held-out eps and alarm samples, and the predictions (see ``predict_segments``)."""
+    """Per-OC eps and alarm samples over ``runs`` (``score_segments``), and the predictions
+    (see ``predict_segments``)."""
     preds = predict_segments(results, runs, schedule, target, fleet, config)
+    return score_segments(results, schedule, preds), preds
+
+
+def score_segments(results: list[OCResult], schedule: Schedule, preds: list[SegmentPrediction]
+                   ) -> list[OCEvaluation]:
+    """Per OC (schedule order), eps pooled over the segments of ``preds`` and the samples the
+    alarm rule flags there (e.g. only the held-out runs' predictions: see
+    ``node.training.provenance``)."""
     by_name = {r.name: r for r in results}
     out = []
     for j, name in enumerate(schedule.names):
@@ -121,7 +130,7 @@ def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
         outside = sum(int(np.sum(p.envelope > OUTSIDE)) for p in mine if p.envelope is not None)
         out.append(OCEvaluation(name, pooled_eps([(p.measured, p.predicted) for p in mine]),
                                 len(mine), alarms, sum(p.t.size for p in mine), outside))
-    return out, preds
+    return out
 
 
 def baseline_eps(train_runs: list[Run], test_runs: list[Run], schedule: Schedule,

@@ -29,6 +29,7 @@ from node.mcap import ReadStats, warn_unfinished
 from node.models.bundle import Bundle, Model, load_model, save_model
 from node.models.config import RuntimeConfig
 from node.models.result import OCResult
+from node.training.provenance import training_record
 from node.training.runs import Run, read_runs
 
 log = logging.getLogger(__name__)
@@ -102,8 +103,16 @@ def _rconds(spec: str) -> list[float]:
 def read_recordings(paths: Sequence[str], quiet: bool = False) -> tuple[list[Run], list[dict]]:
     """Runs of every recording, in order, and each recording's ``{"path", "sha256"}``: each file
     read once; one status line per file unless quiet."""
+    runs, recordings, _ = read_sourced(paths, quiet)
+    return runs, recordings
+
+
+def read_sourced(paths: Sequence[str], quiet: bool = False) -> tuple[list[Run], list[dict], list[int]]:
+    """``read_recordings``, and per run the index of its recording among ``paths`` (its
+    sha256: ``recordings[i]["sha256"]``, for ``node.training.provenance``)."""
     runs: list[Run] = []
     recordings: list[dict] = []
+    source: list[int] = []
     for path in paths:
         stats = ReadStats()
         found = read_runs(path, stats=stats, sha256=True)
@@ -113,10 +122,11 @@ def read_recordings(paths: Sequence[str], quiet: bool = False) -> tuple[list[Run
             extra = f", {stats.malformed} malformed payloads skipped" if stats.malformed else ""
             log.info("read %s: %d run(s)%s", path, len(found), extra)
         runs += found
+        source += [len(recordings)] * len(found)
         recordings.append({"path": path, "sha256": stats.sha256})
     if not runs:
         raise OrdervibError("the recordings hold no pass-off run")
-    return runs, recordings
+    return runs, recordings, source
 
 
 def load_runs(paths: Sequence[str], quiet: bool = False) -> list[Run]:
@@ -194,10 +204,9 @@ def train_recordings(paths: Sequence[str], schedule: Schedule | None, options: d
     new_runs, new_recordings = read_recordings(paths, quiet)
     runs, recordings = old_runs + new_runs, old_recordings + new_recordings
     model, trained = train_model(runs, schedule, options, workers, allow_empty)
+    record = training_record(recordings, runs, time.perf_counter() - t0)  # spans: every run, kept first
     model = dataclasses.replace(model, bundles=tuple(
-        dataclasses.replace(b, training={"recordings": recordings, "runs": len(runs),
-                                         "seconds": round(time.perf_counter() - t0, 1)})
-        for b in model.bundles))
+        dataclasses.replace(b, training=dict(record)) for b in model.bundles))
     return Trained(model, trained, runs, recordings, options)
 
 

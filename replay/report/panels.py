@@ -23,7 +23,13 @@ from node.models.bundle import Bundle
 from node.runtime.history import HISTORY_CHANNELS
 from node.sysid.metrics import pooled_eps, pooled_r2
 from node.training.dataset import Segment, segment_runs
-from node.training.evaluation import curve_predictions, derived_runs, evaluate
+from node.training.evaluation import (
+    SegmentPrediction,
+    curve_predictions,
+    derived_runs,
+    predict_segments,
+    score_segments,
+)
 from node.training.runs import Run
 from replay.offline import NodeAlarms
 from replay.report.document import Block, Figure, Heading, Paragraph, Table
@@ -41,7 +47,9 @@ R2_FLOOR = -1.0  # R^2 bars below this are cut (a wild OC would flatten the othe
 
 @dataclass(frozen=True)
 class RunSet:
-    """The report's runs, in the order read, each with a label (``REC #i``, i from 1 per file).
+    """The report's runs, in the order read, each with a label (``REC #i``, i from 1 per file)
+    and the sha256 of its recording (None: not known), by which, and by its span, a run is told
+    in-sample or held-out (``node.training.provenance``).
 
     >>> RunSet.label("data/engine1_runs.mcap", 0)
     'engine1_runs #1'
@@ -49,6 +57,7 @@ class RunSet:
 
     runs: list[Run]
     labels: list[str]
+    sha256: list[str | None] | None = None
 
     @staticmethod
     def label(recording: str, i: int) -> str:
@@ -242,15 +251,30 @@ def _alarm_blocks(alarms: NodeAlarms, runs: RunSet, schedule: Schedule, target: 
     return blocks
 
 
-def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str,
-                     alarms: NodeAlarms) -> list[Block]:
-    """III: per OC, held-out eps_td and R^2 of the model beside the characteristic curve's, the
-    measured and predicted segments of every run, and the node's alarms with their reasons."""
-    evals, preds = evaluate(bundle.ocs, runs.runs, schedule, target, bundle.curve, bundle.config)
-    curve = fleet_curve(bundle, runs.runs, schedule.switch, target)
-    base = curve_predictions(curve, runs.runs, preds, schedule.switch, target)
-    names = schedule.names
-    rows, m_eps, c_eps, m_r2, c_r2 = [], [], [], [], []
+def _provenance_text(labels: Sequence[str], kinds: Sequence[str]) -> str:
+    """Which runs are held out and which in-sample (``node.training.provenance``), in words."""
+    from node.training.provenance import HELD_OUT, IN_SAMPLE, UNKNOWN
+
+    why = {HELD_OUT: "Held-out runs (not among the model's training runs)",
+           IN_SAMPLE: "In-sample runs (among the model's training runs: their errors tell how the model "
+                      "fits its training data, not how it does on new runs; CV eps_td is the "
+                      "cross-validated estimate)",
+           UNKNOWN: "Runs of unknown provenance (the model records its training recordings' sha256 but "
+                    "not its runs, and these runs' recordings are not among them)"}
+    parts = [f"{text}: {', '.join(lab for lab, k in zip(labels, kinds) if k == kind)}."
+             for kind, text in why.items() if kind in kinds]
+    if HELD_OUT not in kinds:
+        parts.append("None of these runs is held out.")
+    return " ".join(parts)
+
+
+def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[SegmentPrediction],
+                  base: list[np.ndarray], word: str) -> list[Block]:
+    """The bar charts and the table of eps_td and R^2 per OC over ``preds`` (the model's) and
+    ``base`` (the characteristic curve's on the same samples), their runs named ``word``."""
+    evals = score_segments(bundle.ocs, schedule, preds)
+    rows = []
+    m_eps, c_eps, m_r2, c_r2 = [], [], [], []
     for j, e in enumerate(evals):
         res = bundle.oc(e.name)
         pairs = [(p.measured, p.predicted) for p in preds if p.oc == j]
@@ -264,18 +288,36 @@ def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
         c_r2.append(cr2)
         rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps), _f(r2), _f(ce), _f(cr2),
                      _f(res.cv_eps if res else float("nan")), str(e.alarm_samples)])
-    blocks: list[Block] = [
-        Figure.of(score_figure(names, [("held-out eps_td", m_eps, c_eps, None),
-                                     ("R\u00b2", m_r2, c_r2, R2_FLOOR)]),
-                  f"{target}: per OC, the model (blue) and the characteristic curve (grey) over the "
-                  "same samples: relative error eps_td (lower is better) and R\u00b2 (1 is a perfect fit; "
-                  f"below {R2_FLOOR:g} cut, its value written)"),
-        Table(["OC", "model", "segments", "eps_td", "R\u00b2", "curve eps_td", "curve R\u00b2", "CV eps_td",
-               "alarm samples"], rows,
-              f"{target}: every run's OC segments, pooled (free run from the OC switch, seeded "
+    return [
+        Figure.of(score_figure(schedule.names, [(f"{word} eps_td", m_eps, c_eps, None),
+                                                (f"{word} R\u00b2", m_r2, c_r2, R2_FLOOR)]),
+                  f"{target}, {word} runs: per OC, the model (blue) and the characteristic curve (grey) "
+                  "over the same samples: relative error eps_td (lower is better) and R\u00b2 (1 is a "
+                  f"perfect fit; below {R2_FLOOR:g} cut, its value written)"),
+        Table(["OC", "model", "segments", f"{word} eps_td", f"{word} R\u00b2", "curve eps_td",
+               "curve R\u00b2", "CV eps_td", "alarm samples"], rows,
+              f"{target}: the {word} runs' OC segments, pooled (free run from the OC switch, seeded "
               "from the measured past, as the node runs it)"),
     ]
-    seg_fig = segments_figure(names, preds, target, run_colours(len(runs.runs)))
+
+
+def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str,
+                     alarms: NodeAlarms) -> list[Block]:
+    """III: per OC, eps_td and R^2 of the model beside the characteristic curve's, for the
+    held-out runs and the in-sample ones apart (``node.training.provenance``), the measured and
+    predicted segments of every run, and the node's alarms with their reasons."""
+    from node.training.provenance import PROVENANCES, TABLE_WORDS, run_provenance
+
+    preds = predict_segments(bundle.ocs, runs.runs, schedule, target, bundle.curve, bundle.config)
+    curve = fleet_curve(bundle, runs.runs, schedule.switch, target)
+    base = curve_predictions(curve, runs.runs, preds, schedule.switch, target)
+    kinds = run_provenance(bundle, runs.runs, runs.sha256)
+    blocks: list[Block] = [Paragraph(_provenance_text(runs.labels, kinds))]
+    for kind in (k for k in PROVENANCES if k in kinds):
+        mine = [i for i, p in enumerate(preds) if kinds[p.run] == kind]
+        blocks += _score_blocks(bundle, schedule, target, [preds[i] for i in mine], [base[i] for i in mine],
+                                TABLE_WORDS[kind])
+    seg_fig = segments_figure(schedule.names, preds, target, run_colours(len(runs.runs)))
     if seg_fig is not None:
         blocks.append(Figure.of(seg_fig, f"{target} measured (solid) and predicted (dashed) per OC, "
                                 "from each OC switch; a colour per run, as in panels I and II"))
