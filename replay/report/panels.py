@@ -287,7 +287,8 @@ def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[S
         m_r2.append(r2)
         c_r2.append(cr2)
         rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps), _f(r2), _f(ce), _f(cr2),
-                     _f(res.cv_eps if res else float("nan")), str(e.alarm_samples)])
+                     _f(res.cv_eps if res else float("nan")), str(e.alarm_samples),
+                     f"{100.0 * e.outside / e.samples:.1f} %" if e.samples else "-"])
     return [
         Figure.of(score_figure(schedule.names, [(f"{word} eps_td", m_eps, c_eps, None),
                                                 (f"{word} R\u00b2", m_r2, c_r2, R2_FLOOR)]),
@@ -295,9 +296,11 @@ def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[S
                   "over the same samples: relative error eps_td (lower is better) and R\u00b2 (1 is a "
                   f"perfect fit; below {R2_FLOOR:g} cut, its value written)"),
         Table(["OC", "model", "segments", f"{word} eps_td", f"{word} R\u00b2", "curve eps_td",
-               "curve R\u00b2", "CV eps_td", "alarm samples"], rows,
+               "curve R\u00b2", "CV eps_td", "alarm samples", "outside the envelope"], rows,
               f"{target}: the {word} runs' OC segments, pooled (free run from the OC switch, seeded "
-              "from the measured past, as the node runs it)"),
+              "from the measured past, as the node runs it); outside the envelope: the share of samples "
+              "beyond the region the training runs covered (predicted with the inputs held at its "
+              "edge, the band widened)"),
     ]
 
 
