@@ -80,6 +80,7 @@ def test_report_has_four_panels_each_with_a_figure_and_nothing_external(made: tu
     val = html[html.index('id="panel-validation"'):html.index('id="panel-prediction"')]
     assert "Held-out runs (not among the model&#x27;s training runs): engine1_runs #1" in val
     assert "held-out eps_td" in val and "in-sample" not in val  # the model was trained on other runs
+    assert "outside the envelope" in val and " %</td>" in val  # each OC's share beyond the envelope
     assert "pending" not in html
     ctx = html[html.index('id="panel-context"'):html.index('id="panel-parameters"')]
     assert "Contextual characteristic curves" in ctx
