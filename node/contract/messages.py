@@ -55,6 +55,17 @@ class Phase(StrEnum):
         return _PHASES[code]
 
 
+class Refused(StrEnum):
+    """Why the node refused a message (the keys of a health message's ``refused``): a refused
+    message creates no state, no topic and no MCAP channel; it is counted, nothing more."""
+
+    KEY = "key"  # not a sensor key by the contract's name rule (a wildcard, an empty chunk, ...)
+    NOT_ADMITTED = "not_admitted"  # a bed outside the node's --beds pattern
+    BED_LIMIT = "bed_limit"  # a new bed while the node tracks --max-beds beds
+    CHANNEL_LIMIT = "channel_limit"  # a new channel no model needs beyond the bed's --max-channels
+    RECORDING = "recording_channels"  # not recorded: the recording's channel table (u16 ids) is full
+
+
 _PHASES = (Phase.OFF, Phase.TRANSITION, Phase.STEADY)
 _PHASE_CODES = {p: i for i, p in enumerate(_PHASES)}
 
@@ -127,11 +138,35 @@ class HealthMessage(TypedDict):
     unrecorded: NotRequired[Annotated[int, "messages (every bed) the failed recording could not keep"]]
     node: NotRequired[Annotated[str, "the serving node's id (its liveliness token's last chunk)"]]
     beds: NotRequired[Annotated[str, "the beds that node serves: a bed name, * or a pattern with $*"]]
+    refused: NotRequired[Annotated[dict[str, int], "this bed's messages refused, per reason (key: a "
+                                                   "channel name breaking the rule, channel_limit: "
+                                                   "a channel beyond the bed's bound)"]]
+    expired: NotRequired[Annotated[bool, "the bed's last health: silent too long, its state freed"]]
+
+
+class NodeHealthMessage(TypedDict):
+    """``ordervib/node/<id>/health``: a node's own counters, every bed and none (what it refused
+    or lost before any bed's state); once a second while they change."""
+
+    t: Annotated[float, "the node's clock, s since the Unix epoch (no bed's sensor clock)"]
+    wall: Annotated[float, "the node's clock, s since the Unix epoch"]
+    node: Annotated[str, "the node's id (its liveliness token's last chunk)"]
+    beds: Annotated[str, "the beds the node serves: a bed name, * or a pattern with $*"]
+    received: Annotated[int, "messages the node took from its queue, refused ones included"]
+    dropped: Annotated[int, "messages lost in the node's queue (it was full), every key"]
+    refused: Annotated[dict[str, int], "messages refused, per reason (key, not_admitted, bed_limit, "
+                                       "channel_limit, recording_channels)"]
+    tracked: Annotated[int, "beds tracked now"]
+    max_beds: Annotated[int, "the bound on tracked beds"]
+    max_channels: Annotated[int, "the bound on channels per bed"]
+    expired: Annotated[int, "beds freed after a silence so far"]
+    recording: Annotated[bool, "the node's recording is being written; false: an alarm"]
+    unrecorded: Annotated[int, "messages the recording could not keep (failed, or refused)"]
 
 
 MESSAGE_TYPES: dict[TopicKind, type] = {
     TopicKind.SENSOR: SensorSample, TopicKind.MONITOR: MonitorMessage,
-    TopicKind.OC: OCMessage, TopicKind.HEALTH: HealthMessage,
+    TopicKind.OC: OCMessage, TopicKind.HEALTH: HealthMessage, TopicKind.NODE_HEALTH: NodeHealthMessage,
 }
 
 
