@@ -251,6 +251,8 @@ class NodeCore:
         state = bed.pipeline.history.state
         if state.last_on_t is not None:
             self._engines[name] = state
+        else:  # never ran: nothing worth keeping (a flood of names must not grow the state file)
+            self._engines.pop(name, None)
         for channel in bed.needed | bed.extra:
             self._routes.pop(sensor_key(name, channel), None)
 
