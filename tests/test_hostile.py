@@ -302,13 +302,12 @@ def test_silent_beds_expire_and_say_so(setup, tmp_path):
     assert all(h["received"] == 4 for bed, h in health if bed != "s1" or h.get("expired"))
 
 
-def test_a_flood_of_channel_keys_on_one_bed_is_refused_and_recorded_bounded(setup, tmp_path):
-    """66,000 distinct channel keys on one bed: the default bound (64 channels per bed) refuses
-    all but the bed's first 64 channels, counted; the recording goes on and finishes."""
+def _flood_one_bed(setup, rec, until=None, **options):
+    """66,000 distinct channel keys on bed ``b`` into a LiveNode (``options``) recording to
+    ``rec``, every one received (and ``until(node)``, if given) before the node stops."""
     from node.live.node import LiveNode
-    from node.runtime.core import MAX_CHANNELS
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint])
+    node = LiveNode(load_bundle(setup / "m"), str(rec), listen=[endpoint], **options)
     node.start()
     client = _client(endpoint)
     keys = [sensor_key("b", f"c{i}") for i in range(66_000)]
@@ -316,9 +315,18 @@ def test_a_flood_of_channel_keys_on_one_bed_is_refused_and_recorded_bounded(setu
         _wait_matched(client, "testbed/b/sensor/nB")
         _put_all(client, keys)
         assert wait_for(lambda: node.stats.received == len(keys), 60), node.stats
+        assert until is None or wait_for(lambda: until(node), 10)
     finally:
         client.close()
         node.stop()
+    return node, keys
+
+
+def test_a_flood_of_channel_keys_on_one_bed_is_refused_and_recorded_bounded(setup, tmp_path):
+    """66,000 distinct channel keys on one bed: the default bound (64 channels per bed) refuses
+    all but the bed's first 64 channels, counted; the recording goes on and finishes."""
+    from node.runtime.core import MAX_CHANNELS
+    node, keys = _flood_one_bed(setup, tmp_path / "n.mcap")
     extra = MAX_CHANNELS - len(node.core.beds["b"].needed)
     assert node.core.refused["channel_limit"] == len(keys) - extra
     assert node.health("b", time.time())["refused"] == {"channel_limit": len(keys) - extra}
@@ -333,21 +341,10 @@ def test_the_recording_survives_more_keys_than_mcap_channels(setup, tmp_path):
     (it failed with "ushort format requires 0 <= number <= 65535", exit 2, before)."""
     from mcap.reader import make_reader
 
-    from node.live.node import LiveNode
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint],
-                    max_channels=70_000)
-    node.start()
-    client = _client(endpoint)
-    keys = [sensor_key("b", f"c{i}") for i in range(66_000)]
-    try:
-        _wait_matched(client, "testbed/b/sensor/nB")
-        _put_all(client, keys)
-        assert wait_for(lambda: node.stats.received == len(keys), 60), node.stats
-        assert wait_for(lambda: node._node_health.get("refused", {}).get("recording_channels", 0) > 0, 10)
-    finally:
-        client.close()
-        node.stop()
+    def counted(node) -> bool:  # the node's own health said so
+        return node._node_health.get("refused", {}).get("recording_channels", 0) > 0
+
+    node, keys = _flood_one_bed(setup, tmp_path / "n.mcap", until=counted, max_channels=70_000)
     assert node.recording and node.stats.recording_error is None
     refused = node.writer.refused
     assert refused >= len(keys) - 65_535 and node.unrecorded == refused

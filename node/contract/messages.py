@@ -115,11 +115,20 @@ class OCMessage(TypedDict):
     previous: Annotated[str | None, "the OC in force before"]
 
 
+# the fields a bed's health and the node's own share: the serving node and its recording
+Wall = Annotated[float, "the node's clock, s since the Unix epoch"]
+Recording = Annotated[bool, "the node's recording is being written; false: an alarm"]
+Unrecorded = Annotated[int, "messages (every bed) the recording could not keep: it failed, or it "
+                            "refused their topic (its channel table full: refused.recording_channels)"]
+NodeId = Annotated[str, "the serving node's id (its liveliness token's last chunk)"]
+Beds = Annotated[str, "the beds that node serves: a bed name, * or a pattern with $*"]
+
+
 class HealthMessage(TypedDict):
     """``testbed/<bed>/monitor/health``: about once a second, that bed's own counters."""
 
     t: Annotated[float, "the latest sensor time seen from this bed, s"]
-    wall: Annotated[float, "the node's clock, s since the Unix epoch"]
+    wall: Wall
     received: Annotated[int, "sensor messages received from this bed"]
     malformed: Annotated[int, "of them, payloads that break the sensor payload rule"]
     dropped: Annotated[int, "this bed's messages lost in the node's queue"]
@@ -134,10 +143,10 @@ class HealthMessage(TypedDict):
     lag_ms_p99: NotRequired[Annotated[float | None, "receive to publish, ms, 99th percentile"]]
     staleness: NotRequired[Annotated[float | None, "wall minus the receipt of the bed's last message, s"]]
     lag_ms_max: NotRequired[Annotated[float | None, "receive to publish, ms, largest since the last health"]]
-    recording: NotRequired[Annotated[bool, "the node's recording is being written; false: an alarm"]]
-    unrecorded: NotRequired[Annotated[int, "messages (every bed) the failed recording could not keep"]]
-    node: NotRequired[Annotated[str, "the serving node's id (its liveliness token's last chunk)"]]
-    beds: NotRequired[Annotated[str, "the beds that node serves: a bed name, * or a pattern with $*"]]
+    recording: NotRequired[Recording]
+    unrecorded: NotRequired[Unrecorded]
+    node: NotRequired[NodeId]
+    beds: NotRequired[Beds]
     refused: NotRequired[Annotated[dict[str, int], "this bed's messages refused, per reason (key: a "
                                                    "channel name breaking the rule, channel_limit: "
                                                    "a channel beyond the bed's bound)"]]
@@ -149,9 +158,9 @@ class NodeHealthMessage(TypedDict):
     or lost before any bed's state); once a second while they change."""
 
     t: Annotated[float, "the node's clock, s since the Unix epoch (no bed's sensor clock)"]
-    wall: Annotated[float, "the node's clock, s since the Unix epoch"]
-    node: Annotated[str, "the node's id (its liveliness token's last chunk)"]
-    beds: Annotated[str, "the beds the node serves: a bed name, * or a pattern with $*"]
+    wall: Wall
+    node: NodeId
+    beds: Beds
     received: Annotated[int, "messages the node took from its queue, refused ones included"]
     dropped: Annotated[int, "messages lost in the node's queue (it was full), every key"]
     refused: Annotated[dict[str, int], "messages refused, per reason (key, not_admitted, bed_limit, "
@@ -160,8 +169,8 @@ class NodeHealthMessage(TypedDict):
     max_beds: Annotated[int, "the bound on tracked beds"]
     max_channels: Annotated[int, "the bound on channels per bed"]
     expired: Annotated[int, "beds freed after a silence so far"]
-    recording: Annotated[bool, "the node's recording is being written; false: an alarm"]
-    unrecorded: Annotated[int, "messages the recording could not keep (failed, or refused)"]
+    recording: Recording
+    unrecorded: Unrecorded
 
 
 MESSAGE_TYPES: dict[TopicKind, type] = {
