@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import orjson
 
-from node.contract import FS, OrdervibError, is_monitor_key, log_time_ns
+from node.contract import FS, OrdervibError, is_output_key, log_time_ns
 from node.mcap import ReadStats, RecordingWriter, iter_messages_fast, message_time_span
 from node.models.bundle import Bundle, Model
 from node.runtime.core import NodeCore, recording_order
@@ -248,9 +248,9 @@ def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int
         messages = iter_messages_fast(recording, stats=stats)
         while batch := list(islice(messages, BATCH)):
             keys = list(map(_KEY, batch))
-            if any(map(is_monitor_key, set(keys))):
+            if any(map(is_output_key, set(keys))):
                 # a node's own recording: recompute its monitor messages, do not copy them
-                batch = [m for m in batch if not is_monitor_key(m[0])]
+                batch = [m for m in batch if not is_output_key(m[0])]
                 keys = list(map(_KEY, batch))
             n_in += len(batch)
             if batch:

@@ -38,6 +38,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="serve only the test beds matching PATTERN: a bed name, * (every bed, the "
                         "default) or a name with Zenoh's $* (east$*: the beds whose names start with "
                         "east); several nodes with disjoint patterns share a fleet (README)")
+    p.add_argument("--max-beds", type=int, default=None, metavar="N",
+                   help="track N beds at once at most (default 256): a new bed beyond them is "
+                        "refused and counted (node health refused.bed_limit) until one expires")
+    p.add_argument("--max-channels", type=int, default=None, metavar="N",
+                   help="channels per bed at most, the model's among them (default 64): a further "
+                        "channel is refused and counted (health refused.channel_limit), not recorded")
+    p.add_argument("--bed-expiry", type=float, default=None, metavar="S",
+                   help="free a bed's state after S seconds without a message from it (default 300); "
+                        "its last health message says expired, a new message admits it afresh")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing recording (or rotated files of that name); without it "
@@ -67,6 +76,14 @@ def run(args: argparse.Namespace) -> int:
         check_new_files([glob.escape(stem) + ".[0-9][0-9][0-9][0-9]*.mcap"], "--record", args.force)
     if args.duration is not None and not args.duration > 0:
         raise OrdervibError("--duration must be > 0")
+    for option, value in (("--max-beds", args.max_beds), ("--max-channels", args.max_channels)):
+        if value is not None and value < 1:
+            raise OrdervibError(f"{option} must be >= 1, got {value}")
+    if args.bed_expiry is not None and not args.bed_expiry > 0:  # NaN too
+        raise OrdervibError(f"--bed-expiry must be > 0, got {args.bed_expiry}")
+    given = (("max_beds", args.max_beds), ("max_channels", args.max_channels),
+             ("bed_expiry_s", args.bed_expiry))
+    limits = {name: value for name, value in given if value is not None}
     listen = args.listen
     if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):
         listen = [DEFAULT_ENDPOINT]
@@ -81,5 +98,6 @@ def run(args: argparse.Namespace) -> int:
                                   deferred=True, exclusive=not args.force)
     else:
         record = RecordingWriter(args.record, deferred=True, exclusive=not args.force)
-    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file, args.beds)
+    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file, args.beds,
+             **limits)
     return 0

@@ -8,11 +8,22 @@ Every key the node reads or writes is built and parsed here, and nowhere else.
 ('bed1', 'yB')
 >>> topic_kind(monitor_key("bed1", "yB")), topic_kind(health_key("bed1"))
 (<TopicKind.MONITOR: 'monitor'>, <TopicKind.HEALTH: 'health'>)
+
+A ``<bed>`` or ``<channel>`` is one key chunk of letters, digits, ``_``, ``-`` and ``.``, at
+most 64 characters (section 1): a key with a wildcard or an empty chunk is no sensor key.
+
+>>> parse_sensor_key("testbed/*/sensor/nB"), parse_sensor_key("testbed/**/sensor/nB")
+(None, None)
+>>> parse_sensor_key("testbed/east$*/sensor/nB"), parse_sensor_key("testbed//sensor/nB")
+(None, None)
+>>> parse_sensor_key("testbed/" + "b" * 65 + "/sensor/nB"), is_name("b" * 64)
+(None, True)
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from enum import StrEnum
 
 FS = 40.0  # nominal sample rate per channel, Hz (section 1)
@@ -35,6 +46,9 @@ PREFIX = "testbed"
 SENSOR_SUBSCRIPTION = f"{PREFIX}/*/sensor/**"  # every test bed's sensors
 MONITOR_SUBSCRIPTION = f"{PREFIX}/*/monitor/**"  # every test bed's node outputs
 LIVELINESS_PREFIX = "ordervib/node"
+NAME_MAX = 64  # characters of a bed or channel name at most (section 1)
+_NAME = rf"[A-Za-z0-9_.\-]{{1,{NAME_MAX}}}"  # a bed or channel name: one key chunk, no wildcard
+_NAME_RE = re.compile(_NAME)
 _BEDS_CHUNK = re.compile(r"^(\*|(?:[A-Za-z0-9_.\-]|\$\*)+)$")  # a bed name, ``*``, or a name with ``$*``
 
 
@@ -51,12 +65,38 @@ def sensor_subscription(beds: str = "*") -> str:
         raise ValueError(f"beds pattern {beds!r}: give a bed name, * or a name with $* (e.g. east$*)")
     return f"{PREFIX}/{beds}/sensor/**"
 
+
+def bed_matcher(beds: str = "*") -> Callable[[str], bool]:
+    """Whether a bed name matches the pattern ``beds`` (as ``sensor_subscription`` takes it), as
+    Zenoh matches the chunk: ``*`` any name, ``$*`` any run of characters (none too).
+
+    >>> east = bed_matcher("east$*")
+    >>> east("east1"), east("east"), east("west1"), bed_matcher("*")("x"), bed_matcher("b1")("b10")
+    (True, True, False, True, False)
+    """
+    sensor_subscription(beds)  # ValueError for a bad pattern
+    if beds == "*":
+        return is_name
+    rule = re.compile(".*".join(map(re.escape, beds.split("$*"))), re.DOTALL)
+    return lambda name: rule.fullmatch(name) is not None
+
+
+def is_name(chunk: str) -> bool:
+    """Whether ``chunk`` is a valid bed or channel name (section 1: letters, digits, ``_``, ``-``
+    and ``.``, 1 to 64 characters; no wildcard).
+
+    >>> is_name("bed-1.a_b"), is_name("*"), is_name("**"), is_name("a$*"), is_name("")
+    (True, False, False, False, False)
+    """
+    return _NAME_RE.fullmatch(chunk) is not None
+
 OC_TOPIC = "oc"  # monitor/<OC_TOPIC>: OC switches
 HEALTH_TOPIC = "health"  # monitor/<HEALTH_TOPIC>: the bed's health
 
-_SENSOR_RE = re.compile(rf"^{PREFIX}/([^/]+)/sensor/([^/]+)$")
-_MONITOR_RE = re.compile(rf"^{PREFIX}/([^/]+)/monitor/([^/]+)$")
+_SENSOR_RE = re.compile(rf"{PREFIX}/({_NAME})/sensor/({_NAME})\Z")
+_MONITOR_RE = re.compile(rf"{PREFIX}/({_NAME})/monitor/({_NAME})\Z")
 _BED_RE = re.compile(rf"^{PREFIX}/([^/]+)/")
+_NODE_HEALTH_RE = re.compile(rf"{LIVELINESS_PREFIX}/[^/*$]+/{HEALTH_TOPIC}\Z")
 
 
 class TopicKind(StrEnum):
@@ -66,6 +106,7 @@ class TopicKind(StrEnum):
     MONITOR = "monitor"  # monitor/<target>
     OC = "oc"
     HEALTH = "health"
+    NODE_HEALTH = "node-health"  # ordervib/node/<id>/health: a node's own counters
     OTHER = "other"
 
 
@@ -115,14 +156,27 @@ def liveliness_key(node_id: str) -> str:
     return f"{LIVELINESS_PREFIX}/{node_id}"
 
 
+def node_health_key(node_id: str) -> str:
+    """Key of a node's own health messages: its node-wide counters (what it refused, lost in its
+    queue, how many beds it tracks), which belong to no bed.
+
+    >>> node_health_key("1f2e"), topic_kind(node_health_key("1f2e"))
+    ('ordervib/node/1f2e/health', <TopicKind.NODE_HEALTH: 'node-health'>)
+    """
+    return f"{LIVELINESS_PREFIX}/{node_id}/{HEALTH_TOPIC}"
+
+
 def parse_sensor_key(key: str) -> tuple[str, str] | None:
-    """(bed, channel) of a sensor key expression, or None for any other key."""
+    """(bed, channel) of a sensor key expression, or None for any other key: one whose bed or
+    channel breaks the name rule (a wildcard ``*``, ``**``, ``$*``, an empty chunk, more than 64
+    characters, another character) is none. The one parse of the node's input keys."""
     m = _SENSOR_RE.match(key)
     return (m.group(1), m.group(2)) if m else None
 
 
 def parse_monitor_key(key: str) -> tuple[str, str] | None:
-    """(bed, name) of a monitor key (name: a target, ``oc`` or ``health``), or None."""
+    """(bed, name) of a monitor key (name: a target, ``oc`` or ``health``), or None (for a bed or
+    name that breaks the name rule too)."""
     m = _MONITOR_RE.match(key)
     return (m.group(1), m.group(2)) if m else None
 
@@ -134,8 +188,17 @@ def bed_of(key: str) -> str | None:
 
 
 def is_monitor_key(key: str) -> bool:
-    """Whether a key is one of the node's outputs (monitor, oc or health)."""
+    """Whether a key is one of the node's outputs of a bed (monitor, oc or health)."""
     return _MONITOR_RE.match(key) is not None
+
+
+def is_output_key(key: str) -> bool:
+    """Whether a key is one of the node's outputs: a bed's (``is_monitor_key``) or its own health.
+
+    >>> is_output_key(health_key("b1")), is_output_key(node_health_key("n1")), is_output_key("x")
+    (True, True, False)
+    """
+    return _MONITOR_RE.match(key) is not None or _NODE_HEALTH_RE.match(key) is not None
 
 
 def topic_kind(key: str) -> TopicKind:
@@ -144,5 +207,5 @@ def topic_kind(key: str) -> TopicKind:
         return TopicKind.SENSOR
     m = _MONITOR_RE.match(key)
     if m is None:
-        return TopicKind.OTHER
+        return TopicKind.NODE_HEALTH if _NODE_HEALTH_RE.match(key) else TopicKind.OTHER
     return _RESERVED_KINDS.get(m.group(2), TopicKind.MONITOR)

@@ -55,6 +55,17 @@ class Phase(StrEnum):
         return _PHASES[code]
 
 
+class Refused(StrEnum):
+    """Why the node refused a message (the keys of a health message's ``refused``): a refused
+    message creates no state, no topic and no MCAP channel; it is counted, nothing more."""
+
+    KEY = "key"  # not a sensor key by the contract's name rule (a wildcard, an empty chunk, ...)
+    NOT_ADMITTED = "not_admitted"  # a bed outside the node's --beds pattern
+    BED_LIMIT = "bed_limit"  # a new bed while the node tracks --max-beds beds
+    CHANNEL_LIMIT = "channel_limit"  # a new channel no model needs beyond the bed's --max-channels
+    RECORDING = "recording_channels"  # not recorded: the recording's channel table (u16 ids) is full
+
+
 _PHASES = (Phase.OFF, Phase.TRANSITION, Phase.STEADY)
 _PHASE_CODES = {p: i for i, p in enumerate(_PHASES)}
 
@@ -104,11 +115,20 @@ class OCMessage(TypedDict):
     previous: Annotated[str | None, "the OC in force before"]
 
 
+# the fields a bed's health and the node's own share: the serving node and its recording
+Wall = Annotated[float, "the node's clock, s since the Unix epoch"]
+Recording = Annotated[bool, "the node's recording is being written; false: an alarm"]
+Unrecorded = Annotated[int, "messages (every bed) the recording could not keep: it failed, or it "
+                            "refused their topic (its channel table full: refused.recording_channels)"]
+NodeId = Annotated[str, "the serving node's id (its liveliness token's last chunk)"]
+Beds = Annotated[str, "the beds that node serves: a bed name, * or a pattern with $*"]
+
+
 class HealthMessage(TypedDict):
     """``testbed/<bed>/monitor/health``: about once a second, that bed's own counters."""
 
     t: Annotated[float, "the latest sensor time seen from this bed, s"]
-    wall: Annotated[float, "the node's clock, s since the Unix epoch"]
+    wall: Wall
     received: Annotated[int, "sensor messages received from this bed"]
     malformed: Annotated[int, "of them, payloads that break the sensor payload rule"]
     dropped: Annotated[int, "this bed's messages lost in the node's queue"]
@@ -123,15 +143,39 @@ class HealthMessage(TypedDict):
     lag_ms_p99: NotRequired[Annotated[float | None, "receive to publish, ms, 99th percentile"]]
     staleness: NotRequired[Annotated[float | None, "wall minus the receipt of the bed's last message, s"]]
     lag_ms_max: NotRequired[Annotated[float | None, "receive to publish, ms, largest since the last health"]]
-    recording: NotRequired[Annotated[bool, "the node's recording is being written; false: an alarm"]]
-    unrecorded: NotRequired[Annotated[int, "messages (every bed) the failed recording could not keep"]]
-    node: NotRequired[Annotated[str, "the serving node's id (its liveliness token's last chunk)"]]
-    beds: NotRequired[Annotated[str, "the beds that node serves: a bed name, * or a pattern with $*"]]
+    recording: NotRequired[Recording]
+    unrecorded: NotRequired[Unrecorded]
+    node: NotRequired[NodeId]
+    beds: NotRequired[Beds]
+    refused: NotRequired[Annotated[dict[str, int], "this bed's messages refused, per reason (key: a "
+                                                   "channel name breaking the rule, channel_limit: "
+                                                   "a channel beyond the bed's bound)"]]
+    expired: NotRequired[Annotated[bool, "the bed's last health: silent too long, its state freed"]]
+
+
+class NodeHealthMessage(TypedDict):
+    """``ordervib/node/<id>/health``: a node's own counters, every bed and none (what it refused
+    or lost before any bed's state); once a second while they change."""
+
+    t: Annotated[float, "the node's clock, s since the Unix epoch (no bed's sensor clock)"]
+    wall: Wall
+    node: NodeId
+    beds: Beds
+    received: Annotated[int, "messages the node took from its queue, refused ones included"]
+    dropped: Annotated[int, "messages lost in the node's queue (it was full), every key"]
+    refused: Annotated[dict[str, int], "messages refused, per reason (key, not_admitted, bed_limit, "
+                                       "channel_limit, recording_channels)"]
+    tracked: Annotated[int, "beds tracked now"]
+    max_beds: Annotated[int, "the bound on tracked beds"]
+    max_channels: Annotated[int, "the bound on channels per bed"]
+    expired: Annotated[int, "beds freed after a silence so far"]
+    recording: Recording
+    unrecorded: Unrecorded
 
 
 MESSAGE_TYPES: dict[TopicKind, type] = {
     TopicKind.SENSOR: SensorSample, TopicKind.MONITOR: MonitorMessage,
-    TopicKind.OC: OCMessage, TopicKind.HEALTH: HealthMessage,
+    TopicKind.OC: OCMessage, TopicKind.HEALTH: HealthMessage, TopicKind.NODE_HEALTH: NodeHealthMessage,
 }
 
 

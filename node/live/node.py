@@ -1,12 +1,23 @@
 """The live edges: Zenoh in and out, MCAP recording. The logic is ``NodeCore``'s.
 
-The subscriber callback only stamps and enqueues (a bounded ``Inbox``, overflow
-counted per key); one worker thread drains the inbox in batches (everything
-waiting, up to ``BATCH_MAX``), runs the node logic once per batch
-(``NodeCore.handle_batch``, as offline replay does), records every input,
+The subscriber callback only stamps and enqueues (a bounded ``Inbox``; overflow
+counted, per key for the first ``OVERFLOW_KEYS`` keys); one worker thread drains the inbox in
+batches (everything waiting, up to ``BATCH_MAX``), runs the node logic once per batch
+(``NodeCore.handle_batch``, as offline replay does), records every input it admitted,
 publishes and records every output, flushes the recording once a second (a
 killed node loses at most the last second) and publishes a health message per
 bed once a second.
+
+Hostile and broken clients (issue 31): whatever arrives, the node's state stays bounded. The
+core admits a message only on a valid sensor key of a bed the ``beds`` pattern names, within
+``max_beds`` beds and ``max_channels`` channels per bed; the refused are counted per reason,
+never recorded, never a bed, a topic or an MCAP channel (``NodeCore.route``). A bed silent
+for ``bed_expiry_s`` (receive time) is freed: its waiting samples run, a last health message
+says ``expired: true``, its publishers are undeclared. The recording's channel table is
+bounded too (``RecordingWriter.max_channels``): a topic beyond it is refused and counted, the
+recording goes on. What belongs to no bed (refusals, queue losses of any key, beds tracked and
+expired) goes to the node's own health, ``ordervib/node/<id>/health``
+(``NodeHealthMessage``), once a second while it changes.
 
 Failures (README "Health and liveliness"):
 
@@ -36,6 +47,7 @@ import time
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass
+from itertools import compress
 from types import TracebackType
 from typing import Any
 
@@ -44,11 +56,17 @@ import orjson
 
 from node.contract import (
     HealthMessage,
+    NodeHealthMessage,
     OrdervibError,
+    Refused,
     health_key,
     liveliness_key,
     log_time_ns,
     log_times_ns,
+    node_health_key,
+    oc_key,
+    parse_sensor_key,
+    sensor_key,
     sensor_subscription,
 )
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
@@ -57,7 +75,7 @@ from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle, Model
-from node.runtime.core import NodeCore, recording_order
+from node.runtime.core import MAX_BEDS, MAX_CHANNELS, NodeCore, recording_order
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +83,8 @@ BATCH_MAX = 4096  # messages handled at once at most
 LAG_KEPT = 4000  # latencies (per bed) the health message's percentiles are taken over
 WATCHDOG_S = 0.5  # how often run_node checks the worker thread, s
 STALL_S = 0.5  # a worker pass longer than this is logged as a warning with its breakdown, s
+BED_EXPIRY_S = 300.0  # a bed silent this long (receive time) is freed, by default, s (--bed-expiry)
+OVERFLOW_KEYS = 4096  # keys whose queue losses are counted apart (per bed's health) at most
 
 
 @dataclass
@@ -72,6 +92,7 @@ class LiveStats:
     received: int = 0
     overflow: int = 0  # dropped because the queue was full
     published: int = 0
+    expired: int = 0  # beds freed after a silence
     unrecorded: int = 0  # messages not in the recording because it failed
     recording_error: str | None = None  # why the recording stopped, if it did
     engine_file_error: str | None = None  # why the engine state was last not saved, if so
@@ -92,11 +113,17 @@ class LiveNode:
     def __init__(self, bundle: Bundle | Model, record: str | RecordingWriter | RotatingRecorder,
                  listen: list[str] | None = None,
                  connect: list[str] | None = None, config_file: str | None = None,
-                 queue_size: int = 1_000_000, engine_file: str | None = None, beds: str = "*") -> None:
+                 queue_size: int = 1_000_000, engine_file: str | None = None, beds: str = "*",
+                 max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
+                 bed_expiry_s: float = BED_EXPIRY_S) -> None:
         self.subscription = sensor_subscription(beds)  # ValueError for a bad pattern, before any I/O
+        if not bed_expiry_s > 0:
+            raise ValueError(f"bed_expiry_s must be > 0, got {bed_expiry_s}")
         self.beds = beds  # the beds this node serves (a key-expression chunk, see sensor_subscription)
+        self.bed_expiry_s = bed_expiry_s
         self.engine_file = engine_file  # each bed's engine history (node.live.engine_file)
-        self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None)
+        self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None,
+                             beds=beds, max_beds=max_beds, max_channels=max_channels)
         self._engine_saved: dict = {}  # what the file holds now
         self._engine_next = 0.0  # monotonic time of the next save
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
@@ -109,7 +136,8 @@ class LiveNode:
         self._lag: dict[str, deque[float]] = {}  # bed -> receive-to-publish latencies, ms
         self._lag_max: dict[str, float] = {}  # bed -> the largest latency since its last health, ms
         self._last_recv: dict[str, int] = {}  # bed -> receive time of its newest message, ns
-        self._overflow: dict[str, int] = {}  # key -> messages lost in the queue
+        self._overflow: dict[str, int] = {}  # key -> messages lost in the queue (OVERFLOW_KEYS keys)
+        self._node_health: dict = {}  # the last node health published, less its clock
         self._name = str(record)  # a path, or a recorder that names its file(s)
         self._written = 0  # messages the recorder took
         self._flushed = 0  # of them, those taken before its last successful flush
@@ -130,10 +158,12 @@ class LiveNode:
         self.stop()
 
     def _on_sample(self, sample: Any) -> None:  # Zenoh thread: stamp and enqueue only
-        if not self.queue.put((str(sample.key_expr), sample.payload.to_bytes(), time.time_ns())):
+        key = str(sample.key_expr)
+        if not self.queue.put((key, sample.payload.to_bytes(), time.time_ns())):
             self.stats.overflow += 1
-            key = str(sample.key_expr)
-            self._overflow[key] = self._overflow.get(key, 0) + 1
+            lost = self._overflow
+            if key in lost or len(lost) < OVERFLOW_KEYS:  # bounded whatever keys arrive
+                lost[key] = lost.get(key, 0) + 1
 
     def start(self) -> None:
         import zenoh
@@ -199,28 +229,32 @@ class LiveNode:
         return self.queue.take(BATCH_MAX, timeout=0.05)
 
     def _bed(self, key: str) -> str | None:
-        """The bed of a sensor key, None for any other key (the core's one parse of the key)."""
-        route = self.core.route(key)
+        """The bed of an admitted sensor key, None for any other key (the core's one parse)."""
+        route = self.core.known(key)
         return route[0] if route else None
 
     def _handle(self, batch: list[tuple[str, bytes, int]]) -> None:
-        """One batch: each input recorded, then the outputs it completed published and recorded
-        (``recording_order``)."""
+        """One batch: each admitted input recorded, then the outputs it completed published and
+        recorded (``recording_order``); refused inputs are counted by the core, nothing more."""
         keys, payloads, recv = zip(*batch, strict=True)
         self.stats.received += len(batch)
+        t0 = time.perf_counter()
+        result = self.core.handle_batch(keys, payloads)
+        self._spent["core"] += time.perf_counter() - t0
         for key, r in dict(zip(keys, recv, strict=True)).items():  # each key's newest receipt
             bed = self._bed(key)
             if bed is not None and r > self._last_recv.get(bed, 0):
                 self._last_recv[bed] = r
-        t0 = time.perf_counter()
-        result = self.core.handle_batch(keys, payloads)
-        self._spent["core"] += time.perf_counter() - t0
         # each input's log time (ns) as log_time_ns takes it; a malformed one at its receive time
         log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
+        keep = None if result.refused is None else (~result.refused).tolist()
         for start, stop, outs in recording_order(len(batch), result.done):
             if stop > start:  # the inputs up to the one that completed these outputs
-                self._record_many(zip(keys[start:stop], log_ns[start:stop], recv[start:stop],
-                                      payloads[start:stop]), stop - start)
+                rows = zip(keys[start:stop], log_ns[start:stop], recv[start:stop], payloads[start:stop])
+                if keep is None:
+                    self._record_many(rows, stop - start)
+                elif n := sum(keep[start:stop]):
+                    self._record_many(compress(rows, keep[start:stop]), n)
             if outs:
                 i = stop - 1
                 for key, msg in outs:
@@ -277,35 +311,100 @@ class LiveNode:
             except Exception:  # noqa: BLE001 - the session may be gone already
                 pass
 
-    def health(self, bed: str, wall: float) -> HealthMessage:
+    def _dropped(self) -> dict[str, int]:
+        """Each tracked bed's messages lost in the queue (of the keys counted apart)."""
+        out: dict[str, int] = {}
+        for key, n in list(self._overflow.items()):
+            parsed = parse_sensor_key(key)
+            if parsed is not None and parsed[0] in self.core.beds:
+                out[parsed[0]] = out.get(parsed[0], 0) + n
+        return out
+
+    @property
+    def unrecorded(self) -> int:
+        """Messages not in the recording: since it failed, or refused by its channel table."""
+        return self.stats.unrecorded + self.writer.refused
+
+    def health(self, bed: str, wall: float, dropped: dict[str, int] | None = None) -> HealthMessage:
         """``bed``'s health message: the core's counters, with this node's clock, staleness,
-        queue losses, latency and recording state (README "Health and liveliness")."""
+        queue losses, latency and recording state (README "Health and liveliness").
+        dropped: each bed's queue losses (``_dropped``; computed when not given)."""
         lags = sorted(self._lag.get(bed, ()))
         lag = (lags[len(lags) // 2], lags[int(0.99 * (len(lags) - 1))]) if lags else (None, None)
-        dropped = sum(n for key, n in list(self._overflow.items()) if self._bed(key) == bed)
-        msg = self.core.health(bed, wall, dropped, lag)
+        msg = self.core.health(bed, wall, (self._dropped() if dropped is None else dropped).get(bed, 0), lag)
         last = self._last_recv.get(bed)
         msg["staleness"] = None if last is None else round(wall - last / 1e9, 6)
         msg["lag_ms_max"] = self._lag_max.pop(bed, None)
         msg["recording"] = self.recording
-        msg["unrecorded"] = self.stats.unrecorded
-        session = getattr(self, "session", None)
-        msg["node"] = str(session.zid()) if session is not None else ""
+        msg["unrecorded"] = self.unrecorded
+        msg["node"] = self.node_id
         msg["beds"] = self.beds
         return msg
 
+    @property
+    def node_id(self) -> str:
+        """The node's Zenoh id ("" before it started)."""
+        session = getattr(self, "session", None)
+        return str(session.zid()) if session is not None else ""
+
+    def node_health(self, wall: float) -> NodeHealthMessage:
+        """The node's own health: what belongs to no bed (``NodeHealthMessage``)."""
+        refused = {r.value: self.core.refused[r.value] for r in Refused}
+        refused[Refused.RECORDING.value] = self.writer.refused
+        return {"t": wall, "wall": wall, "node": self.node_id, "beds": self.beds,
+                "received": self.stats.received, "dropped": self.stats.overflow, "refused": refused,
+                "tracked": len(self.core.beds), "max_beds": self.core.max_beds,
+                "max_channels": self.core.max_channels, "expired": self.stats.expired,
+                "recording": self.recording, "unrecorded": self.unrecorded}
+
     def _tick(self) -> None:
-        """Once a second: each bed's health message, and the recording flushed."""
+        """Once a second: silent beds expired, each bed's health message, the node's own when it
+        changed, and the recording flushed."""
         wall = time.time()
+        dropped = self._dropped()
+        self._expire(wall, dropped)
         for bed, state in list(self.core.beds.items()):
             if state.latest_t is not None:  # a bed of malformed messages only has no sensor time
-                self._publish(health_key(bed), self.health(bed, wall))
+                self._publish(health_key(bed), self.health(bed, wall, dropped))
+        node = self.node_health(wall)
+        counters = {k: v for k, v in node.items() if k not in ("t", "wall")}
+        if counters != self._node_health:
+            self._node_health = counters
+            self._publish(node_health_key(node["node"]), node)
         t0 = time.perf_counter()
         self._flush()
         if time.monotonic() >= self._engine_next:
             self._engine_next = time.monotonic() + SAVE_EVERY_S
             self._save_engines()
         self._spent["flush"] += time.perf_counter() - t0
+
+    def _expire(self, wall: float, dropped: dict[str, int]) -> None:
+        """Free the beds silent (receive time) for ``bed_expiry_s``: their waiting samples run and
+        go out, a last health message says ``expired: true``, their publishers are undeclared."""
+        now = time.time_ns()
+        silence = int(self.bed_expiry_s * 1e9)
+        gone = [name for name in self.core.beds if now - self._last_recv.setdefault(name, now) > silence]
+        for name in gone:
+            for key, msg in self.core.flush_bed(name):
+                self._publish(key, msg)
+            state = self.core.beds[name]
+            if state.latest_t is not None:
+                last = self.health(name, wall, dropped)
+                last["expired"] = True
+                self._publish(health_key(name), last)
+            self.core.forget(name)
+            for key in (*state.keys, oc_key(name), health_key(name)):
+                pub = self._publishers.pop(key, None)
+                if pub is not None:
+                    pub.undeclare()
+            for channel in state.needed | state.extra:
+                self._overflow.pop(sensor_key(name, channel), None)
+            for per_bed in (self._lag, self._lag_max, self._last_recv):
+                per_bed.pop(name, None)
+        if gone:
+            self.stats.expired += len(gone)
+            log.info("%d bed(s) silent for %g s expired, their state freed: %s%s", len(gone),
+                     self.bed_expiry_s, ", ".join(gone[:5]), ", ..." if len(gone) > 5 else "")
 
     def _save_engines(self) -> None:
         """Each bed's engine history to its file, when it changed; a failure is logged, never fatal."""
@@ -344,7 +443,9 @@ class LiveNode:
 
 def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRecorder,
              listen: list[str] | None, connect: list[str] | None, config_file: str | None,
-             duration: float | None, engine_file: str | None = None, beds: str = "*") -> LiveStats:
+             duration: float | None, engine_file: str | None = None, beds: str = "*",
+             max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
+             bed_expiry_s: float = BED_EXPIRY_S) -> LiveStats:
     """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged.
 
     Raises ``OrdervibError`` (one line) when the worker thread died (the watchdog stops
@@ -355,7 +456,8 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     deadline = None if duration is None else time.monotonic() + duration
-    with LiveNode(bundle, record, listen, connect, config_file, engine_file=engine_file, beds=beds) as node:
+    with LiveNode(bundle, record, listen, connect, config_file, engine_file=engine_file, beds=beds,
+                  max_beds=max_beds, max_channels=max_channels, bed_expiry_s=bed_expiry_s) as node:
         where = listen or connect or f"the endpoints of {config_file}"
         log.info("ordervib node on %s, serving beds %s; recording to %s; Ctrl-C stops", where, beds, record)
         while node.thread.is_alive():  # the watchdog

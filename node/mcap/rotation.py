@@ -51,6 +51,7 @@ class RotatingRecorder:
         self._options = writer_options
         self.paths: list[str] = []
         self.count = 0
+        self._refused = 0  # the finished files' refused messages (RecordingWriter.refused)
         self._closed = False
         self._first_pub: int | None = None
         self._writer = self._open()
@@ -72,6 +73,11 @@ class RotatingRecorder:
         return f"{rotated_path(self.path, 0)}, {rotated_path(self.path, 1)}, ... (rotating)"
 
     @property
+    def refused(self) -> int:
+        """Messages not written, every file: new topics with its channel table full."""
+        return self._refused + self._writer.refused
+
+    @property
     def current(self) -> str:
         """The file being written."""
         return self.paths[-1]
@@ -90,6 +96,7 @@ class RotatingRecorder:
             raise OrdervibError("recording already closed")
         if self._due(publish_time_ns):
             self._writer.close()
+            self._refused += self._writer.refused
             self._writer = self._open()
         if self._first_pub is None:
             self._first_pub = publish_time_ns

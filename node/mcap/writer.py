@@ -30,6 +30,10 @@ in order, so the bytes are the same. ``flush()`` waits for them.
 killed process loses only what it wrote after its last flush; the readers of
 ``node.mcap.reader`` (and ``ordervib recover``) read such a file.
 No wall clock goes into the file: equal inputs give equal bytes.
+
+Channel ids are u16 (given out from 1): a recording holds at most 65,535 topics.
+``RecordingWriter`` bounds its channel table (``max_channels``, at most that): a message on a
+new topic beyond it is not written and counted (``refused``); the recording goes on.
 """
 
 from __future__ import annotations
@@ -66,6 +70,8 @@ from node.mcap.format import (
     Compression,
     Opcode,
 )
+
+MAX_CHANNELS = 0xFFFF  # channels (topics) of one MCAP file at most: u16 ids, from 1
 
 # one JSON Schema per topic kind (contract section 2), registered once per recording
 SCHEMAS: dict[TopicKind, bytes] = {kind: orjson.dumps(json_schema(kind)) for kind in TopicKind}
@@ -145,8 +151,10 @@ class McapWriter:
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int,
                          metadata: dict[str, str] | None = None) -> int:
-        """Write a Channel record; returns its id."""
+        """Write a Channel record; returns its id (OrdervibError beyond ``MAX_CHANNELS``)."""
         cid = len(self._channels) + 1
+        if cid > MAX_CHANNELS:
+            raise OrdervibError(f"an MCAP file holds {MAX_CHANNELS} channels at most (u16 ids)")
         meta = b"".join(_string(k) + _string(v) for k, v in (metadata or {}).items())
         return self._register(self._channels, _record(
             Opcode.CHANNEL, U16.pack(cid) + U16.pack(schema_id) + _string(topic)
@@ -165,13 +173,16 @@ class McapWriter:
     def add_many(self, messages: Iterable[tuple[str, int, int, bytes]], channels: dict[str, int],
                  channel_of: Callable[[str], int]) -> int:
         """Append (topic, log_time, publish_time, data) messages; ``channels`` maps topics to ids,
-        ``channel_of`` registers a topic it lacks. Returns the number of messages."""
+        ``channel_of`` registers a topic it lacks (0: none, the message is skipped). Returns the
+        number of messages appended."""
         buf, offs, pack, get, limit = self._buf, self._offs, MESSAGE.pack, channels.get, self.chunk_size
         n = 0
         for topic, log_time, publish_time, data in messages:
+            cid = get(topic) or channel_of(topic)
+            if not cid:
+                continue
             offs.append(len(buf))
-            buf += pack(Opcode.MESSAGE, _BODY + len(data), get(topic) or channel_of(topic), 0, log_time,
-                        publish_time)
+            buf += pack(Opcode.MESSAGE, _BODY + len(data), cid, 0, log_time, publish_time)
             buf += data
             n += 1
             if len(buf) >= limit:
@@ -393,7 +404,9 @@ class RecordingWriter:
     Use as a context manager, or call ``close()``. ``flush()`` closes the open
     chunk and pushes it to the file, so a crash loses nothing written before it.
     Output is deterministic: no wall clock is written anywhere. ``background=True``
-    compresses the chunks in a worker thread (same bytes; for bulk writers).
+    compresses the chunks in a worker thread (same bytes; for bulk writers). ``max_channels``
+    bounds the topics (at most ``MAX_CHANNELS``, MCAP's u16 ids): a message on a new topic
+    beyond it is skipped and counted in ``refused``, never an error.
     ``path`` may be a binary stream (not closed by ``close()``). For a file path,
     ``deferred=True`` creates the file only when the first bytes go out (the first
     ``flush()`` or ``close()``), and ``exclusive=True`` never opens an existing file
@@ -423,8 +436,13 @@ class RecordingWriter:
         background: bool = False,
         deferred: bool = False,
         exclusive: bool = False,
+        max_channels: int = MAX_CHANNELS,
     ) -> None:
         _compression(compression)  # before creating the file
+        if not 1 <= max_channels <= MAX_CHANNELS:
+            raise OrdervibError(f"max_channels must be within 1 and {MAX_CHANNELS}, got {max_channels}")
+        self.max_channels = max_channels
+        self.refused = 0  # messages not written: their topic was new with the channel table full
         if isinstance(path, (str, os.PathLike)):
             self._file: _OutputFile | None = _OutputFile(path, deferred, exclusive)
             stream = cast(IO[bytes], self._file)
@@ -447,9 +465,12 @@ class RecordingWriter:
         return self._file.path if self._file is not None else "a stream"
 
     def channel_id(self, key: str) -> int:
-        """The MCAP channel of a key expression, registering schema and channel once."""
+        """The MCAP channel of a key expression, registering schema and channel once; 0 when it
+        is new and the recording holds ``max_channels`` channels already."""
         cid = self._channels.get(key)
         if cid is None:
+            if len(self._channels) >= self.max_channels:
+                return 0
             kind = topic_kind(key)
             sid = self._schemas.get(kind)
             if sid is None:
@@ -473,13 +494,22 @@ class RecordingWriter:
 
     def write_ns(self, key: str, log_time_ns: int, data: bytes, publish_time_ns: int) -> None:
         """Write one message whose log_time (ns) and JSON bytes are already known (the fast path)."""
-        self._open().add(self._channels.get(key) or self.channel_id(key), log_time_ns,
-                         publish_time_ns, data)
-        self.count += 1
+        writer = self._open()
+        cid = self._channels.get(key) or self._channel_or_refuse(key)
+        if cid:
+            writer.add(cid, log_time_ns, publish_time_ns, data)
+            self.count += 1
+
+    def _channel_or_refuse(self, key: str) -> int:
+        """``channel_id``, counting the message refused when it is 0."""
+        cid = self.channel_id(key)
+        if not cid:
+            self.refused += 1
+        return cid
 
     def write_many(self, messages: Iterable[tuple[str, int, int, bytes]]) -> None:
         """Write (key, log_time ns, publish_time ns, JSON bytes) messages, e.g. ``Message`` tuples."""
-        self.count += self._open().add_many(messages, self._channels, self.channel_id)
+        self.count += self._open().add_many(messages, self._channels, self._channel_or_refuse)
 
     def write_columns(self, keys: Sequence[str], log_times: Sequence[int] | np.ndarray,
                       publish_times: Sequence[int] | np.ndarray, payloads: Sequence[bytes]) -> None:
@@ -492,7 +522,13 @@ class RecordingWriter:
             for k in keys:  # register new keys in order of first appearance
                 if k not in channels:
                     self.channel_id(k)
-            cids = np.fromiter(map(channels.__getitem__, keys), dtype=np.uint16, count=len(keys))
+            cids = np.fromiter((channels.get(k, 0) for k in keys), dtype=np.uint16, count=len(keys))
+            if not cids.all():  # topics beyond the channel table: skipped, counted
+                kept = np.flatnonzero(cids)
+                self.refused += len(cids) - len(kept)
+                cids, log_times, publish_times = (np.asarray(c)[kept]
+                                                  for c in (cids, log_times, publish_times))
+                payloads = [payloads[i] for i in kept.tolist()]
         writer.add_columns(cids, log_times, publish_times, payloads)
         self.count += len(cids)
 

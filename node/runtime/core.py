@@ -7,20 +7,42 @@ runs each bed's ``MonitorPipeline`` of each target of the model (one aligner per
 the channels every target needs; the OC message once per bed, from the first target's
 pipeline: the targets share schedule and settings, so their detectors agree); it returns
 each message's decoded time and the monitor messages each message completed. ``handle`` is
-a batch of one. Malformed payloads are counted (per bed) and skipped; keys that are no
-sensor keys are counted (node-wide) and ignored, so are channels no model needs. The live node and offline
-replay both drive this class, through ``handle_batch``, and record what it did in ``recording_order``.
+a batch of one. Malformed payloads are counted (per bed) and skipped; channels no model needs
+are ignored. The live node and offline replay both drive this class, through ``handle_batch``,
+and record what it did in ``recording_order``.
+
+Admission (``route``, the one parse and cache of input keys): a message is taken only on a
+sensor key by the contract's name rule (``parse_sensor_key``), of a bed the ``beds`` pattern
+admits, while the node tracks fewer than ``max_beds`` beds (or the bed already), and on one of
+the bed's first ``max_channels`` channels (the model's channels always count among them). Any
+other message is refused: counted per reason (``Refused``; node-wide in ``refused``, and on its
+bed where it has one), and nothing else: no bed, no state, no cache entry. So the state, the
+cache of keys and the topics a node records are bounded whatever arrives. A bed's state is freed
+by ``forget`` (the live node's expiry of silent beds); its engine history is kept if it is known.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from itertools import compress
 from typing import NamedTuple, TypeVar
 
 import numpy as np
 
-from node.contract import Flag, HealthMessage, decode_samples, monitor_key, oc_key, parse_sensor_key
+from node.contract import (
+    Flag,
+    HealthMessage,
+    Refused,
+    bed_matcher,
+    bed_of,
+    decode_samples,
+    monitor_key,
+    oc_key,
+    parse_sensor_key,
+    sensor_key,
+)
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import AlignedSample, Aligner
@@ -28,6 +50,10 @@ from node.runtime.history import HISTORY_CHANNELS, EngineState
 from node.runtime.pipeline import MonitorPipeline
 
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
+Route = tuple[str, str]  # (bed, channel) of an admitted sensor key
+
+MAX_BEDS = 256  # beds tracked at once at most, by default (ordervib run --max-beds)
+MAX_CHANNELS = 64  # channels of a bed at most, by default, the model's among them (--max-channels)
 
 
 class Batch(NamedTuple):
@@ -35,6 +61,7 @@ class Batch(NamedTuple):
 
     t: np.ndarray  # (n,) each payload's sensor time, s; NaN where malformed
     done: list[tuple[int, list[Output]]]  # (i, outputs) of each message i that completed outputs
+    refused: np.ndarray | None = None  # (n,) True where the message was refused; None: none was
 
 
 Out = TypeVar("Out")  # what a message completed: outputs, or their encoded form
@@ -71,6 +98,9 @@ class Bed:
     aligner: Aligner
     pipelines: list[MonitorPipeline]
     keys: list[str]  # monitor key of each pipeline's target
+    needed: frozenset[str]  # the channels its pipelines need
+    extra: set[str] = field(default_factory=set)  # the other channels it was admitted with
+    refused: Counter[str] = field(default_factory=Counter)  # its messages refused, per reason
     received: int = 0  # messages on its sensor keys
     malformed: int = 0  # of them, payloads that break the payload rule
     alarm_samples: int = 0  # alarm messages, every target
@@ -83,7 +113,7 @@ class Bed:
 
 
 class NodeCore:
-    """The logic of the node over every bed, created on the bed's first message.
+    """The logic of the node over every bed, created on the bed's first admitted message.
 
     model: a one-target ``Bundle`` or a ``Model`` of several targets (``monitor/<target>``
     each, every aligned sample in the model's target order, after the bed's OC message).
@@ -104,19 +134,34 @@ class NodeCore:
     (100.25, 4, 1, {}, {})
     >>> {c: round(ms, 1) for c, ms in h["phase_ms"].items()}  # each channel's clock phase
     {'nB': 0.0, 'yB': 11.0}
+    >>> core.handle("testbed/*/sensor/nB", b'{"t": 100.3, "v": 1.0}'), dict(core.refused), list(core.beds)
+    ([], {'key': 1}, ['b1'])
     """
 
-    def __init__(self, model: Bundle | Model, engines: Mapping[str, EngineState] | None = None) -> None:
-        """engines: each bed's engine history before (a state file's); others start unknown."""
+    def __init__(self, model: Bundle | Model, engines: Mapping[str, EngineState] | None = None,
+                 beds: str = "*", max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS) -> None:
+        """engines: each bed's engine history before (a state file's); others start unknown.
+        beds: the pattern of the beds admitted (``sensor_subscription``'s); max_beds: beds tracked
+        at once at most; max_channels: channels per bed at most (the model's always admitted)."""
+        if max_beds < 1 or max_channels < 1:
+            raise ValueError(f"max_beds and max_channels must be >= 1, got {max_beds}, {max_channels}")
         self.model = as_model(model)
+        self._admits = bed_matcher(beds)  # ValueError for a bad pattern
+        self.max_beds = max_beds
+        self.max_channels = max_channels
         self._engines = dict(engines or {})
         # the slow temperatures feed the bed's engine history when any target's models use it
         self._slow_temperatures = any(c in HISTORY_CHANNELS for b in self.model.bundles for c in b.inputs)
         self.beds: dict[str, Bed] = {}
-        self.foreign = 0  # messages on keys that are no sensor keys (node-wide)
+        self.refused: Counter[str] = Counter()  # messages refused, per reason (Refused), every bed
         self.published = 0  # outputs returned
         self.alarm_log = EpisodeLog(self.model.config.episode_gap_s)  # alarm episodes, every bed
-        self._routes: dict[str, tuple[str, str] | tuple[()]] = {}  # key -> (bed, channel), () if foreign
+        self._routes: dict[str, Route] = {}  # admitted key -> (bed, channel): the tracked beds' only
+
+    @property
+    def foreign(self) -> int:
+        """Messages on keys that are no sensor keys by the contract's rule (every bed)."""
+        return self.refused[Refused.KEY]
 
     @property
     def malformed(self) -> int:
@@ -133,10 +178,11 @@ class NodeCore:
         if len(keys) != len(payloads):
             raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
         t, v, ok = decode_samples(payloads)
-        routes = {key: self.route(key) for key in set(keys)}
-        bed_of_key = {key: route[0] for key, route in routes.items() if route}
-        channel_of = {key: route[1] for key, route in routes.items() if route}
+        routes = {key: self.route(key) for key in dict.fromkeys(keys)}  # admitted in arrival order
+        bed_of_key = {key: route[0] for key, route in routes.items() if type(route) is tuple}
+        channel_of = {key: route[1] for key, route in routes.items() if type(route) is tuple}
         names = set(bed_of_key.values())
+        refused = None
         if len(names) == 1 and len(channel_of) == len(routes):  # the common batch: one bed, sensor keys
             parts = [(names.pop(), np.arange(len(keys)))]
         else:
@@ -144,11 +190,13 @@ class NodeCore:
             order = [name for name in dict.fromkeys(bed_of) if name is not None]  # by first message
             code_of = {name: j for j, name in enumerate(order)}
             codes = np.array([-1 if name is None else code_of[name] for name in bed_of], dtype=np.int64)
-            self.foreign += int((codes < 0).sum())
+            if len(channel_of) < len(routes):
+                refused = codes < 0
+                self._count_refused(Counter(compress(keys, refused.tolist())), routes)
             parts = [(name, np.flatnonzero(codes == j)) for j, name in enumerate(order)]
         done: list[tuple[int, str, list[AlignedSample]]] = []
         for name, idx in parts:
-            bed = self._bed(name)
+            bed = self.beds[name]
             good = idx[ok[idx]]
             bed.received += len(idx)
             bed.malformed += len(idx) - len(good)
@@ -164,7 +212,18 @@ class NodeCore:
                      for j, samples in bed.aligner.push_columns(channels, t[good], v[good])]
         if len(parts) > 1:
             done.sort(key=lambda x: x[0])  # each bed's aligner is independent; outputs in message order
-        return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done])
+        return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done], refused)
+
+    def _count_refused(self, counts: Mapping[str, int], routes: Mapping[str, Route | Refused]) -> None:
+        """Count refused messages (n per key) per reason, node-wide and on their bed if tracked."""
+        for key, n in counts.items():
+            reason = routes[key]
+            assert isinstance(reason, Refused)
+            self.refused[reason.value] += n
+            name = bed_of(key) if reason in (Refused.KEY, Refused.CHANNEL_LIMIT) else None
+            bed = self.beds.get(name) if name is not None else None
+            if bed is not None:
+                bed.refused[reason.value] += n
 
     def handle_aligned(self, bed: str, samples: Sequence[AlignedSample]) -> list[Output]:
         """Samples already on the 40 Hz grid (a planned profile, a synthetic stream): the bed's
@@ -176,9 +235,26 @@ class NodeCore:
     def finish(self) -> list[Output]:
         """End of stream: emit every sample still waiting for late channels."""
         out: list[Output] = []
-        for name, bed in self.beds.items():
-            out += self._run(name, bed.aligner.flush())
+        for name in self.beds:
+            out += self.flush_bed(name)
         return out
+
+    def flush_bed(self, name: str) -> list[Output]:
+        """One bed's samples still waiting for late channels, run now; their outputs in order."""
+        return self._run(name, self.beds[name].aligner.flush())
+
+    def forget(self, name: str) -> None:
+        """Free a bed's state (its slot among ``max_beds``, its keys in the cache); its engine
+        history is kept for its return when known (the engine ran). A new message of the bed
+        admits it again, from fresh counters."""
+        bed = self.beds.pop(name)
+        state = bed.pipeline.history.state
+        if state.last_on_t is not None:
+            self._engines[name] = state
+        else:  # never ran: nothing worth keeping (a flood of names must not grow the state file)
+            self._engines.pop(name, None)
+        for channel in bed.needed | bed.extra:
+            self._routes.pop(sensor_key(name, channel), None)
 
     def health(self, bed: str, wall: float, dropped: int = 0,
                lag_ms: tuple[float | None, float | None] | None = None) -> HealthMessage:
@@ -194,7 +270,7 @@ class NodeCore:
             "received": b.received, "malformed": b.malformed, "dropped": dropped, "samples": a.samples,
             "late": a.late, "duplicates": a.duplicates, "missing": dict(a.missing),
             "alarm_samples": b.alarm_samples, "late_by_channel": dict(a.late_by_channel),
-            "phase_ms": b.aligner.phase_ms()}
+            "phase_ms": b.aligner.phase_ms(), "refused": dict(b.refused)}
         if lag_ms is not None:
             msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
         return msg
@@ -205,19 +281,45 @@ class NodeCore:
         out.update({name: b.pipeline.history.state for name, b in self.beds.items()})
         return out
 
-    def route(self, key: str) -> tuple[str, str] | tuple[()]:
-        """(bed, channel) of a sensor key, () for any other key: each key parsed once, here (the
-        live node asks too); counts nothing.
+    def route(self, key: str) -> Route | Refused:
+        """(bed, channel) of an admitted sensor key, or why the key is refused: each key parsed
+        and admitted here (module docstring), the admitted ones cached (the live node asks too).
+        Counts nothing; a key's first admission creates its bed, or takes one of its channels.
 
         >>> from node.contract.schedule import OperatingCondition, Schedule
-        >>> core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []))
+        >>> core = NodeCore(Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), []),
+        ...                 beds="b$*", max_beds=1, max_channels=3)
         >>> core.route("testbed/b1/sensor/nB"), core.route("other/key"), core.foreign
-        (('b1', 'nB'), (), 0)
+        (('b1', 'nB'), <Refused.KEY: 'key'>, 0)
+        >>> [core.route(f"testbed/{b}/sensor/nB").value for b in ("x1", "b2", "**")]
+        ['not_admitted', 'bed_limit', 'key']
+        >>> core.route("testbed/b1/sensor/tA"), core.route("testbed/b1/sensor/tB").value
+        (('b1', 'tA'), 'channel_limit')
         """
         route = self._routes.get(key)
-        if route is None:
-            route = self._routes[key] = parse_sensor_key(key) or ()
-        return route
+        if route is not None:
+            return route
+        parsed = parse_sensor_key(key)
+        if parsed is None:
+            return Refused.KEY
+        name, channel = parsed
+        bed = self.beds.get(name)
+        if bed is None:
+            if not self._admits(name):
+                return Refused.NOT_ADMITTED
+            if len(self.beds) >= self.max_beds:
+                return Refused.BED_LIMIT
+            bed = self._bed(name)
+        if channel not in bed.needed and channel not in bed.extra:
+            if len(bed.needed) + len(bed.extra) >= self.max_channels:
+                return Refused.CHANNEL_LIMIT
+            bed.extra.add(channel)
+        self._routes[key] = parsed
+        return parsed
+
+    def known(self, key: str) -> Route | None:
+        """(bed, channel) of a key admitted before, None otherwise; admits nothing."""
+        return self._routes.get(key)
 
     def _bed(self, name: str) -> Bed:
         bed = self.beds.get(name)
@@ -230,7 +332,7 @@ class NodeCore:
             channels = sorted({c for p in pipes for c in p.sensor_channels})
             aligner = Aligner(channels, max_wait=self.model.config.align_wait_s)
             keys = [monitor_key(name, p.target) for p in pipes]
-            bed = self.beds[name] = Bed(aligner, pipes, keys)
+            bed = self.beds[name] = Bed(aligner, pipes, keys, frozenset(channels))
         return bed
 
     def _run(self, name: str, samples: list[AlignedSample]) -> list[Output]:
