@@ -125,6 +125,8 @@ class HealthMessage(TypedDict):
     lag_ms_max: NotRequired[Annotated[float | None, "receive to publish, ms, largest since the last health"]]
     recording: NotRequired[Annotated[bool, "the node's recording is being written; false: an alarm"]]
     unrecorded: NotRequired[Annotated[int, "messages (every bed) the failed recording could not keep"]]
+    engine_state: NotRequired[Annotated[bool | None, "the engine-state file holds the node's engine history; "
+                                        "false: its last save failed (an alarm), null: no file kept"]]
     node: NotRequired[Annotated[str, "the serving node's id (its liveliness token's last chunk)"]]
     beds: NotRequired[Annotated[str, "the beds that node serves: a bed name, * or a pattern with $*"]]
 
