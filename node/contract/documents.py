@@ -70,12 +70,13 @@ def open_regular(path: str | os.PathLike, where: str, max_bytes: int) -> io.Buff
 def read_bounded(path: str | os.PathLike, where: str, max_bytes: int) -> bytes:
     """The bytes of the regular file ``path`` (``open_regular``), at most ``max_bytes``."""
     with open_regular(path, where, max_bytes) as f:
+        size = os.fstat(f.fileno()).st_size  # (read(n) allocates n bytes first: not the bound)
         try:
-            data = f.read(max_bytes + 1)
+            data = f.read(size + 1)
         except OSError as exc:
             raise OrdervibError(f"{where}: cannot be read ({exc.strerror})") from None
-    if len(data) > max_bytes:  # grown since it was opened
-        raise OrdervibError(f"{where}: more than the {max_bytes} bytes such a file may hold")
+    if len(data) > size:
+        raise OrdervibError(f"{where}: grew while it was read")
     return data
 
 
