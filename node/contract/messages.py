@@ -145,6 +145,8 @@ class HealthMessage(TypedDict):
     lag_ms_max: NotRequired[Annotated[float | None, "receive to publish, ms, largest since the last health"]]
     recording: NotRequired[Recording]
     unrecorded: NotRequired[Unrecorded]
+    engine_state: NotRequired[Annotated[bool | None, "the engine-state file holds the node's engine history; "
+                                        "false: its last save failed (an alarm), null: no file kept"]]
     node: NotRequired[NodeId]
     beds: NotRequired[Beds]
     refused: NotRequired[Annotated[dict[str, int], "this bed's messages refused, per reason (key: a "

@@ -28,6 +28,9 @@ Failures (README "Health and liveliness"):
   counted (health ``recording: false``, ``unrecorded: N``), one error line is
   logged, the unfinished file is left for ``ordervib recover``, and ``run_node``
   ends with an ``OrdervibError`` (``ordervib run`` exits non-zero);
+- an engine-state save that fails (``node.live.engine_file``) is logged once and shown in
+  health (``engine_state: false``) while monitoring goes on; if the last save failed too,
+  ``run_node`` ends with an ``OrdervibError``;
 - outputs are published with Zenoh's ``CongestionControl.DROP``: a subscriber that stops
   reading loses live messages (after Zenoh's ``wait_before_drop``, 1 ms), it never stalls
   the node. With ``BLOCK`` one hung subscriber held the worker 5 s in ``put`` (Zenoh's
@@ -337,6 +340,7 @@ class LiveNode:
         msg["lag_ms_max"] = self._lag_max.pop(bed, None)
         msg["recording"] = self.recording
         msg["unrecorded"] = self.unrecorded
+        msg["engine_state"] = None if self.engine_file is None else self.stats.engine_file_error is None
         msg["node"] = self.node_id
         msg["beds"] = self.beds
         return msg
@@ -407,7 +411,8 @@ class LiveNode:
                      self.bed_expiry_s, ", ".join(gone[:5]), ", ..." if len(gone) > 5 else "")
 
     def _save_engines(self) -> None:
-        """Each bed's engine history to its file, when it changed; a failure is logged, never fatal."""
+        """Each bed's engine history to its file, when it changed; a failure is logged (once), shown
+        in health and, if the last save fails, ends ``run_node`` with an error; never fatal here."""
         if self.engine_file is None:
             return
         states = self.core.engine_states()
@@ -468,6 +473,10 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
     if s.worker_error is not None:
         raise OrdervibError(f"the node's worker thread died ({s.worker_error}) after {s.received} "
                             f"messages; liveliness token withdrawn")
+    if s.engine_file_error is not None and s.recording_error is None:
+        raise OrdervibError(f"engine state {engine_file} not saved ({s.engine_file_error}): what the "
+                            f"node learnt of the engines since its last save is lost; monitoring went on "
+                            f"({s.received} received, {s.published} published), {record} finished")
     if s.recording_error is None:
         log.info("stopped: %d received, %d published, %d dropped; %s finished",
                  s.received, s.published, s.overflow, record)

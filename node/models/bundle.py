@@ -1,8 +1,13 @@
 """Model bundles: a directory with ``manifest.json`` and ``arrays.npz``.
 
 Nothing in a bundle executes code on load: metadata is JSON, arrays are read
-with ``allow_pickle=False``. A bundle whose format, version or array hash does
-not match is refused with a one-line OrdervibError.
+as float64 only, never pickles. A bundle is untrusted input: the manifest is read
+bounded (size, nesting depth, integer digits: ``node.contract.documents``), every
+array member must be one the manifest expects and is checked (dtype, element count,
+declared size) before it is decompressed, and every run-time setting has a range
+(``node.models.config``). A bundle whose format, version, array hash, arrays or
+settings do not pass is refused with a one-line OrdervibError naming the bundle and
+what is wrong.
 
 A model folder holds one target or several (``Model``). One target is a bundle of
 format 2 (as before, readable by older versions); several are format 3: a
@@ -17,6 +22,7 @@ import io
 import json
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,9 +30,10 @@ import numpy as np
 
 from node import __version__
 from node.contract import FS
+from node.contract.documents import NPZ_OVERHEAD, parse_json, read_bounded, read_document, read_npz
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.models.config import V1_SETTINGS, RuntimeConfig
+from node.models.config import V1_SETTINGS, RuntimeConfig, SettingError
 from node.models.envelope import Envelope
 from node.models.kinds import model_from_arrays
 from node.models.ocmodel import RUN_CURVE
@@ -40,6 +47,12 @@ _TARGET_NAME = re.compile(r"^[A-Za-z0-9_]+$")  # a target's sub-folder name: no 
 MANIFEST = "manifest.json"
 ARRAYS = "arrays.npz"
 ENVELOPE_PREFIX = "envelope:"  # an OC's envelope arrays: "envelope:<OC>/<name>"
+ENVELOPE_ARRAYS = ("low", "high", "mean", "whiten")
+CURVE_ARRAYS = ("curve/speed", "curve/mean")
+# Bounds of the arrays file. The demo's largest bundle holds 189 arrays, 235 kB in all, the
+# largest 583 values: a thousand times more is still a bundle, beyond it is not one.
+MAX_ARRAY_ELEMENTS = 1 << 22  # values in one array (32 MiB of float64)
+MAX_ARRAYS_BYTES = 256 << 20  # the arrays' bytes, all members together (uncompressed)
 
 
 def sha256_file(path: str | os.PathLike) -> str:
@@ -238,11 +251,9 @@ def _manifest(root: Path) -> dict:
     if not root.is_dir():
         raise OrdervibError(f"model bundle not found (expected a directory): {root}")
     try:
-        manifest = json.loads((root / MANIFEST).read_text())
+        manifest = parse_json(read_document(root / MANIFEST, str(root / MANIFEST)), str(root / MANIFEST))
     except FileNotFoundError:
         raise OrdervibError(f"{root}: no {MANIFEST}: not an ordervib model bundle") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise OrdervibError(f"{root / MANIFEST}: not valid JSON ({exc})") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise OrdervibError(f"{root}: not an ordervib model bundle")
     version = manifest.get("format_version")
@@ -269,17 +280,19 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
 
 def _load_one(root: Path, manifest: dict) -> Bundle:
     """The bundle of format 1 or 2 at ``root``, of manifest ``manifest`` (read by ``_manifest``)."""
-    version = manifest["format_version"]
     try:
-        data = (root / ARRAYS).read_bytes()
+        data = read_bounded(root / ARRAYS, str(root / ARRAYS), MAX_ARRAYS_BYTES + NPZ_OVERHEAD)
     except FileNotFoundError:
         raise OrdervibError(f"{root}: {ARRAYS} is missing") from None
     if hashlib.sha256(data).hexdigest() != manifest.get("arrays_sha256"):
         raise OrdervibError(f"{root}: {ARRAYS} does not match the manifest's hash "
                             "(corrupted or modified bundle)")
     try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
+        expected = _expected_arrays(manifest)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
+    arrays = read_npz(data, str(root / ARRAYS), expected, MAX_ARRAY_ELEMENTS, MAX_ARRAYS_BYTES)
+    try:
         schedule = Schedule.from_dict(manifest["schedule"], f"{root} schedule")
         ocs = []
         for d in manifest["ocs"]:
@@ -316,15 +329,42 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
             curve = (arrays["curve/speed"], arrays["curve/mean"])
         if curve is None and any(RUN_CURVE in r.inputs for r in ocs):
             raise ValueError(f"an OC takes {RUN_CURVE!r} but the bundle has no characteristic curve")
-        if version == 1:  # written before the settings were stored: the values of that code
-            config = RuntimeConfig(**V1_SETTINGS, history_s=float(manifest["history_s"]))
-        else:
-            config = RuntimeConfig.from_dict(manifest["runtime"])
+        config = _config(root, manifest)
         return Bundle(manifest["method"], manifest["target"], schedule, ocs,
                       config, manifest.get("training", {}), curve,
                       _checks(manifest.get("checks", {})))
     except (KeyError, TypeError, ValueError) as exc:
         raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
+
+
+def _config(root: Path, manifest: dict) -> RuntimeConfig:
+    """The bundle's run-time settings; a setting out of its range is one line naming the bundle
+    and the setting."""
+    try:
+        if manifest["format_version"] == 1:  # written before the settings were stored: that code's
+            return RuntimeConfig(**V1_SETTINGS, history_s=manifest["history_s"])
+        return RuntimeConfig.from_dict(manifest["runtime"])
+    except SettingError as exc:
+        raise OrdervibError(f"{root}: {exc}") from None
+
+
+def _expected_arrays(manifest: dict) -> Callable[[str], bool]:
+    """Which array names the manifest's OCs and curve account for: "<OC>/<name>" of an OC with
+    a model, "envelope:<OC>/<low|high|mean|whiten>" of an OC, and the characteristic curve."""
+    ocs = manifest["ocs"]
+    if not isinstance(ocs, list) or not all(isinstance(d, dict) and isinstance(d["name"], str)
+                                            for d in ocs):
+        raise ValueError("ocs must be a list of objects with a name")
+    modelled = {d["name"] for d in ocs if d.get("model") is not None}
+    names = {d["name"] for d in ocs}
+
+    def expected(key: str) -> bool:
+        owner, _, name = key.partition("/")
+        if owner.startswith(ENVELOPE_PREFIX):
+            return owner.removeprefix(ENVELOPE_PREFIX) in names and name in ENVELOPE_ARRAYS
+        return (owner in modelled and name != "") or key in CURVE_ARRAYS
+
+    return expected
 
 
 NUMERIC_CHECKS = ("flatline_samples", "step_threshold", "run_scale_prior_ocs", "residual_cv_undercoverage",

@@ -23,12 +23,11 @@ import io
 import json
 import math
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from node.contract.documents import parse_document
+from node.contract.documents import parse_document, read_document, read_npz
 from node.contract.errors import OrdervibError
 from node.training.runs import Run
 
@@ -36,6 +35,11 @@ RUNS_ARRAYS = "training-runs.npz"
 RUNS_META = "training-runs.json"
 FORMAT = "ordervib-training-runs"
 FORMAT_VERSION = 1
+# Bounds of the kept runs, read as untrusted input (node.contract.documents.read_npz): the
+# demo's eight runs are 20 MB (the largest array 2.6 MB); a run of 12 h at 40 Hz over 64
+# channels is 1.1e8 values.
+MAX_RUN_ELEMENTS = 1 << 27  # values in one array (1 GiB of float64)
+MAX_RUNS_BYTES = 16 << 30  # the arrays' bytes, all runs together (uncompressed)
 
 
 def save_kept_runs(runs: list[Run], folder: str | os.PathLike, options: dict,
@@ -64,25 +68,32 @@ def load_kept_runs(folder: str | os.PathLike) -> tuple[list[Run], dict, list[dic
     if not (root / RUNS_META).is_file() or not (root / RUNS_ARRAYS).is_file():
         raise OrdervibError(f"{folder} keeps no training runs (trained by an older ordervib or with "
                             f"--no-keep-runs): train again on all the recordings")
-    try:
-        text = (root / RUNS_META).read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise OrdervibError(f"{root / RUNS_META} cannot be read: {exc}") from None
+    text = read_document(root / RUNS_META, str(root / RUNS_META))
     meta = parse_document(text, FORMAT, FORMAT_VERSION, str(root / RUNS_META), "training-runs",
                           version_key="format_version")
     try:
-        with np.load(root / RUNS_ARRAYS, allow_pickle=False) as npz:
-            runs = [_run(npz, i, info) for i, info in enumerate(meta["runs"])]
+        infos = list(meta["runs"])
+        widths = [len(info["channels"]) for info in infos]
+        names = {f"{k}{i}" for i in range(len(infos)) for k in ("t", "data")}
+
+        def shape_check(name: str, shape: tuple[int, ...]) -> None:
+            i = int(name.removeprefix("data").removeprefix("t"))
+            if not (shape[1:] == (widths[i],) if name.startswith("data") else len(shape) == 1):
+                raise ValueError(f"shape {shape} does not fit run {i}'s {widths[i]} channels")
+
+        arrays = read_npz(root / RUNS_ARRAYS, f"{root / RUNS_ARRAYS}: damaged training runs",
+                          names.__contains__, MAX_RUN_ELEMENTS, MAX_RUNS_BYTES, shape_check)
+        runs = [_run(arrays, i, info) for i, info in enumerate(infos)]
         options, recordings = dict(meta["options"]), list(meta["recordings"])
-    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError) as exc:
+    except (ValueError, KeyError, TypeError) as exc:
         raise OrdervibError(f"{root / RUNS_ARRAYS}: damaged training runs ({exc})") from None
     if not runs:
         raise OrdervibError(f"{root / RUNS_META} lists no run")
     return runs, options, recordings
 
 
-def _run(npz: np.lib.npyio.NpzFile, i: int, info: dict) -> Run:
-    t, data = npz[f"t{i}"], npz[f"data{i}"]
+def _run(arrays: dict[str, np.ndarray], i: int, info: dict) -> Run:
+    t, data = arrays[f"t{i}"], arrays[f"data{i}"]
     channels = tuple(str(c) for c in info["channels"])
     if t.dtype != float or data.dtype != float or t.ndim != 1 or data.shape != (len(t), len(channels)):
         raise ValueError(f"run {i}: arrays t {t.shape} and data {data.shape} do not fit "
