@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from node.cli import build_parser
+from node.cli.router import router_config
 from node.live.zenoh import open_session, zenoh_config
 
 pytest.importorskip("zenoh")
@@ -83,6 +85,17 @@ def shipped(name: str, d: Path, port: int, cn: str | None = None) -> Path:
     return out
 
 
+def router_conf(path: Path):
+    """The config ``ordervib router --zenoh-config PATH`` opens (no --listen: the file's)."""
+    conf, listen = router_config(build_parser().parse_args(["router", "--zenoh-config", str(path)]))
+    assert listen == [f"tls/127.0.0.1:{port_of(path)}"]  # the file's TLS endpoint, no tcp/ default
+    return conf
+
+
+def port_of(path: Path) -> int:
+    return int(path.read_text().split('endpoints: ["tls/127.0.0.1:')[1].split('"')[0])
+
+
 class Inbox:
     """A subscriber's received (key, payload) pairs, with a bounded wait for one."""
 
@@ -116,9 +129,7 @@ def fleet(tmp_path_factory):
     d = tmp_path_factory.mktemp("acl")
     make_certs(d)
     port = free_port()
-    # as ordervib router does: zenoh_config(listen, None, --zenoh-config, mode="router")
-    router = open_session(zenoh_config(None, None, str(shipped("acl-router.json5", d, port)),
-                                       mode="router"))
+    router = open_session(router_conf(shipped("acl-router.json5", d, port)))
     sessions = [router]
 
     def client(cn: str):
@@ -146,7 +157,7 @@ def test_the_shipped_clients_are_zenoh_clients_and_the_router_a_router(tmp_path)
         == json.dumps("client")
     assert zenoh_config(None, None, str(shipped("acl-testbed.json5", tmp_path, port))).get_json("mode") \
         == json.dumps("client")
-    router = zenoh_config(None, None, str(shipped("acl-router.json5", tmp_path, port)), mode="router")
+    router = router_conf(shipped("acl-router.json5", tmp_path, port))
     assert router.get_json("mode") == json.dumps("router")
     assert json.loads(router.get_json("access_control/enabled")) is True
     assert zenoh_config().get_json("mode") == json.dumps("peer")  # no file: a peer, as before
