@@ -14,12 +14,12 @@ arrived (a positive control), so no test waits on a timeout to pass; arrivals wa
 from __future__ import annotations
 
 import shutil
-import subprocess
 import threading
 import time
 from pathlib import Path
 
 import pytest
+from test_tls import free_port, openssl  # the same helpers as the TLS test
 
 from node.cli import build_parser
 from node.cli.router import router_config
@@ -34,17 +34,6 @@ DOCS = ROOT / "docs" / "zenoh"
 DOC_DIR = "/etc/ordervib/tls/"
 WAIT = 2.0  # seconds: the longest wait for a message or a declaration to arrive
 EC = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
-
-
-def free_port() -> int:
-    import socket
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def openssl(*args: str, cwd: Path) -> None:
-    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True)
 
 
 def make_cert(d: Path, name: str, cn: str, ext: str) -> None:
