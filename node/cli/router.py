@@ -9,6 +9,7 @@ The Python wheel ships no ``zenohd``; a session opened in router mode routes the
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import signal
 import threading
@@ -23,19 +24,32 @@ HELP = "a Zenoh router for test beds, nodes (run --beds) and views to connect to
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", metavar="ENDPOINT",
-                   help="endpoint to listen on (repeatable; default tcp/0.0.0.0:7447)")
+                   help="endpoint to listen on (repeatable; replaces the --zenoh-config file's; "
+                        "default tcp/0.0.0.0:7447 when neither gives one)")
     p.add_argument("--zenoh-config", metavar="FILE.json5",
                    help="Zenoh configuration file (TLS, access control; see docs/zenoh/)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
 
 
+def router_config(args: argparse.Namespace):
+    """The router's Zenoh config and where it listens: --listen, else the --zenoh-config file's
+    endpoints (docs/zenoh/acl-router.json5: TLS only), else tcp/0.0.0.0:7447."""
+    from node.live.zenoh import config_file_endpoints, zenoh_config
+
+    listen = args.listen
+    if not (listen or config_file_endpoints(args.zenoh_config)):
+        listen = ["tcp/0.0.0.0:7447"]
+    conf = zenoh_config(listen, None, args.zenoh_config, mode="router")
+    return conf, listen or json.loads(conf.get_json("listen/endpoints"))
+
+
 def run(args: argparse.Namespace) -> int:
-    from node.live.zenoh import open_session, zenoh_config
+    from node.live.zenoh import open_session
 
     if args.duration is not None and not args.duration > 0:
         raise OrdervibError("--duration must be > 0")
-    listen = args.listen or ["tcp/0.0.0.0:7447"]
-    session = open_session(zenoh_config(listen, None, args.zenoh_config, mode="router"))
+    conf, listen = router_config(args)
+    session = open_session(conf)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

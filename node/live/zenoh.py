@@ -15,12 +15,15 @@ def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = No
     endpoints, no multicast scouting.
 
     ``config_file`` (JSON5, Zenoh's own format) carries TLS and access control
-    for a real deployment; the endpoint options are applied on top of it.
+    for a real deployment; the endpoint options are applied on top of it. A file that says
+    ``mode: "client"`` keeps it where ``mode`` is peer: a client talks to its router only, so
+    the router's access control sees all its traffic (docs/zenoh/acl-*.json5).
     """
     import zenoh
     try:
         conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
-        conf.insert_json5("mode", json.dumps(mode))
+        if not (mode == "peer" and conf.get_json("mode") == json.dumps("client")):
+            conf.insert_json5("mode", json.dumps(mode))
         conf.insert_json5("scouting/multicast/enabled", "false")
         if listen:
             conf.insert_json5("listen/endpoints", json.dumps(listen))
