@@ -235,7 +235,7 @@ def test_a_failing_worker_ends_the_replay_with_one_line(model: Path, monkeypatch
     from node.contract.errors import OrdervibError
     from node.models.bundle import load_bundle
 
-    def boom(self, keys, payloads):
+    def boom(self, *batch):
         raise ValueError("bad model")
 
     monkeypatch.setattr(off._Logic, "batch", boom)  # inherited by the forked worker
