@@ -115,3 +115,84 @@ def test_live_node_emits_a_silent_beds_last_slot_before_it_stops(tmp_path):
     wait_ns = node.core.idle_ns + IDLE_MARGIN_NS
     assert out[0].publish_time - last_in >= wait_ns  # on the node's clock, after the wait ...
     assert out[0].publish_time - last_in < wait_ns + 10 * NS  # ... and not at the stop (generous)
+
+
+# -- finding 3: one sample must not blind a bed
+
+def _stream(n: int, t0: float = T0, extra=None):
+    """n slots of nB (4000 rpm: the engine runs) and yB (the slot index) at 40 Hz, as
+    (key, payload); extra(k) gives further (channel, t, v) messages after slot k's."""
+    out = []
+    for k in range(n):
+        t = t0 + k / 40
+        msgs = [("nB", t, 4000.0), ("yB", t + 0.011, float(k))] + (extra(k) if extra else [])
+        out += [(f"testbed/b1/sensor/{c}", orjson.dumps({"t": ti, "v": v})) for c, ti, v in msgs]
+    return out
+
+
+def _run(msgs, batch: int = 37) -> tuple[NodeCore, list[dict]]:
+    """The messages through a core in batches, received at their sensor time's pace (ns)."""
+    core = NodeCore(_bundle())
+    outs = []
+    recv = T0 * NS
+    for a in range(0, len(msgs), batch):
+        keys, payloads = zip(*msgs[a:a + batch], strict=True)
+        stamps = [round(recv + (a + i) * NS / 80) for i in range(len(keys))]  # 2 messages a slot
+        outs += [o for _, o in core.handle_batch(keys, payloads, stamps).done for o in o]
+    outs += core.finish()
+    return core, [m for k, m in outs if k.endswith("/monitor/yB")]
+
+
+def _measured(monitor: list[dict], after: float) -> list[dict]:
+    return [m for m in monitor if m["t"] > after and m["measured"] is not None]
+
+
+@pytest.mark.parametrize("at", [0, 100])
+def test_one_sample_at_9e9_is_a_clock_fault_and_blinds_nothing(at):
+    """A lone sample stamped 9e9 (the bed's first, or amid a 40 Hz stream): every later slot is
+    still monitored, the sample is counted as a clock fault, the clock and the engine history
+    never hold its time."""
+    msgs = _stream(800)
+    msgs.insert(2 * at, ("testbed/b1/sensor/nB", b'{"t": 9e9, "v": 4000.0}'))
+    core, monitor = _run(msgs)
+    assert len(_measured(monitor, T0 + at / 40)) >= 800 - at - 2  # 0 of 800 before the guard
+    assert all(m["t"] < T0 + 20 for m in monitor)
+    h = core.health("b1", wall=0.0)
+    assert (h["clock_faults"], h["clock_conflicts"], h["clock_jumps"], h["clock_held"]) == (1, 0, 0, 0)
+    assert h["t"] == pytest.approx(T0 + 799 / 40 + 0.011, abs=1e-6)  # the confirmed clock
+    assert core.beds["b1"].aligner.stats.late == 0
+    last_on = core.engine_states()["b1"].last_on_t
+    assert last_on is not None and last_on < T0 + 20  # never 9e9
+
+
+def test_a_clock_set_back_an_hour_is_followed_within_seconds():
+    """Every channel's clock jumps back by an hour: monitoring resumes on the new clock within a
+    few seconds (a new run), counted as one clock jump; the engine history follows it."""
+    back = T0 + 10 - 3600.0
+    core, monitor = _run(_stream(400) + _stream(400, t0=back))
+    resumed = [m for m in monitor if back <= m["t"] < T0 and m["measured"] is not None]
+    assert resumed and resumed[0]["t"] < back + 1.0 and len(resumed) >= 395
+    h = core.health("b1", wall=0.0)
+    assert h["clock_jumps"] == 1 and h["t"] == pytest.approx(back + 399 / 40 + 0.011, abs=1e-6)
+    assert core.engine_states()["b1"].last_on_t == pytest.approx(back + 399 / 40, abs=1e-6)
+
+
+def test_a_second_publisher_two_seconds_ahead_on_one_key_is_a_conflict():
+    """A second publisher on yB whose clock runs 2 s ahead: its samples are counted as clock
+    conflicts and dropped, the bed keeps being monitored on its own clock with its own values."""
+    core, monitor = _run(_stream(800, extra=lambda k: [("yB", T0 + 2 + k / 40 + 0.011, -1.0)]))
+    good = _measured(monitor, 0.0)
+    assert len(good) >= 790 and all(m["measured"] >= 0 for m in good)  # the bed's own yB
+    h = core.health("b1", wall=0.0)
+    assert h["clock_conflicts"] >= 700 and h["clock_faults"] >= h["clock_conflicts"]
+    assert h["clock_jumps"] == 0 and h["t"] < T0 + 20.1
+    assert core.engine_states()["b1"].last_on_t < T0 + 20
+
+
+def test_a_data_gap_within_a_run_is_followed_at_once():
+    """All channels resume 30 s later (a pause, no shutdown): the far samples confirm each other
+    within the slot, nothing is dropped."""
+    core, monitor = _run(_stream(200) + _stream(200, t0=T0 + 35.0))
+    assert len(_measured(monitor, T0 + 30)) >= 199
+    h = core.health("b1", wall=0.0)
+    assert (h["clock_faults"], h["clock_jumps"]) == (0, 1)

@@ -104,7 +104,7 @@ class Bed:
     received: int = 0  # messages on its sensor keys
     malformed: int = 0  # of them, payloads that break the payload rule
     alarm_samples: int = 0  # alarm messages, every target
-    latest_t: float | None = None  # the newest sensor time of its well-formed messages, s
+    latest_t: float | None = None  # its clock: the newest sensor time its aligner took (else seen), s
     last_recv: int | None = None  # the newest receive time of its well-formed messages, ns
 
     @property
@@ -212,26 +212,28 @@ class NodeCore:
             bed.malformed += len(idx) - len(good)
             if not len(good):
                 continue
-            newest = float(t[good].max())
-            bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
+            if bed.aligner.clock is None:  # no confirmed clock yet (node.runtime.clock)
+                newest = float(t[good].max())
+                bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
             if len(good) == len(keys):
                 channels = list(map(channel_of.__getitem__, keys))
             else:
                 channels = [channel_of[keys[i]] for i in good.tolist()]
             cuts = [] if received is None else self._idle_cuts(bed, received[good])
-            if not cuts:
-                done += [(int(good[j]), name, samples)
-                         for j, samples in bed.aligner.push_columns(channels, t[good], v[good])]
-                continue
-            starts = [0, *cuts] if cuts[0] else cuts
+            starts = [0, *cuts] if cuts and cuts[0] else cuts or [0]
             for a, b in zip(starts, [*starts[1:], len(good)], strict=True):
-                flushed = bed.aligner.flush() if a in cuts else []
-                part = bed.aligner.push_columns(channels[a:b], t[good[a:b]], v[good[a:b]])
-                if part and part[0][0] == 0:  # the message after the silence completed samples too
+                flushed = bed.aligner.flush() if cuts and a in cuts else []
+                if b - a == len(good):
+                    part = bed.aligner.push_columns(channels, t[good], v[good])
+                else:
+                    part = bed.aligner.push_columns(channels[a:b], t[good[a:b]], v[good[a:b]])
+                if flushed and part and part[0][0] == 0:  # the message after the silence completed some too
                     flushed += part.pop(0)[1]
                 if flushed:
                     done.append((int(good[a]), name, flushed))
                 done += [(int(good[a + j]), name, samples) for j, samples in part]
+            if bed.aligner.clock is not None:
+                bed.latest_t = bed.aligner.clock
         if len(parts) > 1:
             done.sort(key=lambda x: x[0])  # each bed's aligner is independent; outputs in message order
         return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done], refused)
@@ -290,8 +292,8 @@ class NodeCore:
     def finish(self) -> list[Output]:
         """End of stream: emit every sample still waiting for late channels."""
         out: list[Output] = []
-        for name in self.beds:
-            out += self.flush_bed(name)
+        for name, bed in self.beds.items():
+            out += self._run(name, bed.aligner.end())
         return out
 
     def flush_bed(self, name: str) -> list[Output]:
@@ -326,6 +328,9 @@ class NodeCore:
             "late": a.late, "duplicates": a.duplicates, "missing": dict(a.missing),
             "alarm_samples": b.alarm_samples, "late_by_channel": dict(a.late_by_channel),
             "phase_ms": b.aligner.phase_ms(), "refused": dict(b.refused)}
+        g = b.aligner.guard
+        msg["clock_faults"], msg["clock_conflicts"] = g.faults, g.conflicts
+        msg["clock_jumps"], msg["clock_held"] = g.jumps, g.held
         if lag_ms is not None:
             msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
         return msg
