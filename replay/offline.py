@@ -2,6 +2,9 @@
 
 The recording is read in file order (``iter_messages_fast``) in batches of
 messages. Each batch goes to ``NodeCore.handle_batch`` (decode, align, predict), as in the live node,
+with the messages' publish times as the receive times the live node stamped them with (a bed
+silent for the alignment wait on that clock has its waiting slots emitted before its next
+message, as the live node's timer did),
 which reports the messages that completed monitor messages; the batch's inputs
 are then written to the output recording with each monitor message right
 after the input that completed it, exactly where a live node records it.
@@ -72,8 +75,8 @@ class _Logic:
             return []
         return [(key, log_time_ns(msg["t"]), orjson.dumps(msg)) for key, msg in outs]
 
-    def batch(self, keys, payloads) -> list[tuple[int, list[Encoded]]]:
-        return [(i, self._outputs(outs)) for i, outs in self.core.handle_batch(keys, payloads).done]
+    def batch(self, keys, payloads, recv) -> list[tuple[int, list[Encoded]]]:
+        return [(i, self._outputs(outs)) for i, outs in self.core.handle_batch(keys, payloads, recv).done]
 
     def finish(self) -> tuple[list[Encoded], dict]:
         final = self._outputs(self.core.finish())
@@ -95,8 +98,8 @@ class _InProcess:
         self.logic = _Logic(bundle, encode, engines)
         self.done: deque = deque()
 
-    def submit(self, keys, payloads) -> None:
-        self.done.append(self.logic.batch(keys, payloads))
+    def submit(self, keys, payloads, recv) -> None:
+        self.done.append(self.logic.batch(keys, payloads, recv))
 
     def result(self):
         return self.done.popleft()
@@ -133,8 +136,8 @@ class _Forked:
                                 name="ordervib-replay", daemon=True)
         self.proc.start()
 
-    def submit(self, keys, payloads) -> None:
-        self.tasks.put((keys, payloads))
+    def submit(self, keys, payloads, recv) -> None:
+        self.tasks.put((keys, payloads, recv))
 
     def _get(self, kind: str):
         while True:
@@ -229,10 +232,11 @@ def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int
 
         def submit(batch: list, keys: list[str]) -> None:
             payloads = list(map(_PAYLOAD, batch))
-            engine.submit(keys, payloads)
+            n = len(batch)
+            recv = _u64(map(_PUB, batch), n)  # receive times: the alignment wait on the node's clock
+            engine.submit(keys, payloads, recv)
             if writer:
-                n = len(batch)
-                flight.append((keys, _u64(map(_LOG, batch), n), _u64(map(_PUB, batch), n), payloads))
+                flight.append((keys, _u64(map(_LOG, batch), n), recv, payloads))
             else:
                 flight.append(None)
             while len(flight) > IN_FLIGHT:

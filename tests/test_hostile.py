@@ -88,8 +88,8 @@ def test_the_core_refuses_without_creating_state():
     assert sorted(core._routes) == sorted({k for k, r in zip(keys, batch.refused) if not r})
     # the model's channels are admitted even with the bed's channels at the bound
     assert core.route("testbed/b1/sensor/yB") == ("b1", "yB")
-    # a batch of admitted keys only marks nothing
-    assert core.handle_batch(["testbed/b1/sensor/nB"], [GOOD]).refused is None
+    # a batch of admitted keys only marks nothing (yB: a second channel confirms the bed's clock)
+    assert core.handle_batch(["testbed/b1/sensor/nB", "testbed/b1/sensor/yB"], [GOOD] * 2).refused is None
     # a freed bed leaves no key in the cache and its slot to a new bed
     assert [key for key, _ in core.flush_bed("b1")] == ["testbed/b1/monitor/yB"]  # the waiting sample
     core.forget("b1")

@@ -233,10 +233,10 @@ def test_a_dead_worker_withdraws_the_token_and_the_watchdog_exits(setup, tmp_pat
     from node.runtime.core import NodeCore
     real = NodeCore.handle_batch
 
-    def handle_batch(self, keys, payloads):
+    def handle_batch(self, keys, payloads, recv=None):
         if b"boom" in payloads:
             raise RuntimeError("injected fault")
-        return real(self, keys, payloads)
+        return real(self, keys, payloads, recv)
 
     monkeypatch.setattr(NodeCore, "handle_batch", handle_batch)
     key = sensor_key("bed1", "nB")

@@ -14,6 +14,7 @@ from node.contract.schedule import OperatingCondition, Schedule
 from node.contract.slotting import ChannelPhase
 from node.models.bundle import Bundle
 from node.runtime.align import AlignedSample, Aligner
+from node.runtime.clock import UNGUARDED
 from node.runtime.core import NodeCore
 
 pytestmark = pytest.mark.usefixtures("numpy_path_from_16_messages")
@@ -23,7 +24,8 @@ REC = Path(__file__).resolve().parents[1] / "recordings" / "engine1_fault.mcap"
 
 class ReferenceAligner(Aligner):
     """The aligner's push written plainly (no shortcuts), to compare against: each channel's
-    phase by ``ChannelPhase.slot``, one message at a time."""
+    phase by ``ChannelPhase.slot``, one message at a time. It has no clock guard: the aligners
+    compared with it are ``UNGUARDED`` (the guard's own tests are in test_clock.py)."""
 
     def push(self, channel, t, v):
         if channel not in self.channels:
@@ -91,7 +93,7 @@ def _key(s: AlignedSample):
 
 @pytest.mark.parametrize("seed", range(6))
 def test_aligner_matches_the_reference(seed: int) -> None:
-    fast, ref = Aligner(["a", "b", "c"]), ReferenceAligner(["a", "b", "c"])
+    fast, ref = Aligner(["a", "b", "c"], clock=UNGUARDED), ReferenceAligner(["a", "b", "c"])
     got, want = [], []
     for i, (c, t, v) in enumerate(_stream(seed)):
         a, b = fast.push(c, t, v), ref.push(c, t, v)
@@ -111,7 +113,7 @@ def _key_in_order(s: AlignedSample):
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("size", [1, 5, 40, 333, 2000])
 def test_aligner_push_columns_matches_the_reference(seed: int, size: int) -> None:
-    fast, ref = Aligner(["a", "b", "c"]), ReferenceAligner(["a", "b", "c"])
+    fast, ref = Aligner(["a", "b", "c"], clock=UNGUARDED), ReferenceAligner(["a", "b", "c"])
     msgs = _stream(seed)
     want = [(i, _key_in_order(s)) for i, (c, t, v) in enumerate(msgs) for s in ref.push(c, t, v)]
     got = []
@@ -235,7 +237,7 @@ def test_a_failing_worker_ends_the_replay_with_one_line(model: Path, monkeypatch
     from node.contract.errors import OrdervibError
     from node.models.bundle import load_bundle
 
-    def boom(self, keys, payloads):
+    def boom(self, *batch):
         raise ValueError("bad model")
 
     monkeypatch.setattr(off._Logic, "batch", boom)  # inherited by the forked worker

@@ -127,7 +127,7 @@ Beds = Annotated[str, "the beds that node serves: a bed name, * or a pattern wit
 class HealthMessage(TypedDict):
     """``testbed/<bed>/monitor/health``: about once a second, that bed's own counters."""
 
-    t: Annotated[float, "the latest sensor time seen from this bed, s"]
+    t: Annotated[float, "the latest sensor time seen from this bed, s (its confirmed clock)"]
     wall: Wall
     received: Annotated[int, "sensor messages received from this bed"]
     malformed: Annotated[int, "of them, payloads that break the sensor payload rule"]
@@ -139,6 +139,13 @@ class HealthMessage(TypedDict):
     alarm_samples: Annotated[int, "monitor samples flagged alarm"]
     late_by_channel: Annotated[dict[str, int], "late messages of each expected channel"]
     phase_ms: Annotated[dict[str, float], "each expected channel's clock phase this run, ms after its slot"]
+    clock_faults: NotRequired[Annotated[int, "samples dropped as far from the bed's clock and never "
+                                             "confirmed by its other channels (a lone bad time)"]]
+    clock_conflicts: NotRequired[Annotated[int, "of them, samples of a key that kept another clock "
+                                                "(a second publisher on that key)"]]
+    clock_jumps: NotRequired[Annotated[int, "moves of the bed's clock its channels confirmed "
+                                            "(a clock set back or forward, a restart)"]]
+    clock_held: NotRequired[Annotated[int, "samples held apart now, awaiting confirmation of their clock"]]
     lag_ms_p50: NotRequired[Annotated[float | None, "receive to publish, ms, median of the last ones"]]
     lag_ms_p99: NotRequired[Annotated[float | None, "receive to publish, ms, 99th percentile"]]
     staleness: NotRequired[Annotated[float | None, "wall minus the receipt of the bed's last message, s"]]

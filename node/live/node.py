@@ -4,7 +4,10 @@ The subscriber callback only stamps and enqueues (a bounded ``Inbox``; overflow
 counted, per key for the first ``OVERFLOW_KEYS`` keys); one worker thread drains the inbox in
 batches (everything waiting, up to ``BATCH_MAX``), runs the node logic once per batch
 (``NodeCore.handle_batch``, as offline replay does), records every input it admitted,
-publishes and records every output, flushes the recording once a second (a
+publishes and records every output, emits the waiting slots of a bed that fell silent
+(``NodeCore.flush_idle``: the alignment wait on the node's clock, ``align_wait_s`` plus
+``IDLE_MARGIN_NS`` after the bed's last receipt, looked at with the inbox empty; replay does
+the same from the recorded receive times), flushes the recording once a second (a
 killed node loses at most the last second) and publishes a health message per
 bed once a second.
 
@@ -88,6 +91,11 @@ WATCHDOG_S = 0.5  # how often run_node checks the worker thread, s
 STALL_S = 0.5  # a worker pass longer than this is logged as a warning with its breakdown, s
 BED_EXPIRY_S = 300.0  # a bed silent this long (receive time) is freed, by default, s (--bed-expiry)
 OVERFLOW_KEYS = 4096  # keys whose queue losses are counted apart (per bed's health) at most
+IDLE_CHECK_S = 0.05  # how often silent beds' waiting slots are looked at, s (NodeCore.flush_idle)
+# Silent beds are looked at only with the inbox empty (a node behind its inputs cannot tell a
+# silence), and a message stamped on receipt but not yet in the inbox must not count as later
+# than a flush: a silent bed's waiting slots go out align_wait_s plus this after its last receipt
+IDLE_MARGIN_NS = 250_000_000
 
 
 @dataclass
@@ -242,7 +250,7 @@ class LiveNode:
         keys, payloads, recv = zip(*batch, strict=True)
         self.stats.received += len(batch)
         t0 = time.perf_counter()
-        result = self.core.handle_batch(keys, payloads)
+        result = self.core.handle_batch(keys, payloads, recv)
         self._spent["core"] += time.perf_counter() - t0
         for key, r in dict(zip(keys, recv, strict=True)).items():  # each key's newest receipt
             bed = self._bed(key)
@@ -282,12 +290,18 @@ class LiveNode:
         gc.callbacks.append(self._on_gc)
         try:
             next_tick = time.monotonic() + 1.0
+            next_idle = time.monotonic()
             while not (self._stop.is_set() and not self.queue):
                 t0 = time.perf_counter()
                 spent = self._spent = dict.fromkeys(self._spent, 0.0)
                 batch = self._drain()
                 if batch:
                     self._handle(batch)
+                now = time.time_ns()  # (then the inbox: what was stamped before is in it, or handled)
+                if time.monotonic() >= next_idle and not self.queue:  # behind, a silence is not known
+                    next_idle = time.monotonic() + IDLE_CHECK_S
+                    for k, msg in self.core.flush_idle(now, IDLE_MARGIN_NS):
+                        self._publish(k, msg)
                 if time.monotonic() >= next_tick:
                     next_tick = max(next_tick + 1.0, time.monotonic())  # no burst after a long batch
                     self._tick()

@@ -12,6 +12,10 @@ not be the earliest), so reorderings within the wait change nothing. Decisions
 depend only on the order and content of the messages, never on the wall clock, so
 replaying the messages in the order the node received them reproduces its output
 exactly.
+
+In front of the slots stands the bed's clock guard (``node.runtime.clock``): a sample far
+from the time the aligner has reached is held apart until other channels confirm its clock,
+or dropped and counted; a confirmed clock that went back restarts the aligner as a new run.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import numpy as np
 from node.contract import FS, RUN_GAP
 from node.contract.slotting import ChannelPhase
 from node.models.config import RuntimeConfig
+from node.runtime.clock import ClockGuard, ClockPolicy
 
 _NAN = float("nan")
 # Fewer messages of one bed than this go to push one by one: numpy's fixed cost per call
@@ -65,6 +70,7 @@ class Aligner:
         fs: sample rate, Hz.
         max_wait: seconds of newer data after which an incomplete slot is emitted anyway
             (``RuntimeConfig.align_wait_s``).
+        clock: the clock guard's policy (``ClockPolicy``; default its defaults).
 
     >>> a = Aligner(["nB", "yB"], max_wait=0.1)
     >>> a.push("nB", 100.025, 4001.0), a.push("nB", 100.0, 4000.0)  # any order
@@ -86,7 +92,7 @@ class Aligner:
     """
 
     def __init__(self, channels: list[str], fs: float = FS,
-                 max_wait: float = RuntimeConfig.align_wait_s) -> None:
+                 max_wait: float = RuntimeConfig.align_wait_s, clock: ClockPolicy | None = None) -> None:
         self.channels = list(channels)
         self._known = frozenset(self.channels)
         self._n = len(self.channels)
@@ -102,6 +108,13 @@ class Aligner:
         self._last_t: float | None = None
         self._new_run = True
         self._emitted = False
+        self.guard = ClockGuard(clock or ClockPolicy(), self._n)
+        self._jump = self.guard.max_jump
+
+    @property
+    def clock(self) -> float | None:
+        """The bed's clock: the newest sensor time taken (None before the first), s."""
+        return self._last_t
 
     def push(self, channel: str, t: float, v: float | None) -> list[AlignedSample]:
         """Add one message of ``channel`` (time t, s; value v, None or NaN: null); returns the
@@ -109,6 +122,41 @@ class Aligner:
         if channel not in self._known:
             self.stats.unknown[channel] += 1
             return []
+        last = self._last_t
+        if last is None or self.guard.pending or not -self._jump <= t - last <= self._jump:
+            return self._guarded(channel, t, v)
+        self.guard.taken += 1
+        return self._push(channel, t, v)
+
+    def _guarded(self, channel: str, t: float, v: float | None) -> list[AlignedSample]:
+        """A message through the clock guard: taken, held, or confirming a new clock."""
+        take, confirmed = self.guard.offer(channel, t, v, self._last_t)
+        if take:
+            return self._push(channel, t, v)
+        if confirmed is None:
+            return []
+        out: list[AlignedSample] = []
+        if self._last_t is not None and confirmed.newest < self._last_t - self._jump:
+            out += self.restart()  # the clock went back: a new run on it
+        for c, ti, vi in confirmed.samples:
+            out += self._push(c, ti, vi)
+        return out
+
+    def restart(self) -> list[AlignedSample]:
+        """Emit every open slot and start a new run at the next message taken, as if first."""
+        out = self.flush()
+        self._phase.clear()
+        self._started, self._new_run, self._emitted = False, True, False
+        self._last_t, self._newest = None, -1
+        return out
+
+    def end(self) -> list[AlignedSample]:
+        """End of stream: every open slot emitted; samples still held are dropped (counted)."""
+        self.guard.drop_all()
+        return self.flush()
+
+    def _push(self, channel: str, t: float, v: float | None) -> list[AlignedSample]:
+        """``push`` of a known channel's message the clock guard took."""
         out: list[AlignedSample] = []
         if self._last_t is not None and t - self._last_t >= RUN_GAP:  # a new run, on a new grid
             out += self.flush()
@@ -155,16 +203,20 @@ class Aligner:
         samples, and block sums are exact integers), so the slots are bit-identical.
         """
         n, last = len(t), self._last_t
-        if (n < SMALL_BATCH or not self._emitted or last is None
+        if (n < SMALL_BATCH or not self._emitted or last is None or self.guard.pending
                 or float(t.max()) - last >= RUN_GAP or len(self._code) != self._n):
-            one_by_one = (self.push(c, ti, vi) for c, ti, vi in zip(channels, t.tolist(), v.tolist()))
-            return [(i, out) for i, out in enumerate(one_by_one) if out]
+            return self._one_by_one(channels, t, v)
         ci = np.fromiter(map(self._code.get, channels, repeat(-1)), dtype=np.int64, count=n)
+        at = np.flatnonzero(ci >= 0)  # the messages of known channels
+        if len(at):
+            before = np.maximum.accumulate(np.concatenate(([last], t[at])))[:-1]  # the bed's clock
+            if (np.abs(t[at] - before) > self._jump).any():  # one far from it: the guard decides
+                return self._one_by_one(channels, t, v)
         if (ci < 0).any():
             self.stats.unknown.update(compress(channels, (ci < 0).tolist()))
-        at = np.flatnonzero(ci >= 0)  # the messages of known channels
         if not len(at):
             return []
+        self.guard.taken += len(at)
         t, v, code = t[at], v[at], ci[at]
         k = np.empty(len(t), dtype=np.int64)
         by_channel = np.argsort(code, kind="stable")  # each channel's messages, in arrival order
@@ -189,6 +241,11 @@ class Aligner:
             else:
                 done.append((tag, [self._emit(self._next)]))
         return done
+
+    def _one_by_one(self, channels: Sequence[str], t: np.ndarray, v: np.ndarray
+                    ) -> list[tuple[int, list[AlignedSample]]]:
+        one_by_one = (self.push(c, ti, vi) for c, ti, vi in zip(channels, t.tolist(), v.tolist()))
+        return [(i, out) for i, out in enumerate(one_by_one) if out]
 
     def _plan(self, k: np.ndarray, c: np.ndarray, newest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What ``push`` would do with messages of slots k and channel codes c (no new run among

@@ -104,7 +104,8 @@ class Bed:
     received: int = 0  # messages on its sensor keys
     malformed: int = 0  # of them, payloads that break the payload rule
     alarm_samples: int = 0  # alarm messages, every target
-    latest_t: float | None = None  # the newest sensor time of its well-formed messages, s
+    latest_t: float | None = None  # its clock: the newest sensor time its aligner took (else seen), s
+    last_recv: int | None = None  # the newest receive time of its well-formed messages, ns
 
     @property
     def pipeline(self) -> MonitorPipeline:
@@ -157,6 +158,8 @@ class NodeCore:
         self.published = 0  # outputs returned
         self.alarm_log = EpisodeLog(self.model.config.episode_gap_s)  # alarm episodes, every bed
         self._routes: dict[str, Route] = {}  # admitted key -> (bed, channel): the tracked beds' only
+        # a bed silent this long on the node's clock (receive times) has its waiting slots emitted
+        self.idle_ns = round(self.model.config.align_wait_s * 1e9)
 
     @property
     def foreign(self) -> int:
@@ -173,8 +176,14 @@ class NodeCore:
         done = self.handle_batch([key], [payload]).done
         return done[0][1] if done else []
 
-    def handle_batch(self, keys: Sequence[str], payloads: Sequence[bytes]) -> Batch:
-        """Messages in the order they arrived, with the very effects of one at a time."""
+    def handle_batch(self, keys: Sequence[str], payloads: Sequence[bytes],
+                     recv: Sequence[int] | np.ndarray | None = None) -> Batch:
+        """Messages in the order they arrived, with the very effects of one at a time.
+
+        recv: each message's receive time on the node's clock, ns (the recording's publish time);
+        before a bed's message received ``idle_ns`` or more after its previous one, the bed's
+        waiting slots are emitted (``flush_idle``'s rule, at the latest moment a replay knows of);
+        None: no receive times, the wait is on sensor time only."""
         if len(keys) != len(payloads):
             raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
         t, v, ok = decode_samples(payloads)
@@ -194,6 +203,7 @@ class NodeCore:
                 refused = codes < 0
                 self._count_refused(Counter(compress(keys, refused.tolist())), routes)
             parts = [(name, np.flatnonzero(codes == j)) for j, name in enumerate(order)]
+        received = None if recv is None else np.asarray(recv, dtype=np.int64)
         done: list[tuple[int, str, list[AlignedSample]]] = []
         for name, idx in parts:
             bed = self.beds[name]
@@ -202,17 +212,64 @@ class NodeCore:
             bed.malformed += len(idx) - len(good)
             if not len(good):
                 continue
-            newest = float(t[good].max())
-            bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
+            if bed.aligner.clock is None:  # no confirmed clock yet (node.runtime.clock)
+                newest = float(t[good].max())
+                bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
             if len(good) == len(keys):
                 channels = list(map(channel_of.__getitem__, keys))
             else:
                 channels = [channel_of[keys[i]] for i in good.tolist()]
-            done += [(int(good[j]), name, samples)
-                     for j, samples in bed.aligner.push_columns(channels, t[good], v[good])]
+            cuts = [] if received is None else self._idle_cuts(bed, received[good])
+            starts = [0, *cuts] if cuts and cuts[0] else cuts or [0]
+            for a, b in zip(starts, [*starts[1:], len(good)], strict=True):
+                flushed = bed.aligner.flush() if cuts and a in cuts else []
+                if b - a == len(good):
+                    part = bed.aligner.push_columns(channels, t[good], v[good])
+                else:
+                    part = bed.aligner.push_columns(channels[a:b], t[good[a:b]], v[good[a:b]])
+                if flushed and part and part[0][0] == 0:  # the message after the silence completed some too
+                    flushed += part.pop(0)[1]
+                if flushed:
+                    done.append((int(good[a]), name, flushed))
+                done += [(int(good[a + j]), name, samples) for j, samples in part]
+            if bed.aligner.clock is not None:
+                bed.latest_t = bed.aligner.clock
         if len(parts) > 1:
             done.sort(key=lambda x: x[0])  # each bed's aligner is independent; outputs in message order
         return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done], refused)
+
+    def _idle_cuts(self, bed: Bed, recv: np.ndarray) -> list[int]:
+        """Where a bed's messages (receive times recv, ns, in arrival order) come ``idle_ns`` or
+        more after the newest receipt before them: each such message index; the bed's newest
+        receipt is advanced."""
+        prev = bed.last_recv
+        newest = np.maximum.accumulate(recv)
+        bed.last_recv = int(newest[-1]) if prev is None else max(prev, int(newest[-1]))
+        before = np.empty_like(newest)
+        before[1:] = newest[:-1]
+        if prev is None:
+            before[0] = recv[0]  # the bed's first message: nothing waits before it
+        else:
+            before[0] = prev
+            np.maximum(before, prev, out=before)
+        return np.flatnonzero(recv - before >= self.idle_ns).tolist()
+
+    def flush_idle(self, now: int, margin: int = 0) -> list[Output]:
+        """The node's clock is ``now`` (ns): every bed silent ``idle_ns + margin`` or more since its
+        newest receipt has its waiting slots emitted; their outputs, bed by bed.
+
+        The live node calls this on a timer so that a bed that falls silent gets its last slots
+        out about ``align_wait_s`` after its last message. It changes nothing a replay would not
+        do: the bed's next message (received later still) would have flushed them first
+        (``handle_batch``), and at the end of a recording ``finish`` does. ``margin`` keeps a
+        message received (stamped) before ``now`` but not yet handed over from counting as later."""
+        out: list[Output] = []
+        for name, bed in self.beds.items():
+            if bed.last_recv is not None and now - bed.last_recv >= self.idle_ns + margin:
+                samples = bed.aligner.flush()
+                if samples:
+                    out += self._run(name, samples)
+        return out
 
     def _count_refused(self, counts: Mapping[str, int], routes: Mapping[str, Route | Refused]) -> None:
         """Count refused messages (n per key) per reason, node-wide and on their bed if tracked."""
@@ -235,8 +292,8 @@ class NodeCore:
     def finish(self) -> list[Output]:
         """End of stream: emit every sample still waiting for late channels."""
         out: list[Output] = []
-        for name in self.beds:
-            out += self.flush_bed(name)
+        for name, bed in self.beds.items():
+            out += self._run(name, bed.aligner.end())
         return out
 
     def flush_bed(self, name: str) -> list[Output]:
@@ -271,6 +328,9 @@ class NodeCore:
             "late": a.late, "duplicates": a.duplicates, "missing": dict(a.missing),
             "alarm_samples": b.alarm_samples, "late_by_channel": dict(a.late_by_channel),
             "phase_ms": b.aligner.phase_ms(), "refused": dict(b.refused)}
+        g = b.aligner.guard
+        msg["clock_faults"], msg["clock_conflicts"] = g.faults, g.conflicts
+        msg["clock_jumps"], msg["clock_held"] = g.jumps, g.held
         if lag_ms is not None:
             msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
         return msg
