@@ -68,9 +68,10 @@ DRIFT_OC_MIN_PLATEAUS = 3
 FLATLINE_MIN_S = 2.0  # a flat line shorter than this never alarms, s
 FLATLINE_FACTOR = 4.0  # limit = factor x the longest repeat in the training runs
 EULER_GAMMA = 0.5772156649
-# The residual threshold: the level a new run's largest peak exceeds with the run's share of the
-# budget, from the Gumbel law's posterior predictive over the training runs' largest CV peaks (few
-# runs: a higher level), not the plug-in fit over segments. (study: docs/tuning.md#predictive)
+# The residual threshold's rule: "plug-in", a Gumbel law fitted to the CV segments' peaks; or
+# "predictive", the level a new run's largest peak exceeds with the run's share of the budget,
+# from the Gumbel law's posterior predictive over the training runs' largest CV peaks. Neither met
+# the budget with 4 training runs; plug-in stays. (study: docs/tuning.md#threshold_rule)
 THRESHOLD_RULE = "plug-in"  # or "predictive" (see above); plug-in: a Gumbel law on the segments' peaks
 
 
