@@ -207,3 +207,23 @@ def test_recorded_runs_each_with_the_history_the_runs_before_leave(model, train_
     assert pooled.shape == (1, 12) and np.isfinite(pooled).all()
     lo, hi = np.minimum(recs[0].eps, recs[1].eps), np.maximum(recs[0].eps, recs[1].eps)
     assert (pooled >= lo - 1e-12).all() and (pooled <= hi + 1e-12).all()  # pooled lies between
+
+
+def test_a_stated_history_the_model_cannot_use_is_one_warning(tmp_path, capsys):
+    """A model without an engine-history input: --shutdown-hours changes nothing, and says so
+    once; the history model of the module says nothing of the kind."""
+    plain = tmp_path / "plain"
+    assert main(["train", str(RUNS), "--schedule", str(SCHEDULE), "--out", str(plain), "--method", "lasso",
+                 "--inputs", "nB", "--no-curve-candidates", "--no-prom", "--target", "yB", "--quiet",
+                 "--workers", "1"]) == 0
+    capsys.readouterr()
+    args = ["--profile", str(SCHEDULE), "--plateau-s", "5", "--shutdown-hours", "0.5", "24", "--quiet"]
+    assert main(["predict", "--model", str(plain), "--out", str(tmp_path / "p.csv"), *args]) == 0
+    err = capsys.readouterr().err.splitlines()
+    warned = [line for line in err if "takes no engine-history input" in line]
+    assert len(warned) == 1 and warned[0].startswith("warning: ")
+    with open(tmp_path / "p.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    by = {h: [r["yB"] for r in rows if r["history"] == h] for h in ("0.5", "24")}
+    assert by["0.5"] == by["24"]  # indeed the same numbers
+

@@ -61,8 +61,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from node.models.bundle import load_model
+    from node.runtime.history import HISTORY_CHANNELS
     from node.runtime.ocdetect import OCDetector
-    from node.training.prediction import predict_profile, stated_history
+    from node.training.prediction import predict_profile, stated_history, takes_history
 
     model = load_model(args.model)
     profile = _profile(args, model)
@@ -83,6 +84,10 @@ def run(args: argparse.Namespace) -> int:
             check_output(path, option, suffix=".png", inputs=[*inputs, args.out])
     if args.png and args.history_png and os.path.abspath(args.png) == os.path.abspath(args.history_png):
         raise OrdervibError("--png and --history-png must differ")
+    if (args.shutdown_hours or args.energy is not None or args.engine_state) and not takes_history(model):
+        log.warning("the model takes no engine-history input (%s): the stated history (--shutdown-hours, "
+                    "--energy, --engine-state) cannot change its prediction, every history gives the "
+                    "same numbers", ", ".join(HISTORY_CHANNELS))
     fill = _fill(args, model, profile)
     runs = profile.runs(OCDetector(model.schedule, model.config).off_level)
     start = _first_on(runs, model)

@@ -251,6 +251,9 @@ def state_after(runs: list, switch: str, on_speed: float, cooling: float,
     return dataclasses.replace(tracker.state)
 
 
+COOLING_GRID = (1e2, 1e7)  # the cooling rates estimate_cooling searches, rpm min per hour
+
+
 def estimate_cooling(runs: list, switch: str, on_speed: float, min_runs: int = 3) -> float | None:
     """The cooling rate (rpm min per hour of shutdown) that makes ``hist_energy`` at light-off
     follow the thermal state measured then, over training runs (in time order, one engine).
@@ -284,7 +287,7 @@ def estimate_cooling(runs: list, switch: str, on_speed: float, min_runs: int = 3
         return None
     thermal = np.array([th for _, _, th in events])
     best: tuple[float, float] | None = None
-    for rate in np.logspace(2, 7, 51):
+    for rate in np.logspace(math.log10(COOLING_GRID[0]), math.log10(COOLING_GRID[1]), 51):
         carried, e = [], 0.0
         for gain, (_, h, _) in zip(gains, events):
             e = max(0.0, e + gain - rate * h)

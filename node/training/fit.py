@@ -29,6 +29,7 @@ from node.mcap import ReadStats, warn_unfinished
 from node.models.bundle import Bundle, Model, load_model, save_model
 from node.models.config import RuntimeConfig
 from node.models.result import OCResult
+from node.runtime.history import COOLING_GRID
 from node.training.provenance import training_record
 from node.training.runs import Run, read_runs
 
@@ -252,9 +253,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
     config = RuntimeConfig()
     if o["history"] or o["prom"] or method == "prom":  # (the engine history's cooling)
         config = history_config(runs, schedule, config)
-        log.info("engine history: cooling %.3g rpm min per hour of shutdown%s", config.history_cooling,
-                 "" if config.history_cooling != RuntimeConfig().history_cooling
-                 else " (the text's value: too few runs after a known one to estimate it)")
+        log.log(*cooling_note(config.history_cooling))
     bundles: list[Bundle] = []
     trained: list[tuple[str, list[OCResult]]] = []
     use_prom = o["prom"] or method == "prom"
@@ -292,6 +291,26 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks))
         trained.append((target, results))
     return Model(tuple(bundles)), trained
+
+
+def cooling_note(cooling: float) -> tuple[int, str]:
+    """The log level and line that tell the engine history's cooling rate (rpm min per hour of
+    shutdown) and whether the training runs identified it.
+
+    >>> cooling_note(2.5e4)
+    (20, 'engine history: cooling 2.5e+04 rpm min per hour of shutdown')
+    >>> cooling_note(100.0)[1].split(", ", 1)[1]
+    'at the bound of the rates searched (100-1e+07): not identified by these runs'
+    >>> cooling_note(RuntimeConfig().history_cooling)[0] == logging.WARNING
+    True
+    """
+    line = f"engine history: cooling {cooling:.3g} rpm min per hour of shutdown"
+    if cooling == RuntimeConfig().history_cooling:
+        return logging.WARNING, f"{line}, the text's value: not identified (too few runs after a known one)"
+    if cooling in COOLING_GRID:
+        return logging.WARNING, (f"{line}, at the bound of the rates searched ({COOLING_GRID[0]:g}-"
+                                 f"{COOLING_GRID[1]:g}): not identified by these runs")
+    return logging.INFO, line
 
 
 def _count(grid: dict[str, list[object]]) -> int:

@@ -343,6 +343,12 @@ class Prediction:
         return out
 
 
+def takes_history(model: Bundle | Model) -> bool:
+    """Whether some OC model takes an engine-history input (``HISTORY_CHANNELS``): only then can
+    a stated history change the prediction."""
+    return any(c in HISTORY_CHANNELS for b in as_model(model).bundles for c in b.inputs)
+
+
 def needed_channels(model: Bundle | Model) -> list[str]:
     """The sensor channels the node awaits for ``model``, but the targets and their phases."""
     m = as_model(model)
