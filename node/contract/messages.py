@@ -180,6 +180,13 @@ class NodeHealthMessage(TypedDict):
     expired: Annotated[int, "beds freed after a silence so far"]
     recording: Recording
     unrecorded: Unrecorded
+    cpu_us_per_message: Annotated[float | None, "the worker thread's CPU time (time.thread_time) per "
+                                                "message taken, us, over the last health interval "
+                                                "with messages (handling, publishing, recording, "
+                                                "health included); its margin at R messages/s is "
+                                                "1e6 / R minus this; null before any"]
+    worker_lag_s: Annotated[float, "the age (receive time to now, node's clock) of the oldest "
+                                   "message waiting in the node's queue, s; 0 when none waits"]
 
 
 MESSAGE_TYPES: dict[TopicKind, type] = {

@@ -35,6 +35,12 @@ class Inbox(Generic[T]):
     def __len__(self) -> int:
         return len(self._items)
 
+    def oldest(self) -> T | None:
+        """The oldest item waiting (left in place), None when none waits; safe in the consumer
+        thread (only it takes items)."""
+        items = self._items
+        return items[0] if items else None
+
     def put(self, item: T) -> bool:
         """Append ``item``; False (nothing appended) when the inbox holds ``maxsize`` items."""
         if len(self._items) >= self.maxsize:
