@@ -9,7 +9,9 @@ message; the worker is woken through an ``Event`` only when it waits on an empty
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
+from collections.abc import Callable
 from typing import Generic, TypeVar
 
 T = TypeVar("T")
@@ -31,6 +33,7 @@ class Inbox(Generic[T]):
         self._items: deque[T] = deque()
         self._wake = threading.Event()
         self._waiting = False
+        self._stamp = threading.Lock()  # a stamp and its append, against now_if_empty
 
     def __len__(self) -> int:
         return len(self._items)
@@ -49,6 +52,19 @@ class Inbox(Generic[T]):
         if self._waiting:
             self._wake.set()
         return True
+
+    def put_stamped(self, make: Callable[[int], T]) -> bool:
+        """Append ``make(now)``, ``now`` the clock's ns read under the inbox's stamp lock, so that
+        ``now_if_empty`` never reads a later time while an earlier stamp is not yet in; False
+        (nothing appended) when full."""
+        with self._stamp:
+            return self.put(make(time.time_ns()))
+
+    def now_if_empty(self) -> int | None:
+        """The clock's ns when nothing waits and nothing stamped before it is still to come in;
+        None when something waits."""
+        with self._stamp:
+            return None if self._items else time.time_ns()
 
     def take(self, n: int, timeout: float) -> list[T]:
         """At most ``n`` items, oldest first; waits up to ``timeout`` s when none waits."""

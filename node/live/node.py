@@ -191,7 +191,8 @@ class LiveNode:
 
     def _on_sample(self, sample: Any) -> None:  # Zenoh thread: stamp and enqueue only
         key = str(sample.key_expr)
-        if not self.queue.put((key, sample.payload.to_bytes(), time.time_ns())):
+        payload = sample.payload.to_bytes()
+        if not self.queue.put_stamped(lambda now: (key, payload, now)):
             self.stats.overflow += 1
             lost = self._overflow
             if key in lost or len(lost) < OVERFLOW_KEYS:  # bounded whatever keys arrive
@@ -319,11 +320,12 @@ class LiveNode:
                 batch = self._drain()
                 if batch:
                     self._handle(batch)
-                now = time.time_ns()  # (then the inbox: what was stamped before is in it, or handled)
-                if time.monotonic() >= next_idle and not self.queue:  # behind, a silence is not known
-                    next_idle = time.monotonic() + IDLE_CHECK_S
-                    for k, msg in self.core.flush_idle(now, IDLE_MARGIN_NS):
-                        self._publish(k, msg)
+                if time.monotonic() >= next_idle:
+                    now = self.queue.now_if_empty()  # behind, a silence is not known
+                    if now is not None:  # (every message stamped before now is handled)
+                        next_idle = time.monotonic() + IDLE_CHECK_S
+                        for k, msg in self.core.flush_idle(now, IDLE_MARGIN_NS):
+                            self._publish(k, msg)
                 if time.monotonic() >= next_tick:
                     next_tick = max(next_tick + 1.0, time.monotonic())  # no burst after a long batch
                     self._tick()
