@@ -253,7 +253,6 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
     config = RuntimeConfig()
     if o["history"] or o["prom"] or method == "prom":  # (the engine history's cooling)
         config = history_config(runs, schedule, config)
-        log.log(*cooling_note(config.history_cooling))
     bundles: list[Bundle] = []
     trained: list[tuple[str, list[OCResult]]] = []
     use_prom = o["prom"] or method == "prom"
@@ -290,6 +289,8 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
         bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks))
         trained.append((target, results))
+    if o["history"] or o["prom"] or method == "prom":  # said once the model stands (a failure: one line)
+        log.log(*cooling_note(config.history_cooling))
     return Model(tuple(bundles)), trained
 
 
