@@ -49,3 +49,42 @@ def test_replayed_sensor_samples_are_application_json(sim: Path) -> None:
         session.close()
     assert sent > 0 and len(encodings) == sent
     assert set(encodings) == {str(zenoh.Encoding.APPLICATION_JSON)}
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["run", "--model", "no-model", "--record", "REC", "--listen", "nonsense"], "--listen 'nonsense'"),
+    (["run", "--model", "no-model", "--record", "REC", "--connect", "tcp/"], "--connect 'tcp/'"),
+    (["router", "--listen", "nonsense", "--duration", "1"], "--listen 'nonsense'"),
+    (["replay", str(COMMITTED), "--publish", "--connect", "nonsense"], "--connect 'nonsense'"),
+    (["view", "--connect", "nonsense", "--duration", "1", "--save", "RRD"], "--connect 'nonsense'"),
+])
+def test_a_bad_endpoint_is_one_line_naming_the_option(argv: list[str], option: str, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("zenoh")
+    files = {"REC": str(tmp_path / "rec.mcap"), "RRD": str(tmp_path / "view.rrd")}
+    argv = [files.get(a, a) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and option in err, err
+    assert "Json5Err" not in err and ".rs:" not in err and ".cargo" not in err
+
+
+@pytest.mark.parametrize("text", ["{mode: ", '{mode: "nope"}', None])
+def test_a_bad_zenoh_config_file_is_one_line_naming_the_option(text: str | None, tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("zenoh")
+    conf = tmp_path / "z.json5"
+    if text is not None:
+        conf.write_text(text)
+    assert main(["router", "--zenoh-config", str(conf), "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and f"--zenoh-config {conf}" in err, err
+    assert "Message {" not in err and ".rs:" not in err and ".cargo" not in err
+
+
+def test_an_endpoint_the_session_cannot_open_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("zenoh")
+    assert main(["router", "--listen", "tcp/127.0.0.1:notaport", "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "tcp/127.0.0.1:notaport" in err and "--listen" in err, err
+    assert ".rs:" not in err and ".cargo" not in err
