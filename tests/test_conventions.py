@@ -88,3 +88,30 @@ def test_an_endpoint_the_session_cannot_open_is_one_line(capsys: pytest.CaptureF
     err = capsys.readouterr().err
     assert len(err.splitlines()) == 1 and "tcp/127.0.0.1:notaport" in err and "--listen" in err, err
     assert ".rs:" not in err and ".cargo" not in err
+
+
+@pytest.mark.parametrize("before, after", [(["--log-level", "warning"], []), ([], ["--log-level", "warning"]),
+                                           (["--log-level", "debug"], ["--log-level", "warning"])])
+def test_log_level_is_accepted_before_or_after_the_sub_command(before: list[str], after: list[str],
+                                                               tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """After the sub-command it counts too (the later one wins); at warning, no status on stderr."""
+    assert main([*before, *SIM, "--out", str(tmp_path / "x.mcap"), *after]) == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_every_sub_command_takes_log_level() -> None:
+    from node.cli import build_parser
+
+    parser = build_parser()
+    subs = next(a for a in parser._actions if a.dest == "command")
+    for name, p in subs.choices.items():  # type: ignore[union-attr]
+        assert "--log-level" in p._option_string_actions, name
+
+
+def test_a_bad_log_level_after_the_sub_command_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", "--out", "x.mcap", "--log-level", "loud"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--log-level" in err
