@@ -115,3 +115,39 @@ def test_a_bad_log_level_after_the_sub_command_is_one_line(capsys: pytest.Captur
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--log-level" in err
+
+
+@pytest.mark.parametrize("option", [[], ["--log-level", "warning"], ["--quiet"]])
+def test_simulate_prints_what_it_wrote_on_stdout(option: list[str], tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "x.mcap"
+    assert main([*SIM, "--out", str(out), *option]) == 0
+    res = capsys.readouterr()
+    assert res.out.startswith("simulate: 1 runs, ") and f"-> {out} " in res.out
+    assert len(res.out.splitlines()) == 1
+    assert "-> " not in res.err  # the result is not repeated on stderr
+    if option:
+        assert res.err == ""
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from conftest import small_campaign
+
+    return small_campaign(tmp_path_factory.mktemp("camp"), seed=5)
+
+
+@pytest.mark.parametrize("option", [[], ["--log-level", "warning"], ["--quiet"]])
+def test_replay_model_prints_its_summary_on_stdout(option: list[str], campaign: Path, tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out.mcap"
+    assert main(["replay", str(campaign / "test.mcap"), "--model", str(campaign / "m"), "--out", str(out),
+                 "--workers", "0", *option]) == 0
+    res = capsys.readouterr()
+    lines = res.out.splitlines()
+    assert lines[0].startswith("replayed ") and "monitor messages" in lines[0]
+    assert lines[1].startswith("  bed1: ") and "alarm samples" in lines[1]
+    assert lines[-1] == f"wrote {out}"
+    assert "replayed " not in res.err and "wrote " not in res.err
+    if option:
+        assert res.err == ""
