@@ -151,3 +151,50 @@ def test_replay_model_prints_its_summary_on_stdout(option: list[str], campaign: 
     assert "replayed " not in res.err and "wrote " not in res.err
     if option:
         assert res.err == ""
+
+
+def _schema_names(path: Path) -> dict[str, set[str]]:
+    """Topic kind -> the schema names a recording's channels of that kind carry."""
+    from mcap.reader import make_reader
+
+    from node.contract.keys import topic_kind
+
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    out: dict[str, set[str]] = {}
+    for ch in summary.channels.values():
+        out.setdefault(topic_kind(ch.topic).value, set()).add(summary.schemas[ch.schema_id].name)
+    return out
+
+
+def test_a_fresh_simulation_and_a_node_recording_name_the_sensor_schema_alike(
+        sim: Path, campaign: Path, tmp_path: Path) -> None:
+    from node.contract.keys import TopicKind
+    from node.mcap import SCHEMA_NAMES
+
+    node_rec = tmp_path / "node.mcap"
+    assert main(["replay", str(campaign / "test.mcap"), "--model", str(campaign / "m"),
+                 "--out", str(node_rec), "--workers", "0", "--quiet"]) == 0
+    simulated, recorded = _schema_names(sim), _schema_names(node_rec)
+    assert simulated["sensor"] == recorded["sensor"] == {SCHEMA_NAMES[TopicKind.SENSOR]}
+    for kind, names in recorded.items():  # one name per kind, the one SCHEMA_NAMES gives
+        assert names == {SCHEMA_NAMES[TopicKind(kind)]}, kind
+
+
+def test_readers_accept_the_committed_spelling_and_a_copy_writes_the_one_name(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The committed recordings say ordervib.Sensor (not rewritten): they read as sensor
+    recordings, and a copy the project writes (recover) names the schema as fresh ones do."""
+    from node.contract.keys import TopicKind
+    from node.mcap import SCHEMA_NAMES, iter_messages, schema_kind
+
+    assert _schema_names(COMMITTED)["sensor"] == {"ordervib.Sensor"}
+    assert schema_kind("ordervib.Sensor") == schema_kind(SCHEMA_NAMES[TopicKind.SENSOR]) == TopicKind.SENSOR
+    assert all(schema_kind(name) == kind for kind, name in SCHEMA_NAMES.items())
+    assert schema_kind("something.else") is None
+    first = next(iter(iter_messages(str(COMMITTED))))
+    assert first.topic.startswith("testbed/")
+    out = tmp_path / "copy.mcap"
+    assert main(["recover", str(COMMITTED), "--out", str(out)]) == 0
+    assert _schema_names(out) == {"sensor": {SCHEMA_NAMES[TopicKind.SENSOR]}}
