@@ -4,7 +4,6 @@ name per topic kind, Zenoh option errors in one line, --log-level anywhere, resu
 from __future__ import annotations
 
 import socket
-import time
 from pathlib import Path
 
 import pytest
@@ -32,6 +31,7 @@ def test_replayed_sensor_samples_are_application_json(sim: Path) -> None:
     """`replay --publish` declares its sensor publishers with application/json, as the node does
     (a bare put would say zenoh/bytes)."""
     zenoh = pytest.importorskip("zenoh")
+    from harness.live import wait_for
     from node.live.zenoh import open_session, zenoh_config
     from replay.publish import publish_recording
 
@@ -41,9 +41,7 @@ def test_replayed_sensor_samples_are_application_json(sim: Path) -> None:
     sub = session.declare_subscriber("testbed/**", lambda s: encodings.append(str(s.encoding)))
     try:
         sent = publish_recording(str(sim), endpoint, speed=0.0, quiet=True)
-        deadline = time.monotonic() + 20
-        while len(encodings) < sent and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_for(lambda: len(encodings) >= sent, 20)
     finally:
         sub.undeclare()
         session.close()
