@@ -102,15 +102,14 @@ class Bench:
         """``on_reply(key, payload, arrival ns)`` instead of keeping every reply in ``arrivals``."""
         import zenoh
 
-        from node.live.zenoh import open_session, zenoh_config
+        from node.live.zenoh import json_publisher, open_session, zenoh_config
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.beds = beds
         self.arrivals: list[tuple[str, bytes, int]] = []
         self._handler = on_reply or (lambda *reply: self.arrivals.append(reply))
         self.sub = self.session.declare_subscriber(reply_keys, self._on_reply)
         block = zenoh.CongestionControl.BLOCK
-        self.pubs = {(b, c): self.session.declare_publisher(sensor_key(b, c),
-                                                            congestion_control=block)
+        self.pubs = {(b, c): json_publisher(self.session, sensor_key(b, c), congestion_control=block)
                      for b in beds for c in channels}
 
     def _on_reply(self, sample) -> None:  # Zenoh thread: stamp and keep only
@@ -197,7 +196,7 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
     import zenoh
 
     from node.contract import SENSOR_SUBSCRIPTION
-    from node.live.zenoh import open_session, zenoh_config
+    from node.live.zenoh import json_publisher, open_session, zenoh_config
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
     pubs: dict[str, zenoh.Publisher] = {}
     counts: dict[tuple[str, int], int] = {}
@@ -218,7 +217,7 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
             del counts[k]
             pub = pubs.get(bed)
             if pub is None:
-                pub = pubs[bed] = session.declare_publisher(f"echo/{bed}", congestion_control=block)
+                pub = pubs[bed] = json_publisher(session, f"echo/{bed}", congestion_control=block)
             pub.put(payload)
 
     sub = session.declare_subscriber(SENSOR_SUBSCRIPTION, on_sample)
@@ -350,7 +349,9 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
 
     bench = Bench(f"tcp/127.0.0.1:{port}", [], [], MONITOR_SUBSCRIPTION, on_reply)
     import zenoh
-    pubs = {topic: bench.session.declare_publisher(topic, congestion_control=zenoh.CongestionControl.BLOCK)
+
+    from node.live.zenoh import json_publisher
+    pubs = {topic: json_publisher(bench.session, topic, congestion_control=zenoh.CongestionControl.BLOCK)
             for topic in {k for k, _, _ in msgs}}
     rss: list[tuple[float, float]] = []
     sent = 0

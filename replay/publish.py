@@ -7,7 +7,13 @@ import time
 from collections.abc import Callable
 
 from node.contract import OrdervibError, parse_sensor_key
-from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints, open_session, zenoh_config
+from node.live.zenoh import (
+    DEFAULT_ENDPOINT,
+    config_file_endpoints,
+    json_publisher,
+    open_session,
+    zenoh_config,
+)
 from node.mcap import iter_messages, message_time_span
 
 log = logging.getLogger(__name__)
@@ -83,7 +89,7 @@ def publish_recording(path: str, connect: str | None, speed: float, quiet: bool 
                 continue
             pub = pubs.get(m.topic)
             if pub is None:
-                pub = session.declare_publisher(m.topic, congestion_control=zenoh.CongestionControl.BLOCK)
+                pub = json_publisher(session, m.topic, congestion_control=zenoh.CongestionControl.BLOCK)
                 pubs[m.topic] = pub
                 if len(pubs) == 1:  # wait until a subscriber matches before the first put
                     deadline = time.monotonic() + wait_s

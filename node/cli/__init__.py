@@ -48,8 +48,11 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="ordervib", description="Tracked-order vibration monitoring node.")
     parser.add_argument("--version", action="version", version=f"ordervib {__version__}")
-    parser.add_argument("--log-level", choices=tuple(LEVELS), default=None,
-                        help="status shown on stderr (default info; a command's --quiet means warning)")
+    log_help = "status shown on stderr (default info; a command's --quiet means warning)"
+    parser.add_argument("--log-level", choices=tuple(LEVELS), default=None, help=log_help)
+    # the same option after the sub-command; SUPPRESS: absent there, it keeps the value given before
+    common = _Parser(add_help=False)
+    common.add_argument("--log-level", choices=tuple(LEVELS), default=argparse.SUPPRESS, help=log_help)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for mod_name in COMMAND_MODULES:
         try:
@@ -58,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
             if exc.name == mod_name:
                 continue
             raise
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP, parents=[common])
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser

@@ -5,7 +5,9 @@ A node killed before ``finish()`` leaves a file without summary or footer:
 (``node.mcap.copy_messages``), keeps every complete message and writes them into
 a new, finished MCAP with the same topics, schemas, encodings, channel metadata,
 ``log_time``, ``publish_time`` and sequence numbers, in the layout of
-``node.mcap.McapWriter`` (zstd chunks of 1 MiB, chunk and message indexes).
+``node.mcap.McapWriter`` (zstd chunks of 1 MiB, chunk and message indexes). A schema of
+ours under an older name (``ordervib.Sensor``) gets the one name written today
+(``node.mcap.SCHEMA_NAMES``), its content kept.
 A finished input is simply copied message by message. Chunks that do not
 decompress or fail their CRC are skipped (and counted in the summary line).
 """

@@ -43,12 +43,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--engine-state", metavar="FILE.json",
                    help="with --model: each bed's engine history before the recording (a live "
                         "node's state file; read only). Default: the recording's first run is a cold start")
-    p.add_argument("--quiet", action="store_true", help="no summary on stderr")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress on stderr (the result still goes to stdout)")
 
 
 def replay_offline(recording: str, model: str, out: str | None, quiet: bool = False,
-                   workers: int | None = None, engine_state: str | None = None) -> dict[str, Any]:
+                   workers: int | None = None, engine_state: str | None = None,
+                   result: bool = False) -> dict[str, Any]:
     """Feed every sensor message, in file order, through the node's logic; returns a summary.
+
+    quiet: no progress on stderr; result: print the summary (what was replayed and written) on stdout.
 
     workers: 1 runs the logic in a worker process, 0 in this one; None picks (see replay.offline).
     """
@@ -72,17 +76,17 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
                "alarm_episodes": r.alarm_episodes,
                "beds": {b: {k: s[k] for k in ("samples", "alarm_samples", "late")}
                         for b, s in r.beds.items()}}
-    if not quiet:
+    if result:  # the result, on stdout (progress and other status go to stderr)
         span = sum(s["samples"] for s in r.beds.values()) / FS
-        log.info("replayed %d input messages (%.0f s of data) in %.1f s (%.0fx real time); published %d "
-                 "monitor messages; %d malformed skipped", r.inputs, span, r.seconds,
-                 span / max(r.seconds, 1e-9), r.published, r.malformed)
+        print(f"replayed {r.inputs} input messages ({span:.0f} s of data) in {r.seconds:.1f} s "
+              f"({span / max(r.seconds, 1e-9):.0f}x real time); published {r.published} monitor "
+              f"messages; {r.malformed} malformed skipped")
         for b, s in r.beds.items():
             n_ep = sum(1 for e in r.alarm_episodes if e["key"].split("/")[1] == b)
-            log.info("  %s: %s samples, %s alarm samples in %d episode(s), missing %s",
-                     b, s["samples"], s["alarm_samples"], n_ep, s["missing"])
+            print(f"  {b}: {s['samples']} samples, {s['alarm_samples']} alarm samples in {n_ep} "
+                  f"episode(s), missing {s['missing']}")
         if out:
-            log.info("wrote %s", out)
+            print(f"wrote {out}")
     return summary
 
 
@@ -96,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
     if args.model:
         if args.out:
             check_output(args.out, "--out", suffix=".mcap", inputs=[args.recording, args.model])
-        replay_offline(args.recording, args.model, args.out, args.quiet, args.workers, args.engine_state)
+        replay_offline(args.recording, args.model, args.out, args.quiet, args.workers, args.engine_state,
+                       result=True)
         return 0
     if args.out:
         raise OrdervibError("--out goes with --model (the node offline), not with --publish")

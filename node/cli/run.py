@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from node.contract import sensor_subscription
     from node.live.engine_file import check_engine_file
     from node.live.node import run_node
-    from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints
+    from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints, zenoh_config
     from node.mcap import RecordingWriter, RotatingRecorder
     from node.models.bundle import load_model
 
@@ -87,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
     listen = args.listen
     if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):
         listen = [DEFAULT_ENDPOINT]
+    zenoh_config(listen, args.connect, args.zenoh_config)  # a bad endpoint stops here, before the model
     bundle = load_model(args.model)
     engine_file = args.engine_state or str(Path(args.record).parent / "engine-state.json")
     check_engine_file(engine_file)  # a malformed one stops here, before any output is opened

@@ -115,9 +115,8 @@ def run(args: argparse.Namespace) -> int:
     progress = Progress(NAME, log)
     with replacing(args.out) as part:
         count, schedule_path, truth_path = simulate_files(sim, args.out, progress, part)
-    log.info(
-        "simulate: %d runs, %d messages -> %s (+ %s, %s) in %.1f s",
-        args.runs - args.skip, count, args.out, os.path.basename(schedule_path),
-        os.path.basename(truth_path), time.perf_counter() - start,
-    )
+    # the result, on stdout (progress and other status go to stderr)
+    print(f"simulate: {args.runs - args.skip} runs, {count} messages -> {args.out} "
+          f"(+ {os.path.basename(schedule_path)}, {os.path.basename(truth_path)}) "
+          f"in {time.perf_counter() - start:.1f} s")
     return 0

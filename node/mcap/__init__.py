@@ -22,11 +22,11 @@ from node.mcap.reader import (
     warn_unfinished,
 )
 from node.mcap.rotation import RotatingRecorder, rotated_path
-from node.mcap.writer import McapWriter, RecordingWriter
+from node.mcap.writer import SCHEMA_NAMES, McapWriter, RecordingWriter, schema_kind
 
 __all__ = [
     "LIBRARY", "MAGIC", "Channel", "Compression", "Opcode", "Schema", "Message", "ReadStats", "Recording",
     "copy_messages", "iter_messages", "iter_messages_fast", "message_time_span", "open_recording",
     "read_payloads", "warn_unfinished",
-    "RotatingRecorder", "rotated_path", "McapWriter", "RecordingWriter",
+    "RotatingRecorder", "rotated_path", "McapWriter", "RecordingWriter", "SCHEMA_NAMES", "schema_kind",
 ]

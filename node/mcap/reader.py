@@ -46,7 +46,7 @@ from node.mcap.format import (
     Opcode,
     Schema,
 )
-from node.mcap.writer import McapWriter
+from node.mcap.writer import SCHEMA_NAMES, McapWriter, schema_kind
 
 Source = str | os.PathLike | IO[bytes]  # a recording's path, or a binary stream holding one
 Buffer = bytes | mmap.mmap  # a recording's bytes, or a chunk's records
@@ -277,6 +277,8 @@ def copy_messages(rec: Recording, writer: McapWriter, stats: ReadStats) -> Itera
     schemas, encodings, channel metadata, times and sequence numbers; yields each one copied.
 
     Schemas and channels are registered on first use (new ids from 1); ``writer`` is not finished.
+    A schema of ours under an older name (``ordervib.Sensor``) is written under the one name the
+    project writes for its kind (``SCHEMA_NAMES``), its content kept.
     """
     schema_ids: dict[int, int] = {0: 0}  # input schema id -> output schema id; 0: no schema
     channel_ids: dict[int, int] = {}
@@ -288,7 +290,9 @@ def copy_messages(rec: Recording, writer: McapWriter, stats: ReadStats) -> Itera
                 schema = rec.schemas.get(channel.schema_id)
                 sid = 0
                 if schema is not None:
-                    sid = writer.register_schema(schema.name, schema.encoding, schema.data)
+                    kind = schema_kind(schema.name)
+                    name = schema.name if kind is None else SCHEMA_NAMES[kind]
+                    sid = writer.register_schema(name, schema.encoding, schema.data)
                 schema_ids[channel.schema_id] = sid
             cid = writer.register_channel(channel.topic, channel.message_encoding, sid, channel.metadata)
             channel_ids[channel.id] = cid

@@ -76,6 +76,19 @@ MAX_CHANNELS = 0xFFFF  # channels (topics) of one MCAP file at most: u16 ids, fr
 # one JSON Schema per topic kind (contract section 2), registered once per recording
 SCHEMAS: dict[TopicKind, bytes] = {kind: orjson.dumps(json_schema(kind)) for kind in TopicKind}
 SCHEMA_NAMES: dict[TopicKind, str] = {kind: f"ordervib.{kind.value}" for kind in TopicKind}
+# the one name the project writes per kind; readers also accept other spellings of it (the
+# committed recordings say "ordervib.Sensor"): see schema_kind
+_KIND_OF_NAME: dict[str, TopicKind] = {name.lower(): kind for kind, name in SCHEMA_NAMES.items()}
+
+
+def schema_kind(name: str) -> TopicKind | None:
+    """The topic kind a recording's schema name stands for, in the name the project writes or in
+    an older spelling (the committed recordings' ``ordervib.Sensor``); None: not one of ours.
+
+    >>> schema_kind("ordervib.sensor"), schema_kind("ordervib.Sensor"), schema_kind("foxglove.Log")
+    (<TopicKind.SENSOR: 'sensor'>, <TopicKind.SENSOR: 'sensor'>, None)
+    """
+    return _KIND_OF_NAME.get(name.lower())
 
 _BODY = MESSAGE.size - RECORD.size  # message record body before the payload, bytes
 _HEAD_BYTES = np.dtype((np.void, MESSAGE_DTYPE.itemsize))  # a message head as one opaque item
