@@ -32,7 +32,7 @@ if shutil.which("openssl") is None:
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs" / "zenoh"
 DOC_DIR = "/etc/ordervib/tls/"
-WAIT = 2.0  # seconds: the longest wait for a message or a declaration to arrive
+WAIT = 15.0  # seconds: the longest wait for a message or a declaration to arrive (a loaded CI machine)
 EC = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
 
 
