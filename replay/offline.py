@@ -340,8 +340,6 @@ def replay_model_file(recording: str, model: str, out: str | None = None, worker
     bundle = load_model(model)
     engines = None
     if engine_state is not None:
-        from node.live.engine_file import load_engine_states
-        if not os.path.exists(engine_state):  # (a FIFO or a folder: refused by the loader)
-            raise OrdervibError(f"--engine-state {engine_state}: no such file")
-        engines = load_engine_states(engine_state)
+        from node.live.engine_file import load_given_engine_states
+        engines = load_given_engine_states(engine_state)
     return replay(recording, bundle, out, workers, engines, progress)

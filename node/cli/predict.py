@@ -128,10 +128,8 @@ def _engine(args: argparse.Namespace) -> EngineState | None:
         if args.bed is not None:
             raise OrdervibError("--bed names a bed of --engine-state: give the file too")
         return None
-    from node.live.engine_file import load_engine_states
-    if not os.path.isfile(args.engine_state):
-        raise OrdervibError(f"--engine-state {args.engine_state}: no such file")
-    states = load_engine_states(args.engine_state)
+    from node.live.engine_file import load_given_engine_states
+    states = load_given_engine_states(args.engine_state)
     if args.bed is not None:
         if args.bed not in states:
             raise OrdervibError(f"--engine-state {args.engine_state} has no bed {args.bed!r} "

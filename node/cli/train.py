@@ -152,8 +152,6 @@ def run(args: argparse.Namespace) -> int:
     from node.models.bundle import MANIFEST
     from node.training.fit import MODEL_OPTIONS, check_options, save_trained, train_recordings
 
-    if args.workers is not None and args.workers < 1:
-        raise OrdervibError("--workers must be at least 1")
     t0 = time.perf_counter()
     if args.update is None:
         if args.schedule is None:

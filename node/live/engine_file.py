@@ -55,6 +55,13 @@ def load_engine_states(path: str | os.PathLike) -> dict[str, EngineState]:
     return out
 
 
+def load_given_engine_states(path: str, option: str = "--engine-state") -> dict[str, EngineState]:
+    """``load_engine_states`` of a file a command is given as input: it must exist (one line)."""
+    if not os.path.exists(path):  # (a FIFO or a folder: refused by the loader, in one line)
+        raise OrdervibError(f"{option} {path}: no such file")
+    return load_engine_states(path)
+
+
 def engine_document(states: Mapping[str, EngineState]) -> dict:
     return {"format": FORMAT, "version": VERSION,
             "beds": {name: s.to_dict() for name, s in sorted(states.items())}}

@@ -37,6 +37,12 @@ OUTSIDE = 1.0  # the envelope value at the region's edge
 HELD = "@envelope"  # a model id's suffix where the node predicted beyond it (inputs held at its edge)
 
 
+def _scaling(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each feature's centre and half-width (floored: a constant feature still scales)."""
+    centre = (low + high) / 2.0
+    return centre, np.maximum((high - low) / 2.0, 1e-9 * (np.abs(centre) + 1.0))
+
+
 @dataclass(frozen=True, eq=False)
 class Envelope:
     """The training region of one OC model (see the module).
@@ -81,8 +87,7 @@ class Envelope:
             raise ValueError(f"envelope d_max must be a positive number, got {self.d_max!r}")
         if not (math.isfinite(self.band_factor) and self.band_factor >= 1.0):
             raise ValueError(f"envelope band_factor must be a number >= 1, got {self.band_factor!r}")
-        centre = (self.low + self.high) / 2.0
-        half = np.maximum((self.high - self.low) / 2.0, 1e-9 * (np.abs(centre) + 1.0))
+        centre, half = _scaling(self.low, self.high)
         object.__setattr__(self, "_lo", self.low[:-1].tolist())
         object.__setattr__(self, "_hi", self.high[:-1].tolist())
         object.__setattr__(self, "_centre", centre.tolist())
@@ -101,8 +106,7 @@ class Envelope:
         if F.shape[1] > MAX_FEATURES:
             raise ValueError(f"an envelope takes at most {MAX_FEATURES - 1} inputs")
         low, high = F.min(axis=0), F.max(axis=0)
-        centre = (low + high) / 2.0
-        half = np.maximum((high - low) / 2.0, 1e-9 * (np.abs(centre) + 1.0))
+        centre, half = _scaling(low, high)
         S = (F - centre) / half
         mean = S.mean(axis=0)
         cov = np.atleast_2d(np.cov(S, rowvar=False)) + RIDGE * np.eye(F.shape[1])
@@ -129,8 +133,7 @@ class Envelope:
     def distances(self, U: np.ndarray, since: np.ndarray) -> np.ndarray:
         """``distance`` of every row: U (K, m), since (K,) s; (K,)."""
         F = np.column_stack([np.asarray(U, float).reshape(len(since), -1), np.asarray(since, float)])
-        centre = (self.low + self.high) / 2.0
-        half = np.maximum((self.high - self.low) / 2.0, 1e-9 * (np.abs(centre) + 1.0))
+        centre, half = _scaling(self.low, self.high)
         S = (F - centre) / half
         box = np.max(np.abs(S), axis=1)
         maha = np.linalg.norm((S - self.mean) @ self.whiten.T, axis=1) / self.d_max

@@ -251,11 +251,12 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
             grid["rcond"] = _rconds(o["rcond_grid"])
     targets = resolve_targets(o["target"], runs)
     config = RuntimeConfig()
-    if o["history"] or o["prom"] or method == "prom":  # (the engine history's cooling)
+    use_prom = o["prom"] or method == "prom"
+    use_history = o["history"] or use_prom  # (the engine history's cooling)
+    if use_history:
         config = history_config(runs, schedule, config)
     bundles: list[Bundle] = []
     trained: list[tuple[str, list[OCResult]]] = []
-    use_prom = o["prom"] or method == "prom"
     labels = label_runs(runs, schedule)  # once for every target: segments, run_curve, checks
     n_models = (_count(grid) if grid else 0) + (len(PROM_CANDIDATES) if use_prom else 0)
     for target in targets:
@@ -289,7 +290,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
         bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks))
         trained.append((target, results))
-    if o["history"] or o["prom"] or method == "prom":  # said once the model stands (a failure: one line)
+    if use_history:  # said once the model stands (a failure: one line)
         log.log(*cooling_note(config.history_cooling))
     return Model(tuple(bundles)), trained
 
