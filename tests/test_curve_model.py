@@ -219,3 +219,72 @@ def test_the_anchor_s_vectorised_lookups_are_the_scalar_lookups_to_the_last_bit(
         c = rt._lookups(x, STEADY)
         vectorised = _mean(c.tolist() if vector else c.real.tolist())
         assert vectorised == scalar and type(vectorised) is type(scalar)
+
+
+def _bowed_runs(rng: np.random.Generator, n_runs: int, alpha: float, tau_s: float, noise: float
+                ) -> list[Trajectory]:
+    """Runs at a steady 3000 rpm after a start: the fleet's 1x vector plus the run's own
+    deviation (of one size, the runs' phases spread evenly), of which the share ``alpha``
+    stays and the rest (a bow) fades with ``tau_s`` from the switch on; the deviation at the
+    switch is in the past the anchor sees."""
+    k_hist, k_seg = 80, 2400  # 2 s of past, 60 s in the OC
+    speed = np.full(k_hist + k_seg, 3000.0)
+    base = 1.0 + 0.5j
+    out = []
+    turn = rng.uniform(0, 2 * np.pi)
+    for r in range(n_runs):  # deviations of every phase, their mean 0: the fleet curve is the base
+        dev = 0.6 * np.exp(1j * (turn + 2 * np.pi * r / n_runs))
+        k = np.arange(k_hist + k_seg) - k_hist
+        share = np.where(k < 0, 1.0, alpha + (1 - alpha) * np.exp(-np.maximum(k, 0) / (tau_s * 40.0)))
+        z = base + dev * share + noise * (rng.standard_normal(k.size) + 1j * rng.standard_normal(k.size))
+        out.append(Trajectory(np.abs(z), speed[:, None], k_hist, z))
+    return out
+
+
+@pytest.mark.parametrize("variant", ["vector", "influence"])
+def test_a_fading_deviation_at_the_switch_is_learned_and_followed(variant: str):
+    """A bowed start (issue 30): the run's deviation at the switch fades, a quarter of it stays.
+    The anchored vector curve learns the share that stays and the fade time from the runs, and a
+    new run is followed as it fades (the held anchor is wrong by the faded part); the node's
+    stepper gives the batch prediction bit for bit."""
+    rng = np.random.default_rng(11)
+    params = {"variant": variant, "bin": 25.0, "window": 0, "anchor": 40}
+    trajs = _bowed_runs(rng, 6, 0.25, 60.0, 0.005)
+    m = CurveModel.fit(Method.CURVE, params, trajs)
+    alpha, beta, ratio = m.decay
+    assert alpha / (alpha + beta) == pytest.approx(0.25, rel=1e-12)  # influence: times a scale
+    assert ratio == pytest.approx(np.exp(-1 / (60.0 * 40.0)), rel=1e-12)
+    held = CurveModel.fit(Method.CURVE, params, trajs)
+    held = CurveModel(held.params, held.centres, held.means, held.weights, held.gains, held.anchor_mean)
+    new = _bowed_runs(rng, 3, 0.25, 60.0, 0.005)
+    for t in new:
+        truth = np.abs(t.z[t.start:])
+        rms, rms_held = (np.sqrt(np.mean((x.predict(t) - truth) ** 2)) for x in (m, held))
+        assert rms < 0.02 and rms_held > 4 * rms
+        rt = m.runtime()
+        rt.start(t.z[:t.start], t.U[:t.start])
+        node = [rt.step([u]) for u in t.seg_U[:, 0].tolist()]
+        np.testing.assert_array_equal(np.array(node), m.predict(t))
+    again = model_from_arrays("curve", m.params, m.arrays())
+    np.testing.assert_array_equal(again.decay, m.decay)
+    np.testing.assert_array_equal(again.predict(new[0]), m.predict(new[0]))
+
+
+def test_noise_alone_keeps_the_anchor_held():
+    """Runs whose deviation stays (no bow): the fade's two more parameters do not pay for
+    themselves, the anchor is held as before."""
+    rng = np.random.default_rng(5)
+    trajs = _bowed_runs(rng, 6, 1.0, 60.0, 0.02)
+    for variant in ("anchored", "vector", "influence"):
+        m = CurveModel.fit(Method.CURVE, {"variant": variant, "bin": 25.0, "window": 0, "anchor": 40}, trajs)
+        assert tuple(m.decay) == (1.0, 0.0, 1.0), variant
+
+
+def test_a_bundle_decay_out_of_range_is_refused():
+    m = CurveModel.fit(Method.CURVE, {"variant": "vector", "bin": 25.0, "window": 0, "anchor": 40},
+                       _bowed_runs(np.random.default_rng(2), 3, 0.25, 60.0, 0.005))
+    arrays = dict(m.arrays())
+    for bad in ([1.0, 0.0, 1.5], [np.nan, 0.0, 0.9], [1.0, 0.0, 0.0]):
+        arrays["decay"] = np.array(bad)
+        with pytest.raises(ValueError, match="decay"):
+            model_from_arrays("curve", m.params, arrays)

@@ -8,6 +8,7 @@ CV's fold models against fitting each fold afresh, bit for bit.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import defaultdict
 
@@ -15,7 +16,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from node.models.curve import CurveModel, Variant, direction_codes
+from node.models.curve import DECAY_TAUS, FADE_SHARES, CurveModel, Variant, direction_codes
 from node.models.kinds import fit_oc_model
 from node.models.ocmodel import Method, Trajectory
 from node.training.train import (
@@ -99,15 +100,41 @@ def _reference(params: dict, trajs: list[Trajectory]) -> CurveModel:
         y_sw, c_sw = rt.anchor
         rows.append(np.column_stack([c * (y_sw / c_sw - 1), np.full(c.size, y_sw - c_sw)]))
         targets.append(level[t.start:] - c)
-    weights = np.zeros(2)
-    if rows:
-        X, r = np.vstack(rows), np.concatenate(targets)
-        if vector:
-            X, r = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag])
-        ok = np.isfinite(r) & np.isfinite(X).all(axis=1)
-        if ok.sum() > 2:
-            weights = np.linalg.lstsq(X[ok], r[ok], rcond=None)[0]
-    return CurveModel(dict(params), centres, means, weights)
+    if not rows:
+        return CurveModel(dict(params), centres, means, np.zeros(2))
+    weights, decay = _reference_fade(rows, targets, True)
+    return CurveModel(dict(params), centres, means, weights, decay=decay)
+
+
+def _reference_fade(rows: list[np.ndarray], targets: list[np.ndarray], fit_weights: bool
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The anchor's weights and fade by their definition (``CurveModel.decay``): each run's
+    samples k = 0, 1, ... since the switch; the term's share 1 (held), or alpha + (1 - alpha)
+    exp(-k / (tau FS)) for each alpha and tau of the grids; the weights by the normal equations
+    (without ``fit_weights``: 1 when held, a fade's scale by them, folded into the decay); the
+    least BIC, n ln(SSE / n) plus 2 ln n for a fade (3 ln n with its scale)."""
+    since = [np.arange(len(t), dtype=float) for t in targets]
+    X, r, k = np.vstack(rows), np.concatenate(targets), np.concatenate(since)
+    if np.iscomplexobj(X) or np.iscomplexobj(r):
+        X, r, k = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag]), np.tile(k, 2)
+    ok = np.isfinite(r) & np.isfinite(X).all(axis=1)
+    X, r, k = X[ok], r[ok], k[ok]
+    n, m = X.shape
+    if n <= m + 3:
+        return (np.zeros(m) if fit_weights else np.ones(m)), np.array([1.0, 0.0, 1.0])
+    shares = [(None, 1.0, 1.0)] + [(tau, a, math.exp(-1 / (tau * 40.0))) for tau in DECAY_TAUS
+                                   for a in FADE_SHARES]
+    best = None
+    for tau, alpha, ratio in shares:
+        s = np.ones(n) if tau is None else alpha + (1 - alpha) * np.exp(-k / (tau * 40.0))
+        Xs = X * s[:, None]
+        w = np.linalg.lstsq(Xs, r, rcond=None)[0] if fit_weights or tau else np.ones(m)
+        sse = float(np.sum((r - Xs @ w) ** 2))
+        bic = n * math.log(sse / n) + (0.0 if tau is None else (2 if fit_weights else 3) * math.log(n))
+        if best is None or bic < best[0]:
+            scale = 1.0 if fit_weights or tau is None else w[0]
+            best = (bic, w if fit_weights else np.ones(m), (scale * alpha, scale * (1 - alpha), ratio))
+    return best[1], np.array(best[2])
 
 
 def _reference_influence(params: dict, trajs: list[Trajectory]) -> CurveModel:
@@ -137,8 +164,22 @@ def _reference_influence(params: dict, trajs: list[Trajectory]) -> CurveModel:
         n, lam = xs.size, ridge * xs.size * mean_x2
         A = np.array([[n, xs.sum()], [np.conj(xs).sum(), np.sum(np.abs(xs) ** 2) + lam + 1e-300]])
         b[k], g[k] = np.linalg.solve(A, [zs.sum(), np.sum(np.conj(xs) * zs)])
-    return CurveModel(dict(params), (np.array(bins) + 0.5) * width, np.tile(b, (3, 1)), gains=g,
-                      anchor_mean=a_mean)
+    model = CurveModel(dict(params), (np.array(bins) + 0.5) * width, np.tile(b, (3, 1)), gains=g,
+                       anchor_mean=a_mean)
+    rows, targets = [], []
+    for t in trajs:  # the anchor's term by the node's scalar stepper, held
+        rt = model.runtime()
+        rt.start(t.z[:t.start], t.U[:t.start])
+        if rt.anchor is None:
+            continue
+        y_sw, mean = rt.anchor
+        c = np.array([rt._lookup(x, 0) if math.isfinite(x) else np.nan for x in t.seg_U[:, 0].tolist()])
+        gain = np.array([rt._lookup(x, 3) if math.isfinite(x) else np.nan for x in t.seg_U[:, 0].tolist()])
+        rows.append((gain * (y_sw - mean))[:, None])
+        targets.append(t.z[t.start:] - c)
+    if rows:
+        model = dataclasses.replace(model, decay=_reference_fade(rows, targets, False)[1])
+    return model
 
 
 @settings(max_examples=25, deadline=None)
@@ -152,6 +193,7 @@ def test_the_fit_from_parts_is_the_curve_by_its_definition(seed: int, n_runs: in
         np.testing.assert_allclose(m.weights, ref.weights, rtol=1e-7, atol=1e-10, err_msg=str(params))
         np.testing.assert_allclose(m.gains, ref.gains, rtol=1e-7, atol=1e-10, err_msg=str(params))
         assert abs(m.anchor_mean - ref.anchor_mean) <= 1e-12 * (1 + abs(ref.anchor_mean))
+        np.testing.assert_allclose(m.decay, ref.decay, rtol=1e-12, err_msg=str(params))
 
 
 def test_a_part_is_the_same_whatever_the_other_runs_and_the_fit_of_parts_is_the_fit() -> None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import bisect
 import cmath
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -51,6 +52,11 @@ class Variant(StrEnum):
 
 STEADY, RISING, FALLING = 0, 1, 2  # the speed's recent change: the rows of CurveModel.means
 GAINS = 3  # an influence curve's runtime row of gains
+HELD = (1.0, 0.0, 1.0)  # an anchor that does not fade: CurveModel.decay (alpha, beta, r)
+# The fade times (s) an anchored curve's decay is chosen among (CurveModel.decay): a bowed
+# rotor straightens within minutes at idle, faster at speed.
+DECAY_TAUS = (15.0, 30.0, 60.0, 120.0, 240.0, 480.0)
+FADE_SHARES = (0.0, 0.25, 0.5, 0.75)  # the share of the anchor's term that stays (alpha)
 
 
 def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: float) -> np.ndarray:
@@ -177,6 +183,14 @@ class CurveModel:
             (relative to the spread of the runs' z_sw; default 1e-3) where the runs' anchors
             cannot tell it.
         anchor_mean: influence only, the training runs' mean z_sw (complex).
+        decay: the anchored ones, (3,): (alpha, beta, r). The anchor's term a (what the run's
+            level at the switch adds to the curve: the weights' or the gains' term above) fades
+            as (alpha + beta r^k) a, k the samples since the switch: a rotor bowed by a hot
+            shutdown carries a 1x vector that fades within minutes once it runs, while the run's
+            own imbalance stays. alpha + beta = 1 (influence: a scale of the gains' term);
+            alpha (the share that stays) and r = exp(-1 / (tau FS)) are chosen over the
+            training runs' OC samples with the weights (``_fade_fit``); (1, 0, 1): the anchor
+            held (noise alone, no fade in the runs, or a bundle from before).
 
     A law that differs on the way up and down is recovered exactly:
 
@@ -209,6 +223,7 @@ class CurveModel:
     weights: np.ndarray = field(default_factory=lambda: np.zeros(2))
     gains: np.ndarray = field(default_factory=lambda: np.zeros(0, complex))
     anchor_mean: complex = 0j
+    decay: np.ndarray = field(default_factory=lambda: np.array(HELD))
     method: ClassVar[Method] = Method.CURVE
     repaired: ClassVar[int] = 0
     n_states: ClassVar[int] = 0
@@ -220,6 +235,9 @@ class CurveModel:
         object.__setattr__(self, "weights", _readonly(np.reshape(self.weights, (2,))))
         object.__setattr__(self, "gains", _readonly(np.reshape(self.gains, (-1,)), complex))
         object.__setattr__(self, "anchor_mean", complex(self.anchor_mean))
+        object.__setattr__(self, "decay", _readonly(np.reshape(self.decay, (3,))))
+        if not (np.isfinite(self.decay).all() and 0.0 < self.decay[2] <= 1.0):
+            raise ValueError(f"a curve's decay must be finite with its ratio in (0, 1], not {self.decay}")
 
     @property
     def variant(self) -> Variant:
@@ -261,7 +279,8 @@ class CurveModel:
         anchor = _anchor_window(level[:start], traj.U[:start], int(params.get("anchor", FS)))
         if variant is Variant.INFLUENCE:
             finite = anchor is not None and cmath.isfinite(anchor[0])
-            return CurvePart(bins, sums, counts, y_sw=anchor[0] if anchor and finite else None)
+            return CurvePart(bins, sums, counts, seg_x, np.zeros(seg_x.size, np.int64), level[start:],
+                             y_sw=anchor[0] if anchor and finite else None)
         y_sw, anchor_x = anchor if anchor else (None, np.zeros(0))
         return CurvePart(bins, sums, counts, seg_x, direction_codes(past, seg_x, window, deadband),
                          level[start:], anchor_x, y_sw)
@@ -273,7 +292,7 @@ class CurveModel:
         if variant is Variant.RUN:
             return cls(dict(params), np.zeros(0), np.zeros((3, 0)))
         if variant is Variant.INFLUENCE:
-            return cls._from_parts_influence(params, parts)
+            return cls._with_decay(cls._from_parts_influence(params, parts), parts)
         width = float(params.get("bin", 25.0))
         bins, sums, counts = _merge_parts(parts)
         if not bins.size:
@@ -294,7 +313,7 @@ class CurveModel:
                           np.concatenate([p.seg_codes for p, _ in use]))
         if not vector:
             c_anchor, c_seg = c_anchor.real, c_seg.real
-        rows, targets = [], []
+        rows, targets, since = [], [], []
         a0 = s0 = 0
         for p, y_sw in use:
             a1, s1 = a0 + p.anchor_x.size, s0 + p.seg_x.size
@@ -304,15 +323,32 @@ class CurveModel:
                 continue  # as the stepper: no anchor
             rows.append(np.column_stack([c * (y_sw / c_sw - 1.0), np.full(c.size, y_sw - c_sw)]))
             targets.append(p.seg_level - c)
-        weights = np.zeros(2)
-        if rows:
-            X, r = np.vstack(rows), np.concatenate(targets)
-            if vector:  # real weights: both components of the complex residual
-                X, r = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag])
-            ok = np.isfinite(r) & np.isfinite(X).all(axis=1)
-            if ok.sum() > 2:
-                weights = np.linalg.lstsq(X[ok], r[ok], rcond=None)[0]
-        return cls(dict(params), centres, means, weights)
+            since.append(np.arange(c.size, dtype=float))
+        if not rows:
+            return cls(dict(params), centres, means, np.zeros(2))
+        weights, decay = _fade_fit(np.vstack(rows), np.concatenate(targets), np.concatenate(since), True)
+        return cls(dict(params), centres, means, weights, decay=decay)
+
+    @classmethod
+    def _with_decay(cls, model: CurveModel, parts: Sequence[CurvePart]) -> CurveModel:
+        """The influence curve ``model`` with the fade of its anchor's term that fits the parts'
+        OC samples best (``_fade_fit``, its gains kept); held where no run has an anchor."""
+        rt = model.runtime()
+        terms, resid, since = [], [], []
+        for p in parts:
+            if p.y_sw is None or not p.seg_x.size:
+                continue
+            got = rt.anchor_terms(p.y_sw, p.anchor_x, p.seg_x, p.seg_codes)
+            if got is None:
+                continue
+            c, a = got
+            terms.append(a[:, None])
+            resid.append(p.seg_level - c)
+            since.append(np.arange(p.seg_x.size, dtype=float))
+        if not terms:
+            return model
+        _, decay = _fade_fit(np.vstack(terms), np.concatenate(resid), np.concatenate(since), False)
+        return dataclasses.replace(model, decay=decay)
 
     @classmethod
     def _from_parts_influence(cls, params: dict, parts: Sequence[CurvePart]) -> CurveModel:
@@ -364,6 +400,8 @@ class CurveModel:
             out["means_im"] = self.means.imag
         if self.variant in (Variant.ANCHORED, Variant.VECTOR):
             out["weights"] = self.weights
+        if self.variant.anchored:
+            out["decay"] = self.decay
         if self.variant is Variant.INFLUENCE:
             out["gains"], out["gains_im"] = self.gains.real, self.gains.imag
             out["anchor_mean"] = np.array([self.anchor_mean.real, self.anchor_mean.imag])
@@ -376,7 +414,8 @@ class CurveModel:
         gains = arrays["gains"] + 1j * arrays["gains_im"] if "gains" in arrays else np.zeros(0, complex)
         a_mean = complex(*arrays["anchor_mean"]) if "anchor_mean" in arrays else 0j
         return cls(dict(params), arrays["centres"], means,
-                   arrays["weights"] if "weights" in arrays else np.zeros(2), gains, a_mean)
+                   arrays["weights"] if "weights" in arrays else np.zeros(2), gains, a_mean,
+                   arrays["decay"] if "decay" in arrays else np.array(HELD))
 
 
 def _levels(traj: Trajectory, vector: bool) -> np.ndarray:
@@ -413,6 +452,9 @@ class CurveRuntime:
         self._anchor_n = int(model.params.get("anchor", FS))
         self._w_mul, self._w_add = (float(w) for w in model.weights)
         self.anchor: tuple[complex, complex] | None = None
+        self._alpha, self._beta, self._ratio = (float(v) for v in model.decay)
+        self._fades = model.variant.anchored and (self._alpha, self._beta) != HELD[:2]
+        self._fade = 1.0  # ratio ** (samples since the switch)
         self._shift: complex = 0.0
         self._gain: complex = 0.0
         self.vector: complex = math.nan  # the last predicted 1x vector (vector curves)
@@ -446,11 +488,13 @@ class CurveRuntime:
 
     def _set_anchor(self, y_hist: np.ndarray, U_hist: np.ndarray) -> None:
         """The run's level just before the switch against the steady curve's there."""
-        self.anchor, self._shift, self._gain = None, 0.0, 0.0
+        self.anchor, self._shift, self._gain, self._fade = None, 0.0, 0.0, 1.0
         window = _anchor_window(y_hist, U_hist, self._anchor_n)
-        if window is None:
-            return
-        y_sw, x = window
+        if window is not None:
+            self._anchor_at(*window)
+
+    def _anchor_at(self, y_sw: complex, x: np.ndarray) -> None:
+        """Anchor on the mean level y_sw over the anchor window, whose speeds are x (k,)."""
         if self._influence:
             if cmath.isfinite(y_sw):
                 self.anchor = (y_sw, self._anchor_mean)
@@ -483,7 +527,11 @@ class CurveRuntime:
         if self._past is not None:
             codes = direction_codes(np.array(self._past, float), x, self._past.maxlen or 0, self._deadband)
         c = self._table(x, codes)
-        if self.anchor is not None:
+        if self.anchor is not None and self._fades:
+            fade = np.cumprod(np.concatenate([[self._fade], np.full(max(x.size - 1, 0), self._ratio)]))
+            share = self._alpha + self._beta * fade
+            c = _add_faded(c, self._term(x, c), share, self._vector or self._influence)
+        elif self.anchor is not None:
             if self._influence:
                 c = c + _cmul(self._lookups(x, GAINS), complex(self._shift))
             elif self._vector:
@@ -492,6 +540,30 @@ class CurveRuntime:
                 c = (c.real + float(self._gain.real) * c.real + float(self._shift.real)).astype(complex)
         c[~np.isfinite(x)] = complex(math.nan, 0.0)
         return c
+
+    def _term(self, x: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """What the anchor adds to the curve c (K,) at the speeds x (K,), vectorised as
+        ``step_speed`` adds it: complex (K,)."""
+        if self._influence:
+            return _cmul(self._lookups(x, GAINS), complex(self._shift))
+        if self._vector:
+            return _cmul(c, complex(self._gain)) + complex(self._shift)
+        return (float(self._gain.real) * c.real + float(self._shift.real)).astype(complex)
+
+    def anchor_terms(self, y_sw: complex, anchor_x: np.ndarray, x: np.ndarray, codes: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray] | None:
+        """For fitting the fade: the curve (K,) at the speeds x (K,) in their directions
+        ``codes`` (K,) and the anchor's unfaded term there (K,) for a run whose mean level over
+        the anchor window (speeds ``anchor_x``) was y_sw; None when that anchors nothing. Real
+        for the amplitude curve, else complex. Leaves this stepper anchored there."""
+        self.anchor = None
+        self._anchor_at(y_sw, np.asarray(anchor_x, float))
+        if self.anchor is None:
+            return None
+        c = self._table(np.asarray(x, float), np.asarray(codes, np.int64))
+        a = self._term(np.asarray(x, float), c)
+        vector = self._vector or self._influence
+        return (c, a) if vector else (c.real, a.real)
 
     def _table(self, x: np.ndarray, codes: np.ndarray) -> np.ndarray:
         """The curve of each speed x (K,) in its direction ``codes`` (K,), without the anchor:
@@ -525,6 +597,9 @@ class CurveRuntime:
     def step_speed(self, x: float) -> complex:
         """Prediction at speed x (rpm) (NaN: NaN, and the recent speeds are kept); complex for a
         vector curve, else real."""
+        fade = self._fade
+        if self._fades:
+            self._fade = fade * self._ratio
         if x != x:
             return math.nan
         code = STEADY
@@ -537,9 +612,74 @@ class CurveRuntime:
         c = self._lookup(x, code)
         if self.anchor is None:
             return c
+        if self._fades:
+            if self._influence:
+                term = self._lookup(x, GAINS) * self._shift
+            else:
+                term = self._gain * c + self._shift
+            share = self._alpha + self._beta * fade
+            if self._vector or self._influence:
+                return c + complex(term.real * share, term.imag * share)
+            return c + term.real * share
         if self._influence:
             return c + self._lookup(x, GAINS) * self._shift
         return c + self._gain * c + self._shift
+
+
+def _fade_fit(X: np.ndarray, r: np.ndarray, since: np.ndarray, fit_weights: bool
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The anchor's weights and fade (``CurveModel.decay``) that fit the OC samples best.
+
+    X (n, m): the anchor's terms per sample (m = 2, the weights' columns; or m = 1, the
+    influence curve's term); r (n,): the samples' residual from the curve; since (n,): samples
+    since the switch; real or complex (both parts count). The anchor's share of its term is
+    s = alpha + (1 - alpha) ratio^since: 1 at the switch (all the run's deviation there), alpha
+    once faded (the part that stays: the run's own imbalance; the rest, a bow, fades). Held
+    (s = 1) and every alpha of ``FADE_SHARES`` with every fade time of ``DECAY_TAUS`` are
+    compared by BIC, so noise alone keeps the anchor held. With ``fit_weights`` the weights
+    are least squares for each s (a fade: two more parameters); without, the weight is 1 when
+    held and a fade's scale is least squares too (three more), folded into the decay as
+    (w alpha, w (1 - alpha), ratio). Returns (weights (m,), decay (3,)).
+    """
+    ok = np.isfinite(r) & np.isfinite(X).all(axis=1)  # complex: both parts (a NaN speed's curve
+    X, r, since = X[ok], r[ok], since[ok]  # is NaN + 0j, its influence term whatever)
+    if np.iscomplexobj(X) or np.iscomplexobj(r):
+        X, r = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag])
+        since = np.tile(since, 2)
+    n, m = X.shape
+    ones = np.ones(m)
+    if n <= m + 3:
+        return (np.zeros(m) if fit_weights else ones), np.array(HELD)
+
+    def fit(share: np.ndarray, weights: bool) -> tuple[float, np.ndarray]:
+        Xs = X * share[:, None]
+        w = np.linalg.lstsq(Xs, r, rcond=None)[0] if weights else ones
+        return float(np.sum((r - Xs @ w) ** 2)) + 1e-300, w
+
+    sse, w = fit(np.ones(n), fit_weights)
+    best = (n * math.log(sse / n), w, HELD)
+    penalty = (2.0 if fit_weights else 3.0) * math.log(n)
+    for tau in DECAY_TAUS:
+        ratio = math.exp(-1.0 / (tau * FS))
+        fade = ratio ** since
+        for alpha in FADE_SHARES:
+            sse, w = fit(alpha + (1.0 - alpha) * fade, True)
+            bic = n * math.log(sse / n) + penalty
+            if bic < best[0]:
+                scale = 1.0 if fit_weights else float(w[0])
+                best = (bic, w if fit_weights else ones, (scale * alpha, scale * (1.0 - alpha), ratio))
+    return np.asarray(best[1], float), np.array(best[2])
+
+
+def _add_faded(c: np.ndarray, term: np.ndarray, share: np.ndarray, vector: bool) -> np.ndarray:
+    """c + term x share (K,) (share real) as ``CurveRuntime.step_speed`` adds it, each part on
+    its own: complex (K,)."""
+    if not vector:
+        return (c.real + term.real * share).astype(complex)
+    out = np.empty(c.size, complex)
+    out.real = c.real + term.real * share
+    out.imag = c.imag + term.imag * share
+    return out
 
 
 def _cmul(a: np.ndarray, b: complex) -> np.ndarray:
