@@ -288,3 +288,13 @@ def test_a_bundle_decay_out_of_range_is_refused():
         arrays["decay"] = np.array(bad)
         with pytest.raises(ValueError, match="decay"):
             model_from_arrays("curve", m.params, arrays)
+
+
+def test_without_fade_the_anchor_is_held():
+    """``--no-fade`` (``"fade": false`` in the params): the bowed runs' anchor is held."""
+    trajs = _bowed_runs(np.random.default_rng(11), 6, 0.25, 60.0, 0.005)
+    for variant in ("anchored", "vector", "influence"):
+        params = {"variant": variant, "bin": 25.0, "window": 0, "anchor": 40}
+        assert tuple(CurveModel.fit(Method.CURVE, params, trajs).decay) != (1.0, 0.0, 1.0), variant
+        held = CurveModel.fit(Method.CURVE, {**params, "fade": False}, trajs)
+        assert tuple(held.decay) == (1.0, 0.0, 1.0), variant

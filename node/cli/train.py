@@ -81,6 +81,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="use the orders' phase channels (yA_ph..yC_ph) where every recording has the "
                         "target's: the vector rule watches the 1x vector; --no-phase: an amplitude-only "
                         "model whatever the recordings hold (default: use them)")
+    p.add_argument("--fade", action=argparse.BooleanOptionalAction, default=D["fade"],
+                   help="an anchored curve may learn that part of the run's deviation at the switch "
+                        "fades (a rotor bowed by a hot shutdown straightens within minutes); "
+                        "--no-fade: the anchor is held through the OC (default: learn it)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
     p.add_argument("--allow-empty", action="store_true",

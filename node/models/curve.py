@@ -156,8 +156,8 @@ class CurveModel:
             one curve; influence: one curve whatever it), deadband (rpm over the window),
             min_count (a direction's own mean in a bin needs this many samples, else the
             bin's mean of every sample; default 1), and for the anchored ones: anchor
-            (samples before the switch whose mean level, or 1x vector, anchors the curve);
-            influence: ridge.
+            (samples before the switch whose mean level, or 1x vector, anchors the curve) and
+            fade (false: the anchor held, no ``decay`` learned; default true); influence: ridge.
         centres: (B,) the speed bins' centres, rpm (empty for run).
         means: (3, B) the mean target per bin when the speed is steady, rising, falling
             (rows STEADY, RISING, FALLING); a bin without samples of a direction holds the
@@ -326,13 +326,16 @@ class CurveModel:
             since.append(np.arange(c.size, dtype=float))
         if not rows:
             return cls(dict(params), centres, means, np.zeros(2))
-        weights, decay = _fade_fit(np.vstack(rows), np.concatenate(targets), np.concatenate(since), True)
+        weights, decay = _fade_fit(np.vstack(rows), np.concatenate(targets), np.concatenate(since), True,
+                                   bool(params.get("fade", True)))
         return cls(dict(params), centres, means, weights, decay=decay)
 
     @classmethod
     def _with_decay(cls, model: CurveModel, parts: Sequence[CurvePart]) -> CurveModel:
         """The influence curve ``model`` with the fade of its anchor's term that fits the parts'
         OC samples best (``_fade_fit``, its gains kept); held where no run has an anchor."""
+        if not model.params.get("fade", True):
+            return model
         rt = model.runtime()
         terms, resid, since = [], [], []
         for p in parts:
@@ -626,7 +629,7 @@ class CurveRuntime:
         return c + self._gain * c + self._shift
 
 
-def _fade_fit(X: np.ndarray, r: np.ndarray, since: np.ndarray, fit_weights: bool
+def _fade_fit(X: np.ndarray, r: np.ndarray, since: np.ndarray, fit_weights: bool, fade: bool = True
               ) -> tuple[np.ndarray, np.ndarray]:
     """The anchor's weights and fade (``CurveModel.decay``) that fit the OC samples best.
 
@@ -639,7 +642,7 @@ def _fade_fit(X: np.ndarray, r: np.ndarray, since: np.ndarray, fit_weights: bool
     compared by BIC, so noise alone keeps the anchor held. With ``fit_weights`` the weights
     are least squares for each s (a fade: two more parameters); without, the weight is 1 when
     held and a fade's scale is least squares too (three more), folded into the decay as
-    (w alpha, w (1 - alpha), ratio). Returns (weights (m,), decay (3,)).
+    (w alpha, w (1 - alpha), ratio). Without ``fade``: held. Returns (weights (m,), decay (3,)).
     """
     ok = np.isfinite(r) & np.isfinite(X).all(axis=1)  # complex: both parts (a NaN speed's curve
     X, r, since = X[ok], r[ok], since[ok]  # is NaN + 0j, its influence term whatever)
@@ -659,11 +662,11 @@ def _fade_fit(X: np.ndarray, r: np.ndarray, since: np.ndarray, fit_weights: bool
     sse, w = fit(np.ones(n), fit_weights)
     best = (n * math.log(sse / n), w, HELD)
     penalty = (2.0 if fit_weights else 3.0) * math.log(n)
-    for tau in DECAY_TAUS:
+    for tau in DECAY_TAUS if fade else ():
         ratio = math.exp(-1.0 / (tau * FS))
-        fade = ratio ** since
+        left = ratio ** since
         for alpha in FADE_SHARES:
-            sse, w = fit(alpha + (1.0 - alpha) * fade, True)
+            sse, w = fit(alpha + (1.0 - alpha) * left, True)
             bic = n * math.log(sse / n) + penalty
             if bic < best[0]:
                 scale = 1.0 if fit_weights else float(w[0])

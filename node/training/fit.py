@@ -51,6 +51,7 @@ DEFAULT_OPTIONS: dict[str, Any] = {
     "history": False,
     "prom": True,
     "phase": True,
+    "fade": True,
 }
 MODEL_OPTIONS = tuple(DEFAULT_OPTIONS)
 
@@ -279,7 +280,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
                         n_inputs=o["n_inputs"], grid=grid, workers=workers, progress=progress,
                         false_alarms_per_hour=per_rule, cv_undercoverage=under,
                         fleet=curve, curves=o["curves"], config=config, history=o["history"],
-                        phase=o["phase"], prom=use_prom, labels=labels)
+                        phase=o["phase"], prom=use_prom, fade=o["fade"], labels=labels)
         if not any(r.model is not None for r in results) and not allow_empty:
             notes = sorted({r.note for r in results if r.note})
             which = f"target {target}: " if len(targets) > 1 else ""

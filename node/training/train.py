@@ -81,6 +81,19 @@ CURVE_CANDIDATES: list[dict] = [
 # longer anchors (10 s, 60 s) see the run's unbalance over more speeds. The influence curves: the
 # vector at each speed an affine function of the vector at the switch, per bin (a linear rotor's
 # response to the run's own unbalance). (study: docs/tuning.md#curve_candidates)
+
+
+def curve_candidates(fade: bool = True) -> list[dict]:
+    """``CURVE_CANDIDATES``; without ``fade``, the anchored ones held (``"fade": false``).
+
+    >>> [c.get("fade") for c in curve_candidates(False)][2:4]
+    [None, False]
+    """
+    if fade:
+        return [dict(c) for c in CURVE_CANDIDATES]
+    return [{**c, "fade": False} if Variant(c["variant"]).anchored else dict(c) for c in CURVE_CANDIDATES]
+
+
 # A state-space or regression model keeps an OC only when its CV eps is below (1 - margin) x
 # the best curve's: on new runs a free-running model's error exceeds its leave-one-run-out CV
 # error more often than a curve's does. (study: docs/tuning.md#curve_margin)
@@ -554,7 +567,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           fleet: tuple[np.ndarray, np.ndarray] | None = None,
           config: RuntimeConfig | None = None, curves: bool = True,
           history: bool = False, phase: bool = True, prom: bool = True, prune: bool = True,
-          labels: list[Labels] | None = None) -> list[OCResult]:
+          fade: bool = True, labels: list[Labels] | None = None) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
@@ -577,6 +590,9 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     ``method="prom"`` they alone, beside the curves) on the
     engine-history parameters (computed for them when ``history`` is off, then only they take
     them as inputs); ``runs`` are then one engine's.
+
+    fade: the anchored curves may learn how their anchor fades (``CurveModel.decay``); False:
+    held (``"fade": false`` in their params).
 
     prune: stop a candidate's CV once it cannot be chosen, and make the curves' folds from the
     runs' parts (``train_oc``; the same models; False: the full CV, slower).
@@ -611,7 +627,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     grid = grid or DEFAULT_GRIDS[meth]
     datas = oc_datasets(runs, schedule, target, candidates, segment_runs(runs, schedule, labels=labels),
                         history_s=(config or RuntimeConfig()).history_s,
-                        curves=CURVE_CANDIDATES if curves else None, phase=phase,
+                        curves=curve_candidates(fade) if curves else None, phase=phase,
                         proms=PROM_CANDIDATES if prom else None, unranked=unranked)
     workers = workers or min(2, os.cpu_count() or 1)
     jobs = [(d, method, grid, inputs, n_inputs, prune) for d in datas]
