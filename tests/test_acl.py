@@ -238,8 +238,10 @@ def test_only_the_node_holds_a_node_liveliness_token(fleet):
     assert tokens.wait_for(real_key, b"")
     assert "ordervib/node/fake" not in tokens.keys()
     # a liveliness query (a dashboard's list of live nodes) names the node only
-    replies = [str(r.ok.key_expr) for r in dash.liveliness().get("ordervib/node/**", timeout=WAIT)
-               if r.ok is not None]
+    deadline, replies = time.monotonic() + WAIT, []
+    while not replies and time.monotonic() < deadline:  # asked again: a loaded machine may miss one
+        replies = [str(r.ok.key_expr) for r in dash.liveliness().get("ordervib/node/**", timeout=WAIT)
+                   if r.ok is not None]
     assert replies == [real_key]
     fake.undeclare()
     real.undeclare()
