@@ -232,7 +232,7 @@ def test_two_nodes_with_disjoint_bed_patterns_share_a_fleet(setup, tmp_path):
 
 
 def test_one_router_two_nodes_forty_hz_beds_each_served_once(setup, tmp_path):
-    """The README's deployment: ``ordervib router``, two nodes connected to it with disjoint
+    """docs/deployment.md's fleet: ``ordervib router``, two nodes connected to it with disjoint
     ``--beds``, the beds connected to the router: every sample of every bed gets exactly one
     monitor message, from the node its pattern names."""
     from harness.live import Bench, load_stream, wait_for

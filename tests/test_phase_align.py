@@ -217,7 +217,7 @@ def test_duplicates_and_reorderings_within_the_wait_change_nothing(case) -> None
 
 @pytest.mark.parametrize("seed", range(20))
 def test_jitter_up_to_six_ms_keeps_every_sample_in_its_own_slot(seed: int) -> None:
-    """The README's bound: jitter up to +-6 ms (under a quarter period) at any offset, the
+    """docs/clock.md's bound: jitter up to +-6 ms (under a quarter period) at any offset, the
     first sample at its worst: consecutive samples go to consecutive slots."""
     rng = np.random.default_rng(seed)
     n, offset, j = 800, rng.uniform(-0.5, 0.5), 6e-3

@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--beds", default="*", metavar="PATTERN",
                    help="serve only the test beds matching PATTERN: a bed name, * (every bed, the "
                         "default) or a name with Zenoh's $* (east$*: the beds whose names start with "
-                        "east); several nodes with disjoint patterns share a fleet (README)")
+                        "east); several nodes with disjoint patterns share a fleet (docs/deployment.md)")
     p.add_argument("--max-beds", type=int, default=None, metavar="N",
                    help="track N beds at once at most (default 256): a new bed beyond them is "
                         "refused and counted (node health refused.bed_limit) until one expires")

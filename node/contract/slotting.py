@@ -23,7 +23,7 @@ This module is in the contract (the bottom layer) because the node's aligner
 (``node.runtime``) and training's ``read_runs`` (``node.training.runs``) must share it and neither
 layer may import the other; and because it is part of what a test bed may rely on.
 
-Guarantee (see README, "Clock phases"): if every sample of a channel lies within J < 1/4
+Guarantee (see docs/clock.md): if every sample of a channel lies within J < 1/4
 period (6.25 ms at 40 Hz) of the channel's true phase, slowly drifting, each sample lands
 in its own slot: the estimate is a mean of samples that are each within J of the truth,
 so ``t FS - phi`` is within 2 J < 1/2 of an integer.

@@ -22,7 +22,7 @@ recording goes on. What belongs to no bed (refusals, queue losses of any key, be
 expired) goes to the node's own health, ``ordervib/node/<id>/health``
 (``NodeHealthMessage``), once a second while it changes.
 
-Failures (README "Health and liveliness"):
+Failures (docs/deployment.md, "What the node does when things go wrong"):
 
 - a malformed payload is counted and recorded at its receive time; it never
   reaches code that can throw;
@@ -368,7 +368,7 @@ class LiveNode:
 
     def health(self, bed: str, wall: float, dropped: dict[str, int] | None = None) -> HealthMessage:
         """``bed``'s health message: the core's counters, with this node's clock, staleness,
-        queue losses, latency and recording state (README "Health and liveliness").
+        queue losses, latency and recording state (docs/deployment.md, "Health and liveliness").
         dropped: each bed's queue losses (``_dropped``; computed when not given)."""
         lags = sorted(self._lag.get(bed, ()))
         lag = (lags[len(lags) // 2], lags[int(0.99 * (len(lags) - 1))]) if lags else (None, None)
