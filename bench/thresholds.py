@@ -1,7 +1,7 @@
 """Residual thresholds with few training runs: false alarms on normal held-out runs per rule.
 
     python -m bench thresholds [--seeds 41,42,43,44,45] [--runs 4,8] [--normal-runs 10]
-        [--workdir W] [--rules plug-in:4,predictive:1,predictive:2,predictive:4]
+        [--workdir W] [--rules plug-in:4,predictive:1,predictive:2,predictive:4] [--few-runs 6]
 
 Per engine and training-run count: simulates the training and normal runs (reused from the
 work dir when there), trains yB once with the defaults (``node.training.fit``), then for each
@@ -9,6 +9,8 @@ rule (``RULE:UNDERCOVERAGE``; ``node.training.calibrate.threshold_levels``) sets
 thresholds from that training's CV peaks and replays the normal runs through the node's own
 code (``replay.offline.replay``). Prints, per rule and run count, the false alarms per hour on
 normal held-out runs (all rules, and the residual rule alone) beside the budget (1 per hour).
+``--few-runs 0,6`` trains each engine once per value of ``node.training.train.FEW_RUNS`` (0: a
+free-running model may be chosen alone whatever the number of runs; the product's: 6).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from harness import make
 from node.console.table import print_table
 from node.contract import FS
 from node.contract.schedule import load_schedule
-from node.models.bundle import Model
+from node.models.bundle import Bundle, Model
 from node.training.calibrate import FALSE_ALARMS_PER_HOUR, threshold_levels
 from node.training.fit import load_runs, model_options, train_model
 from replay.offline import replay
@@ -69,12 +71,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--normal-runs", type=int, default=10)
     ap.add_argument("--workdir", default=None)
     ap.add_argument("--rules", default="plug-in:4,predictive:1,predictive:2,predictive:4")
+    ap.add_argument("--few-runs", default=str(train_module.FEW_RUNS),
+                    help="values of FEW_RUNS to train with, each a training (default: the product's)")
     args = ap.parse_args(argv)
+    few_values = [int(x) for x in args.few_runs.split(",")]
     rules = [(r.split(":")[0], float(r.split(":")[1])) for r in args.rules.split(",")]
     work = Path(args.workdir or tempfile.mkdtemp(prefix="ordervib-thresholds-"))
     t0 = time.perf_counter()
-    # (rule, n) -> [hours, episodes, residual episodes]
-    tally: dict[tuple[str, float, int], list[float]] = defaultdict(lambda: [0.0, 0, 0])
+    # (rule, undercoverage, n, FEW_RUNS) -> [hours, episodes, residual episodes]
+    tally: dict[tuple[str, float, int, int], list[float]] = defaultdict(lambda: [0.0, 0, 0])
     per_engine = []
     for n in [int(x) for x in args.runs.split(",")]:
         for seed in [int(x) for x in args.seeds.split(",")]:
@@ -83,40 +88,48 @@ def main(argv: list[str] | None = None) -> int:
             train, normal = _recordings(d, seed, n, args.normal_runs)
             runs = load_runs([str(train)], quiet=True)
             schedule = load_schedule(str(train.with_suffix(".schedule.toml")))
-            seen = _capture()
-            model, _ = train_model(runs, schedule, model_options(target=TARGET), None, False)
-            train_module.set_thresholds = seen.original
-            bundle = model.bundles[0]
-            for rule, under in rules:
-                levels = threshold_levels(seen.calibs, seen.hours, seen.segments, FALSE_ALARMS_PER_HOUR / 2,
-                                          under, rule)
-                ocs = [dataclasses.replace(r, calibration=levels[r.name]) if r.name in levels else r
-                       for r in bundle.ocs]
-                b = dataclasses.replace(bundle, ocs=ocs)
-                rep = replay(str(normal), Model((b,)), None)
-                h = sum(s["samples"] for s in rep.beds.values()) / FS / 3600.0
-                eps = rep.alarm_episodes
-                res = sum(1 for e in eps if e["reason"] == "residual")
-                t = tally[(rule, under, n)]
-                t[0] += h
-                t[1] += len(eps)
-                t[2] += res
-                thr = sorted(c.threshold for c in levels.values())
-                per_engine.append([str(seed), str(n), f"{rule}:{under:g}", f"{thr[len(thr) // 2]:.2f}",
-                                   str(len(eps)), str(res), f"{h:.2f}"])
+            for few in few_values:
+                train_module.FEW_RUNS = few
+                seen = _capture()
+                model, _ = train_model(runs, schedule, model_options(target=TARGET), None, False)
+                train_module.set_thresholds = seen.original
+                bundle = model.bundles[0]
+                for rule, under in rules:
+                    per_engine.append(_judge(normal, bundle, seen, rule, under, few, seed, n, tally))
             print(f"[engine {seed}, {n} runs] done ({time.perf_counter() - t0:.0f} s)", flush=True)
     print()
-    print_table(["engine", "training runs", "rule:undercoverage", "median threshold, sigma",
+    print_table(["engine", "training runs", "FEW_RUNS", "rule:undercoverage", "median threshold, sigma",
                  "episodes", "residual", "hours"], per_engine, markdown=True)
     print()
     rows = []
-    for (rule, under, n), (h, e, r) in sorted(tally.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1])):
-        rows.append([str(n), f"{rule}:{under:g}", f"{h:.2f}", f"{e / h:.2f}", f"{r / h:.2f}",
+    order = sorted(tally.items(), key=lambda kv: (kv[0][2], kv[0][3], kv[0][0], kv[0][1]))
+    for (rule, under, n, few), (h, e, r) in order:
+        rows.append([str(n), str(few), f"{rule}:{under:g}", f"{h:.2f}", f"{e / h:.2f}", f"{r / h:.2f}",
                      "PASS" if e / h <= BUDGET_PER_H else "FAIL"])
-    print_table(["training runs", "rule:undercoverage", "normal hours", "false alarms per hour (all rules)",
-                 "residual rule per hour", f"<= {BUDGET_PER_H:g} per hour"], rows, markdown=True)
+    print_table(["training runs", "FEW_RUNS", "rule:undercoverage", "normal hours",
+                 "false alarms per hour (all rules)", "residual rule per hour",
+                 f"<= {BUDGET_PER_H:g} per hour"], rows, markdown=True)
     print(f"work dir {work}; total {time.perf_counter() - t0:.0f} s")
     return 0
+
+
+def _judge(normal: Path, bundle: Bundle, seen: _capture, rule: str, under: float, few: int, seed: int,
+           n: int, tally: dict) -> list[str]:
+    """Thresholds by ``rule`` on ``bundle``, the normal runs replayed through the node's code:
+    the engine's table row; the hours and episodes added to ``tally``."""
+    levels = threshold_levels(seen.calibs, seen.hours, seen.segments, FALSE_ALARMS_PER_HOUR / 2, under, rule)
+    ocs = [dataclasses.replace(r, calibration=levels[r.name]) if r.name in levels else r for r in bundle.ocs]
+    rep = replay(str(normal), Model((dataclasses.replace(bundle, ocs=ocs),)), None)
+    h = sum(s["samples"] for s in rep.beds.values()) / FS / 3600.0
+    eps = rep.alarm_episodes
+    res = sum(1 for e in eps if e["reason"] == "residual")
+    t = tally[(rule, under, n, few)]
+    t[0] += h
+    t[1] += len(eps)
+    t[2] += res
+    thr = sorted(c.threshold for c in levels.values())
+    return [str(seed), str(n), str(few), f"{rule}:{under:g}", f"{thr[len(thr) // 2]:.2f}", str(len(eps)),
+            str(res), f"{h:.2f}"]
 
 
 if __name__ == "__main__":

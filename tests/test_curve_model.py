@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,7 @@ from node.models.curve import CurveModel, Variant
 from node.models.kinds import fit_oc_model, model_from_arrays
 from node.models.ocmodel import RUN_CURVE, Method, StateSpaceModel, Trajectory
 from node.models.result import OCResult
-from node.training.train import CURVE_CANDIDATES, CURVE_MARGIN, OCData, train_oc
+from node.training.train import CURVE_CANDIDATES, CURVE_MARGIN, FEW_RUNS, OCData, train_oc
 
 FLEET = {"variant": "fleet", "bin": 25.0, "window": 40, "deadband": 20.0}
 
@@ -111,9 +113,14 @@ def test_training_picks_the_curve_for_a_function_of_speed_and_a_dmd_for_dynamics
         for k in range(1, s.size):
             y[k] = 0.95 * y[k - 1] + 0.5 * u[k - 1]
         return y
-    dyn = _ocdata(dynamic, rng)
+    dyn = _ocdata(dynamic, rng, n_runs=FEW_RUNS)
     res = train_oc(dyn, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, ["u1"], 2, prune=False)
     assert isinstance(res.model, StateSpaceModel)
+    # with fewer runs the same dynamics are a member of the curves' average, never alone
+    few = dataclasses.replace(dyn, runs=dyn.runs[:-1], y=dyn.y[:-1], X=dyn.X[:-1], start=dyn.start[:-1],
+                              at=dyn.at[:-1])
+    res_few = train_oc(few, "delay-dmd", {"delays": [1, 2], "rcond": [1e-8]}, ["u1"], 2, prune=False)
+    assert res_few.model.method == "average" and "delay-dmd" in res_few.kind
     curve_scores = [s for p, s in res.cv_scores if p.get("method") == "curve"]
     assert curve_scores and min(curve_scores) > res.cv_eps
     # without curve candidates the grid's numbers are those of the plain CV
@@ -136,7 +143,7 @@ def test_pruned_cv_chooses_and_fits_as_the_full_cv(law: str) -> None:
     """Stopping a candidate's CV once it cannot be chosen changes nothing chosen or fitted; the
     pruned candidates' scores are inf, the others' those of the full CV."""
     rng = np.random.default_rng(11)
-    factors = rng.uniform(0.5, 2.0, 5)
+    factors = rng.uniform(0.5, 2.0, FEW_RUNS)
 
     def dynamic(s, u, r):
         y = np.zeros(s.size)
@@ -148,7 +155,7 @@ def test_pruned_cv_chooses_and_fits_as_the_full_cv(law: str) -> None:
             "scaled": lambda s, u, r: factors[r] * _law(s, _codes(s)) + rng.normal(0, 0.02, s.size),
             "dynamic": dynamic,
             "mixed": lambda s, u, r: dynamic(s, u, r) + _law(s, _codes(s)) + rng.normal(0, 0.05, s.size)}
-    d = _ocdata(laws[law], rng)
+    d = _ocdata(laws[law], rng, n_runs=FEW_RUNS)
     grid = {"delays": [1, 2, 4], "rcond": [1e-8]}
     full = train_oc(d, "delay-dmd", grid, ["u1"], 2, prune=False)
     pruned = train_oc(d, "delay-dmd", grid, ["u1"], 2)
