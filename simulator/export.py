@@ -91,15 +91,16 @@ def write_recording(
     seed: int,
     first_run: int = 0,
     progress: Callable[[float], None] | None = None,
-    message_index: bool = False,
+    message_index: bool = True,
     channels: tuple[str, ...] | None = None,
 ) -> int:
     """Write the runs from ``first_run`` on to an MCAP file; returns the message count.
 
     channels: the channels to write (default ``campaign.published``: all, with the order
     phases if simulated); the phases are registered and numbered after the others.
-    Without message indexes by default: they would double the file (16 bytes per
-    message); readers seek by the chunk index and sort inside a chunk.
+    With message indexes by default, as contract section 3 asks (indexed readers such as
+    Foxglove's ``McapIndexedReader`` refuse a chunk index without them); they cost 16 bytes
+    per message; ``message_index=False`` leaves them out.
     """
     channels = campaign.published if channels is None else channels
     missing = [ch for ch in channels if ch not in campaign.published]

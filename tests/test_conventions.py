@@ -180,14 +180,15 @@ def test_a_fresh_simulation_and_a_node_recording_name_the_sensor_schema_alike(
         assert names == {SCHEMA_NAMES[TopicKind(kind)]}, kind
 
 
-def test_readers_accept_the_committed_spelling_and_a_copy_writes_the_one_name(
+def test_readers_accept_the_old_spelling_and_a_copy_writes_the_one_name(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The committed recordings say ordervib.Sensor (not rewritten): they read as sensor
-    recordings, and a copy the project writes (recover) names the schema as fresh ones do."""
+    """Recordings from before session 13 say ordervib.Sensor: they read as sensor recordings;
+    the committed ones were rewritten (recover, session 16) and say the one name, as a copy the
+    project writes does."""
     from node.contract.keys import TopicKind
     from node.mcap import SCHEMA_NAMES, iter_messages, schema_kind
 
-    assert _schema_names(COMMITTED)["sensor"] == {"ordervib.Sensor"}
+    assert _schema_names(COMMITTED)["sensor"] == {SCHEMA_NAMES[TopicKind.SENSOR]}
     assert schema_kind("ordervib.Sensor") == schema_kind(SCHEMA_NAMES[TopicKind.SENSOR]) == TopicKind.SENSOR
     assert all(schema_kind(name) == kind for kind, name in SCHEMA_NAMES.items())
     assert schema_kind("something.else") is None
