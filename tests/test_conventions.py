@@ -197,3 +197,12 @@ def test_readers_accept_the_old_spelling_and_a_copy_writes_the_one_name(
     out = tmp_path / "copy.mcap"
     assert main(["recover", str(COMMITTED), "--out", str(out)]) == 0
     assert _schema_names(out) == {"sensor": {SCHEMA_NAMES[TopicKind.SENSOR]}}
+
+
+def test_only_the_product_is_installed() -> None:
+    """pip installs node, replay and simulator (the ordervib command needs them); the benchmarks
+    and the harness run from the repository (issue 34 item 8)."""
+    import importlib.metadata
+
+    top = set((importlib.metadata.distribution("ordervib").read_text("top_level.txt") or "").split())
+    assert top == {"node", "replay", "simulator"}
