@@ -56,10 +56,9 @@ SETS = {
     "dev": [Engine(11, "A", 1.0), Engine(12, "A", 1.0), Engine(21, "B", 2.5), Engine(22, "A", 2.5),
             Engine(23, "B", 1.0), Engine(24, "B", 2.5), Engine(25, "A", 2.5), Engine(26, "C", 1.0),
             Engine(27, "C", 2.5)],
-    "report": [Engine(14, "A", 1.0), Engine(15, "A", 1.0), Engine(16, "A", 1.0),
-               Engine(31, "B", 1.0), Engine(32, "B", 1.0), Engine(33, "A", 2.5),
-               Engine(34, "A", 2.5), Engine(35, "B", 2.5), Engine(36, "B", 2.5), Engine(37, "C", 1.0),
-               Engine(38, "C", 2.5), Engine(39, "C", 1.0)],
+    "report": [Engine(37, "C", 1.0), Engine(14, "A", 1.0), Engine(31, "B", 1.0), Engine(38, "C", 2.5),
+               Engine(15, "A", 1.0), Engine(32, "B", 1.0), Engine(39, "C", 1.0), Engine(16, "A", 1.0),
+               Engine(33, "A", 2.5), Engine(34, "A", 2.5), Engine(35, "B", 2.5), Engine(36, "B", 2.5)],
 }
 
 

@@ -13,7 +13,7 @@ from node.models.curve import CurveModel, Variant
 from node.models.kinds import fit_oc_model, model_from_arrays
 from node.models.ocmodel import RUN_CURVE, Method, StateSpaceModel, Trajectory
 from node.models.result import OCResult
-from node.training.train import CURVE_CANDIDATES, CURVE_MARGIN, FEW_RUNS, OCData, train_oc
+from node.training.train import CURVE_CANDIDATES, CURVE_MARGIN, FEW_RUNS, OCData, curve_candidates, train_oc
 
 FLEET = {"variant": "fleet", "bin": 25.0, "window": 40, "deadband": 20.0}
 
@@ -255,7 +255,7 @@ def test_a_fading_deviation_at_the_switch_is_learned_and_followed(variant: str):
     new run is followed as it fades (the held anchor is wrong by the faded part); the node's
     stepper gives the batch prediction bit for bit."""
     rng = np.random.default_rng(11)
-    params = {"variant": variant, "bin": 25.0, "window": 0, "anchor": 40}
+    params = {"variant": variant, "bin": 25.0, "window": 0, "anchor": 40, "fade": True}
     trajs = _bowed_runs(rng, 6, 0.25, 60.0, 0.005)
     m = CurveModel.fit(Method.CURVE, params, trajs)
     alpha, beta, ratio = m.decay
@@ -283,13 +283,14 @@ def test_noise_alone_keeps_the_anchor_held():
     rng = np.random.default_rng(5)
     trajs = _bowed_runs(rng, 6, 1.0, 60.0, 0.02)
     for variant in ("anchored", "vector", "influence"):
-        m = CurveModel.fit(Method.CURVE, {"variant": variant, "bin": 25.0, "window": 0, "anchor": 40}, trajs)
+        m = CurveModel.fit(Method.CURVE, {"variant": variant, "bin": 25.0, "window": 0, "anchor": 40,
+                                          "fade": True}, trajs)
         assert tuple(m.decay) == (1.0, 0.0, 1.0), variant
 
 
 def test_a_bundle_decay_out_of_range_is_refused():
-    m = CurveModel.fit(Method.CURVE, {"variant": "vector", "bin": 25.0, "window": 0, "anchor": 40},
-                       _bowed_runs(np.random.default_rng(2), 3, 0.25, 60.0, 0.005))
+    params = {"variant": "vector", "bin": 25.0, "window": 0, "anchor": 40, "fade": True}
+    m = CurveModel.fit(Method.CURVE, params, _bowed_runs(np.random.default_rng(2), 3, 0.25, 60.0, 0.005))
     arrays = dict(m.arrays())
     for bad in ([1.0, 0.0, 1.5], [np.nan, 0.0, 0.9], [1.0, 0.0, 0.0]):
         arrays["decay"] = np.array(bad)
@@ -298,10 +299,12 @@ def test_a_bundle_decay_out_of_range_is_refused():
 
 
 def test_without_fade_the_anchor_is_held():
-    """``--no-fade`` (``"fade": false`` in the params): the bowed runs' anchor is held."""
+    """Params without ``"fade": true`` (the held candidates, old bundles, ``--no-fade``'s): the
+    bowed runs' anchor is held; ``train --no-fade`` leaves the fading candidates out."""
     trajs = _bowed_runs(np.random.default_rng(11), 6, 0.25, 60.0, 0.005)
     for variant in ("anchored", "vector", "influence"):
         params = {"variant": variant, "bin": 25.0, "window": 0, "anchor": 40}
-        assert tuple(CurveModel.fit(Method.CURVE, params, trajs).decay) != (1.0, 0.0, 1.0), variant
-        held = CurveModel.fit(Method.CURVE, {**params, "fade": False}, trajs)
-        assert tuple(held.decay) == (1.0, 0.0, 1.0), variant
+        assert tuple(CurveModel.fit(Method.CURVE, {**params, "fade": True}, trajs).decay) != (1.0, 0.0, 1.0)
+        assert tuple(CurveModel.fit(Method.CURVE, params, trajs).decay) == (1.0, 0.0, 1.0), variant
+    held = curve_candidates(False)
+    assert not any(c.get("fade") for c in held) and len(held) < len(curve_candidates(True))

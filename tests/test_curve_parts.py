@@ -102,39 +102,55 @@ def _reference(params: dict, trajs: list[Trajectory]) -> CurveModel:
         targets.append(level[t.start:] - c)
     if not rows:
         return CurveModel(dict(params), centres, means, np.zeros(2))
-    weights, decay = _reference_fade(rows, targets, True)
+    weights, decay = _reference_fade(rows, targets, True, bool(params.get("fade")))
     return CurveModel(dict(params), centres, means, weights, decay=decay)
 
 
-def _reference_fade(rows: list[np.ndarray], targets: list[np.ndarray], fit_weights: bool
+def _reference_fade(rows: list[np.ndarray], targets: list[np.ndarray], fit_weights: bool, fade: bool
                     ) -> tuple[np.ndarray, np.ndarray]:
     """The anchor's weights and fade by their definition (``CurveModel.decay``): each run's
     samples k = 0, 1, ... since the switch; the term's share 1 (held), or alpha + (1 - alpha)
-    exp(-k / (tau FS)) for each alpha and tau of the grids; the weights by the normal equations
-    (without ``fit_weights``: 1 when held, a fade's scale by them, folded into the decay); the
-    least BIC, n ln(SSE / n) plus 2 ln n for a fade (3 ln n with its scale)."""
+    exp(-k / (tau FS)) for each alpha and tau of the grids; each share scored by its
+    leave-one-run-out squared error (each run predicted with the weights, or a fade's scale,
+    least squares on the others' samples; held without ``fit_weights``: weight 1); a fade taken
+    when at least 3 runs and 1 % below the held one's, the lowest; then the weights over all."""
+    ids = [np.full(len(t), i) for i, t in enumerate(targets)]
     since = [np.arange(len(t), dtype=float) for t in targets]
-    X, r, k = np.vstack(rows), np.concatenate(targets), np.concatenate(since)
-    if np.iscomplexobj(X) or np.iscomplexobj(r):
-        X, r, k = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag]), np.tile(k, 2)
+    X, r, k, g = np.vstack(rows), np.concatenate(targets), np.concatenate(since), np.concatenate(ids)
     ok = np.isfinite(r) & np.isfinite(X).all(axis=1)
-    X, r, k = X[ok], r[ok], k[ok]
+    X, r, k, g = X[ok], r[ok], k[ok], g[ok]
+    if np.iscomplexobj(X) or np.iscomplexobj(r):
+        X, r = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag])
+        k, g = np.tile(k, 2), np.tile(g, 2)
     n, m = X.shape
     if n <= m + 3:
         return (np.zeros(m) if fit_weights else np.ones(m)), np.array([1.0, 0.0, 1.0])
-    shares = [(None, 1.0, 1.0)] + [(tau, a, math.exp(-1 / (tau * 40.0))) for tau in DECAY_TAUS
-                                   for a in FADE_SHARES]
+
+    def loo(Xs: np.ndarray, fitted: bool) -> float:
+        total = 0.0
+        for run in np.unique(g):
+            out = g == run
+            w = np.linalg.lstsq(Xs[~out], r[~out], rcond=None)[0] if fitted else np.ones(m)
+            total += float(np.sum((r[out] - Xs[out] @ w) ** 2))
+        return total
+
     best = None
-    for tau, alpha, ratio in shares:
-        s = np.ones(n) if tau is None else alpha + (1 - alpha) * np.exp(-k / (tau * 40.0))
-        Xs = X * s[:, None]
-        w = np.linalg.lstsq(Xs, r, rcond=None)[0] if fit_weights or tau else np.ones(m)
-        sse = float(np.sum((r - Xs @ w) ** 2))
-        bic = n * math.log(sse / n) + (0.0 if tau is None else (2 if fit_weights else 3) * math.log(n))
-        if best is None or bic < best[0]:
-            scale = 1.0 if fit_weights or tau is None else w[0]
-            best = (bic, w if fit_weights else np.ones(m), (scale * alpha, scale * (1 - alpha), ratio))
-    return best[1], np.array(best[2])
+    if fade and len(np.unique(g)) >= 3:
+        held = loo(X, fit_weights)
+        for tau in DECAY_TAUS:
+            for alpha in FADE_SHARES:
+                s = alpha + (1 - alpha) * np.exp(-k / (tau * 40.0))
+                sse = loo(X * s[:, None], True)
+                if sse < 0.99 * held and (best is None or sse < best[0]):
+                    best = (sse, s, (alpha, 1 - alpha, math.exp(-1 / (tau * 40.0))))
+    if best is None:
+        w = np.linalg.lstsq(X, r, rcond=None)[0] if fit_weights else np.ones(m)
+        return w, np.array([1.0, 0.0, 1.0])
+    _, s, (alpha, beta, ratio) = best
+    w = np.linalg.lstsq(X * s[:, None], r, rcond=None)[0]
+    if fit_weights:
+        return w, np.array([alpha, beta, ratio])
+    return np.ones(m), np.array([w[0] * alpha, w[0] * beta, ratio])
 
 
 def _reference_influence(params: dict, trajs: list[Trajectory]) -> CurveModel:
@@ -178,7 +194,8 @@ def _reference_influence(params: dict, trajs: list[Trajectory]) -> CurveModel:
         rows.append((gain * (y_sw - mean))[:, None])
         targets.append(t.z[t.start:] - c)
     if rows:
-        model = dataclasses.replace(model, decay=_reference_fade(rows, targets, False)[1])
+        _, decay = _reference_fade(rows, targets, False, bool(params.get("fade")))
+        model = dataclasses.replace(model, decay=decay)
     return model
 
 

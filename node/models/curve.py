@@ -57,6 +57,7 @@ HELD = (1.0, 0.0, 1.0)  # an anchor that does not fade: CurveModel.decay (alpha,
 # rotor straightens within minutes at idle, faster at speed.
 DECAY_TAUS = (15.0, 30.0, 60.0, 120.0, 240.0, 480.0)
 FADE_SHARES = (0.0, 0.25, 0.5, 0.75)  # the share of the anchor's term that stays (alpha)
+FADE_GAIN = 0.01  # a fade's leave-one-run-out error must be this much below the held anchor's
 
 
 def direction_codes(hist: np.ndarray, speed: np.ndarray, window: int, deadband: float) -> np.ndarray:
@@ -157,7 +158,8 @@ class CurveModel:
             min_count (a direction's own mean in a bin needs this many samples, else the
             bin's mean of every sample; default 1), and for the anchored ones: anchor
             (samples before the switch whose mean level, or 1x vector, anchors the curve) and
-            fade (false: the anchor held, no ``decay`` learned; default true); influence: ridge.
+            fade (true: the anchor's fade is learned, ``decay``; default false: held); influence:
+            ridge.
         centres: (B,) the speed bins' centres, rpm (empty for run).
         means: (3, B) the mean target per bin when the speed is steady, rising, falling
             (rows STEADY, RISING, FALLING); a bin without samples of a direction holds the
@@ -188,9 +190,9 @@ class CurveModel:
             as (alpha + beta r^k) a, k the samples since the switch: a rotor bowed by a hot
             shutdown carries a 1x vector that fades within minutes once it runs, while the run's
             own imbalance stays. alpha + beta = 1 (influence: a scale of the gains' term);
-            alpha (the share that stays) and r = exp(-1 / (tau FS)) are chosen over the
-            training runs' OC samples with the weights (``_fade_fit``); (1, 0, 1): the anchor
-            held (noise alone, no fade in the runs, or a bundle from before).
+            alpha (the share that stays) and r = exp(-1 / (tau FS)) are chosen by the training
+            runs' leave-one-run-out error with the weights (``_fade_fit``); (1, 0, 1): the
+            anchor held (no fade that predicts other runs better, or a bundle from before).
 
     A law that differs on the way up and down is recovered exactly:
 
@@ -313,9 +315,9 @@ class CurveModel:
                           np.concatenate([p.seg_codes for p, _ in use]))
         if not vector:
             c_anchor, c_seg = c_anchor.real, c_seg.real
-        rows, targets, since = [], [], []
+        rows, targets, since, runs = [], [], [], []
         a0 = s0 = 0
-        for p, y_sw in use:
+        for k, (p, y_sw) in enumerate(use):
             a1, s1 = a0 + p.anchor_x.size, s0 + p.seg_x.size
             c_sw, c = _mean(c_anchor[a0:a1]), c_seg[s0:s1]
             a0, s0 = a1, s1
@@ -324,21 +326,22 @@ class CurveModel:
             rows.append(np.column_stack([c * (y_sw / c_sw - 1.0), np.full(c.size, y_sw - c_sw)]))
             targets.append(p.seg_level - c)
             since.append(np.arange(c.size, dtype=float))
+            runs.append(np.full(c.size, k))
         if not rows:
             return cls(dict(params), centres, means, np.zeros(2))
-        weights, decay = _fade_fit(np.vstack(rows), np.concatenate(targets), np.concatenate(since), True,
-                                   bool(params.get("fade", True)))
+        weights, decay = _fade_fit(np.vstack(rows), np.concatenate(targets), np.concatenate(since),
+                                   np.concatenate(runs), True, bool(params.get("fade", False)))
         return cls(dict(params), centres, means, weights, decay=decay)
 
     @classmethod
     def _with_decay(cls, model: CurveModel, parts: Sequence[CurvePart]) -> CurveModel:
         """The influence curve ``model`` with the fade of its anchor's term that fits the parts'
         OC samples best (``_fade_fit``, its gains kept); held where no run has an anchor."""
-        if not model.params.get("fade", True):
+        if not model.params.get("fade", False):
             return model
         rt = model.runtime()
-        terms, resid, since = [], [], []
-        for p in parts:
+        terms, resid, since, runs = [], [], [], []
+        for k, p in enumerate(parts):
             if p.y_sw is None or not p.seg_x.size:
                 continue
             got = rt.anchor_terms(p.y_sw, p.anchor_x, p.seg_x, p.seg_codes)
@@ -348,9 +351,11 @@ class CurveModel:
             terms.append(a[:, None])
             resid.append(p.seg_level - c)
             since.append(np.arange(p.seg_x.size, dtype=float))
+            runs.append(np.full(p.seg_x.size, k))
         if not terms:
             return model
-        _, decay = _fade_fit(np.vstack(terms), np.concatenate(resid), np.concatenate(since), False)
+        _, decay = _fade_fit(np.vstack(terms), np.concatenate(resid), np.concatenate(since),
+                             np.concatenate(runs), False)
         return dataclasses.replace(model, decay=decay)
 
     @classmethod
@@ -629,49 +634,73 @@ class CurveRuntime:
         return c + self._gain * c + self._shift
 
 
-def _fade_fit(X: np.ndarray, r: np.ndarray, since: np.ndarray, fit_weights: bool, fade: bool = True
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """The anchor's weights and fade (``CurveModel.decay``) that fit the OC samples best.
+def _fade_fit(X: np.ndarray, r: np.ndarray, since: np.ndarray, runs: np.ndarray, fit_weights: bool,
+              fade: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The anchor's weights and fade (``CurveModel.decay``) that predict new runs best.
 
     X (n, m): the anchor's terms per sample (m = 2, the weights' columns; or m = 1, the
     influence curve's term); r (n,): the samples' residual from the curve; since (n,): samples
-    since the switch; real or complex (both parts count). The anchor's share of its term is
-    s = alpha + (1 - alpha) ratio^since: 1 at the switch (all the run's deviation there), alpha
-    once faded (the part that stays: the run's own imbalance; the rest, a bow, fades). Held
-    (s = 1) and every alpha of ``FADE_SHARES`` with every fade time of ``DECAY_TAUS`` are
-    compared by BIC, so noise alone keeps the anchor held. With ``fit_weights`` the weights
-    are least squares for each s (a fade: two more parameters); without, the weight is 1 when
-    held and a fade's scale is least squares too (three more), folded into the decay as
-    (w alpha, w (1 - alpha), ratio). Without ``fade``: held. Returns (weights (m,), decay (3,)).
+    since the switch; runs (n,): each sample's run; real or complex (both parts count). The
+    anchor's share of its term is s = alpha + (1 - alpha) ratio^since: 1 at the switch (all the
+    run's deviation there), alpha once faded (the part that stays: the run's own imbalance; the
+    rest, a bow, fades). Held (s = 1) and every alpha of ``FADE_SHARES`` with every fade time of
+    ``DECAY_TAUS`` are compared by their leave-one-run-out squared error (a run's samples are
+    not independent: an in-sample criterion took fades from noise); a fade must beat the held
+    anchor by ``FADE_GAIN``, and needs 3 runs. With ``fit_weights`` the weights are least
+    squares for each s; without, the weight is 1 when held and a fade's scale is least squares
+    too, folded into the decay as (w alpha, w (1 - alpha), ratio). The chosen s's weights are
+    then least squares over every run. Without ``fade``: held. Returns (weights (m,), decay (3,)).
     """
     ok = np.isfinite(r) & np.isfinite(X).all(axis=1)  # complex: both parts (a NaN speed's curve
-    X, r, since = X[ok], r[ok], since[ok]  # is NaN + 0j, its influence term whatever)
+    X, r, since, runs = X[ok], r[ok], since[ok], runs[ok]  # is NaN + 0j, its influence term whatever)
     if np.iscomplexobj(X) or np.iscomplexobj(r):
         X, r = np.vstack([X.real, X.imag]), np.concatenate([r.real, r.imag])
-        since = np.tile(since, 2)
+        since, runs = np.tile(since, 2), np.tile(runs, 2)
     n, m = X.shape
     ones = np.ones(m)
     if n <= m + 3:
         return (np.zeros(m) if fit_weights else ones), np.array(HELD)
+    _, group = np.unique(runs, return_inverse=True)
+    n_runs = int(group.max()) + 1
+    best: tuple[float, np.ndarray, tuple[float, float, float]] | None = None
+    if fade and n_runs >= 3:
+        held = _loo_sse(X, r, group, n_runs, fit_weights)
+        for tau in DECAY_TAUS:
+            ratio = math.exp(-1.0 / (tau * FS))
+            left = ratio ** since
+            for alpha in FADE_SHARES:
+                share = alpha + (1.0 - alpha) * left
+                sse = _loo_sse(X * share[:, None], r, group, n_runs, True)
+                if sse < (1.0 - FADE_GAIN) * held and (best is None or sse < best[0]):
+                    best = (sse, share, (alpha, 1.0 - alpha, ratio))
+    if best is None:
+        w = np.linalg.lstsq(X, r, rcond=None)[0] if fit_weights else ones
+        return np.asarray(w, float), np.array(HELD)
+    _, share, (alpha, beta, ratio) = best
+    w = np.linalg.lstsq(X * share[:, None], r, rcond=None)[0]
+    if fit_weights:
+        return np.asarray(w, float), np.array([alpha, beta, ratio])
+    scale = float(w[0])
+    return ones, np.array([scale * alpha, scale * beta, ratio])
 
-    def fit(share: np.ndarray, weights: bool) -> tuple[float, np.ndarray]:
-        Xs = X * share[:, None]
-        w = np.linalg.lstsq(Xs, r, rcond=None)[0] if weights else ones
-        return float(np.sum((r - Xs @ w) ** 2)) + 1e-300, w
 
-    sse, w = fit(np.ones(n), fit_weights)
-    best = (n * math.log(sse / n), w, HELD)
-    penalty = (2.0 if fit_weights else 3.0) * math.log(n)
-    for tau in DECAY_TAUS if fade else ():
-        ratio = math.exp(-1.0 / (tau * FS))
-        left = ratio ** since
-        for alpha in FADE_SHARES:
-            sse, w = fit(alpha + (1.0 - alpha) * left, True)
-            bic = n * math.log(sse / n) + penalty
-            if bic < best[0]:
-                scale = 1.0 if fit_weights else float(w[0])
-                best = (bic, w if fit_weights else ones, (scale * alpha, scale * (1.0 - alpha), ratio))
-    return np.asarray(best[1], float), np.array(best[2])
+def _loo_sse(X: np.ndarray, r: np.ndarray, group: np.ndarray, n_runs: int, fit_weights: bool) -> float:
+    """Leave-one-run-out squared error of r (n,) ~ X w (X (n, m)), each run's w least squares on
+    the other runs' samples (``fit_weights``; else w = 1), from the runs' sums of products."""
+    m = X.shape[1]
+    G = np.empty((n_runs, m, m))
+    b = np.empty((n_runs, m))
+    for i in range(m):
+        b[:, i] = np.bincount(group, X[:, i] * r, n_runs)
+        for j in range(i, m):
+            G[:, i, j] = G[:, j, i] = np.bincount(group, X[:, i] * X[:, j], n_runs)
+    c = np.bincount(group, r * r, n_runs)
+    if fit_weights:
+        G_all, b_all = G.sum(axis=0), b.sum(axis=0)
+        w = np.stack([np.linalg.lstsq(G_all - G[g], b_all - b[g], rcond=None)[0] for g in range(n_runs)])
+    else:
+        w = np.ones((n_runs, m))
+    return float(np.sum(c - 2.0 * np.einsum("gi,gi->g", w, b) + np.einsum("gi,gij,gj->g", w, G, w)))
 
 
 def _add_faded(c: np.ndarray, term: np.ndarray, share: np.ndarray, vector: bool) -> np.ndarray:

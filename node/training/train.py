@@ -75,6 +75,13 @@ CURVE_CANDIDATES: list[dict] = [
     {"variant": Variant.VECTOR.value, "bin": 25.0, "window": 0, "anchor": int(60 * FS)},
     {"variant": Variant.INFLUENCE.value, "bin": 25.0, "anchor": int(FS)},
     {"variant": Variant.INFLUENCE.value, "bin": 25.0, "anchor": int(10 * FS)},
+    # the same anchors learning how they fade (``CurveModel.decay``: a bowed rotor's 1x vector
+    # at the switch fades within minutes), judged by the CV beside the held ones
+    {"variant": Variant.ANCHORED.value, "bin": 25.0, "window": 0, "anchor": int(FS), "fade": True},
+    {"variant": Variant.VECTOR.value, "bin": 25.0, "window": 0, "anchor": int(FS), "fade": True},
+    {"variant": Variant.VECTOR.value, "bin": 25.0, "window": 0, "anchor": int(10 * FS), "fade": True},
+    {"variant": Variant.INFLUENCE.value, "bin": 25.0, "anchor": int(FS), "fade": True},
+    {"variant": Variant.INFLUENCE.value, "bin": 25.0, "anchor": int(10 * FS), "fade": True},
 ]
 # The vector curves (the anchored curve on the 1x vector) only where every training run holds
 # the target's phase channel: a run's imbalance and bow turn its vector, not just scale it; the
@@ -84,14 +91,12 @@ CURVE_CANDIDATES: list[dict] = [
 
 
 def curve_candidates(fade: bool = True) -> list[dict]:
-    """``CURVE_CANDIDATES``; without ``fade``, the anchored ones held (``"fade": false``).
+    """``CURVE_CANDIDATES``; without ``fade``, those learning how their anchor fades left out.
 
-    >>> [c.get("fade") for c in curve_candidates(False)][2:4]
-    [None, False]
+    >>> len(curve_candidates(True)) - len(curve_candidates(False))
+    5
     """
-    if fade:
-        return [dict(c) for c in CURVE_CANDIDATES]
-    return [{**c, "fade": False} if Variant(c["variant"]).anchored else dict(c) for c in CURVE_CANDIDATES]
+    return [dict(c) for c in CURVE_CANDIDATES if fade or not c.get("fade")]
 
 
 # A state-space or regression model keeps an OC only when its CV eps is below (1 - margin) x
@@ -606,8 +611,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     engine-history parameters (computed for them when ``history`` is off, then only they take
     them as inputs); ``runs`` are then one engine's.
 
-    fade: the anchored curves may learn how their anchor fades (``CurveModel.decay``); False:
-    held (``"fade": false`` in their params).
+    fade: also the anchored curves that learn how their anchor fades (``CurveModel.decay``;
+    ``"fade": true`` in their params); False: only the held ones.
 
     prune: stop a candidate's CV once it cannot be chosen, and make the curves' folds from the
     runs' parts (``train_oc``; the same models; False: the full CV, slower).
