@@ -18,6 +18,7 @@ BENCHMARKS = {
     "rotor": "bench.rotor",
     "live": "bench.live",
     "soak": "bench.soak",
+    "hostile": "bench.hostile",
     "top-curves": "bench.top_curves",
     "stiffness-drift": "bench.stiffness_drift",
     "thresholds": "bench.thresholds",

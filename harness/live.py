@@ -7,7 +7,10 @@
 * :func:`start_peer` / :func:`stop_peer` -- a bare Zenoh process (``python -m harness.live --peer``)
   that echoes one message per complete sample or only counts: the ceiling a node is set beside;
 * :func:`soak` -- hours of a recording's data pushed through ``ordervib run`` faster than real time:
-  inputs lost, monitor coverage, the node's memory and latency over the whole push.
+  inputs lost, monitor coverage, the node's memory and latency over the whole push;
+* :class:`Runs` / :func:`load_runs` -- every run of a recording's sensor data slot by slot, as
+  columns, published over and over in real time re-timed to now (``Runs.timeline``), and
+  :func:`bed_inputs` -- one bed's inputs of a node's recording, for an offline replay of that bed.
 
 Publisher and subscriber share this process's monotonic clock.
 """
@@ -16,20 +19,29 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import orjson
 
-from node.contract import FS, MONITOR_SUBSCRIPTION, RUN_GAP, sensor_key
+from node.contract import (
+    FS,
+    MONITOR_SUBSCRIPTION,
+    RUN_GAP,
+    TopicKind,
+    parse_sensor_key,
+    sensor_key,
+    topic_kind,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 WARMUP = 40  # slots (1 s) left out of the latency figures
@@ -49,7 +61,6 @@ class Stream:
 
 def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
     """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
-    from node.contract import parse_sensor_key
     from node.mcap import iter_messages_fast
     n = int(round(seconds * FS))
     last_t: float | None = None
@@ -273,6 +284,7 @@ def last_health(bench: Bench) -> dict[str, dict]:
             out[key.split("/")[1]] = orjson.loads(payload)
     return out
 
+
 def rss_mb(pid: int) -> float:
     """Resident memory of a process, MB (Linux /proc)."""
     with open(f"/proc/{pid}/status") as f:
@@ -307,7 +319,6 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
     """Push ``hours`` of a recording's sensor data (its runs over and over, each pass shifted in
     time after the last, gaps between runs squeezed out of the pacing) through ``ordervib run``
     at ``speed`` x real time; every reply timed, the node's RSS sampled once a second."""
-    from node.contract import TopicKind, parse_sensor_key, topic_kind
     from node.mcap import iter_messages_fast
     from node.models.bundle import load_bundle
     from node.runtime.pipeline import MonitorPipeline
@@ -395,6 +406,119 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
         recorded_monitor += kind == TopicKind.MONITOR
     return Soak(passes * per_pass / 3600, wall, sent, recorded, samples, monitored[0], recorded_monitor,
                 np.array(lat), rss, dict(health), node.returncode)
+
+
+@dataclass
+class Runs:
+    """Every run of one bed's sensor data in a recording, slot by slot, as columns.
+
+    Slot s holds the messages ``bounds[s]:bounds[s + 1]`` in recording order: channel
+    ``channels[code[i]]``, sensor time ``t[i]``, value ``v[i]`` (NaN: null). Slots are the absolute
+    40 Hz grid (``round(t * FS)``), empty ones kept (the pacing); run r is the slots
+    ``run_start[r]:run_start[r + 1]``. ``timeline`` publishes them over and over, re-timed.
+    """
+
+    channels: list[str]
+    code: np.ndarray
+    t: np.ndarray
+    v: np.ndarray
+    bounds: np.ndarray  # (slots + 1,)
+    run_start: np.ndarray  # (runs + 1,)
+
+    @property
+    def slots(self) -> int:
+        return len(self.bounds) - 1
+
+    def save(self, path: str | Path) -> None:
+        """As an ``.npz`` file (client processes load it instead of the recording)."""
+        np.savez(path, channels=np.array(self.channels), code=self.code, t=self.t, v=self.v,
+                 bounds=self.bounds, run_start=self.run_start)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Runs:
+        with np.load(path) as z:
+            return cls([str(c) for c in z["channels"]], z["code"], z["t"], z["v"], z["bounds"],
+                       z["run_start"])
+
+    def last_of(self, needed: set[str]) -> np.ndarray:
+        """Per slot: the index (into the columns) of its last message of a needed channel, -1 if none."""
+        want = np.array([c in needed for c in self.channels])[self.code]
+        out = np.full(self.slots, -1, dtype=np.int64)
+        idx = np.flatnonzero(want)
+        slot = np.searchsorted(self.bounds, idx, side="right") - 1
+        out[slot] = idx  # the last of each slot wins (increasing indexes)
+        return out
+
+    def payload(self, i: int, shift: float) -> bytes:
+        """Message i's payload with its time shifted by ``shift`` s."""
+        v = float(self.v[i])
+        return orjson.dumps({"t": float(self.t[i]) + shift, "v": None if math.isnan(v) else v})
+
+    def timeline(self, t0: float, pause: float = 1.0) -> Iterator[tuple[float, float, int]]:
+        """(wall offset s, sensor shift s, slot) of every slot, the runs over and over, no end.
+
+        The first run's first slot comes at wall offset 0 and sensor time in [t0, t0 + 1); each
+        next run ``pause`` s of wall time after the previous one ends and ``RUN_GAP + pause`` s
+        later in sensor time (a new run for the node, without the real shutdown's wait). Shifts
+        are whole seconds, so each channel's phase within its slot is kept."""
+        wall, sensor = 0.0, t0
+        while True:
+            for a, b in zip(self.run_start[:-1].tolist(), self.run_start[1:].tolist(), strict=True):
+                shift = float(math.ceil(sensor - self.t[self.bounds[a]]))
+                for s in range(a, b):
+                    yield wall + (s - a) / FS, shift, s
+                wall += (b - a) / FS + pause
+                sensor = float(self.t[self.bounds[a]:self.bounds[b]].max()) + shift + RUN_GAP + pause
+
+
+def load_runs(path: str, bed: str | None = None) -> Runs:
+    """Every run of ``bed``'s sensor data in a recording (default: the first bed seen); runs are
+    separated by ``RUN_GAP`` s without data."""
+    from node.mcap import iter_messages_fast
+    codes: dict[str, int] = {}
+    code: list[int] = []
+    ts: list[float] = []
+    vs: list[float] = []
+    for m in iter_messages_fast(path):
+        parsed = parse_sensor_key(m.topic)
+        if parsed is None or (bed is not None and parsed[0] != bed):
+            continue
+        bed = parsed[0]
+        d = orjson.loads(m.payload)
+        code.append(codes.setdefault(parsed[1], len(codes)))
+        ts.append(float(d["t"]))
+        vs.append(float("nan") if d.get("v") is None else float(d["v"]))
+    if not ts:
+        raise SystemExit(f"{path}: no sensor message")
+    t = np.array(ts)
+    newest = np.maximum.accumulate(t)
+    cuts = [0, *(np.flatnonzero(t[1:] - newest[:-1] >= RUN_GAP) + 1).tolist(), len(t)]
+    order, bounds, run_start = [], [0], [0]
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        k = np.rint(t[a:b] * FS).astype(np.int64)
+        k -= k.min()
+        o = np.argsort(k, kind="stable") + a  # by slot, recording order within one
+        order.append(o)
+        counts = np.bincount(k, minlength=int(k.max()) + 1)
+        bounds += (bounds[-1] + np.cumsum(counts)).tolist()
+        run_start.append(len(bounds) - 1)
+    o = np.concatenate(order)
+    return Runs(list(codes), np.array(code, dtype=np.int16)[o], t[o], np.array(vs)[o],
+                np.array(bounds, dtype=np.int64), np.array(run_start, dtype=np.int64))
+
+
+def bed_inputs(recording: str | Path, bed: str, out: str | Path) -> int:
+    """Copy ``bed``'s sensor inputs of a node's recording (file order, log and publish times kept)
+    to ``out``: what an offline replay of that bed alone takes. Returns the messages copied."""
+    from node.mcap import RecordingWriter, iter_messages_fast
+    prefix = f"testbed/{bed}/sensor/"
+    n = 0
+    with RecordingWriter(str(out)) as w:
+        for m in iter_messages_fast(str(recording)):
+            if m.topic.startswith(prefix) and topic_kind(m.topic) == TopicKind.SENSOR:
+                w.write_ns(m.topic, m.log_time, bytes(m.payload), m.publish_time)
+                n += 1
+    return n
 
 
 def main(argv: list[str] | None = None) -> int:
