@@ -189,6 +189,22 @@ def test_a_second_publisher_two_seconds_ahead_on_one_key_is_a_conflict():
     assert core.engine_states()["b1"].last_on_t < T0 + 20
 
 
+def test_a_second_publishers_burst_does_not_pass_for_a_silent_clock():
+    """Its samples 2 s ahead delivered in bursts of 25 before the bed's next own sample (network
+    batching; issue 31's soak saw 8-25): 25 samples span 0.6 s, short of ``confirm_span_s``, so
+    the bed's clock never moves to them (it did when 8 samples in a row confirmed)."""
+    msgs = []
+    for block in range(32):  # 25 slots of the bed, then the other publisher's 25 samples at once
+        own = _stream(25, t0=T0 + block * 25 / 40)
+        other = [("testbed/b1/sensor/yB", orjson.dumps({"t": T0 + 2 + (block * 25 + k) / 40 + 0.011,
+                                                        "v": -1.0})) for k in range(25)]
+        msgs += other + own
+    core, monitor = _run(msgs)
+    h = core.health("b1", wall=0.0)
+    assert h["clock_jumps"] == 0 and h["clock_faults"] >= 700
+    assert len(_measured(monitor, 0.0)) >= 790 and all(m["measured"] >= 0 for m in _measured(monitor, 0.0))
+
+
 def test_a_data_gap_within_a_run_is_followed_at_once():
     """All channels resume 30 s later (a pause, no shutdown): the far samples confirm each other
     within the slot, nothing is dropped."""

@@ -7,8 +7,11 @@ sample within ``max_jump_s`` of that clock goes on to the aligner. A sample furt
 confirmed, the bed's clock moves to it and its samples go to the aligner in arrival order, when
 
 - ``confirm_channels`` distinct channels agree on it (every channel of a bed with fewer), or
-- it holds ``confirm_samples`` samples and no sample was taken on the bed's clock since it
-  began (the old clock fell silent: a bed of one or two publishing channels whose clock moved).
+- it holds ``confirm_samples`` samples spanning ``confirm_span_s`` of their own time and no
+  sample was taken on the bed's clock since it began (the old clock fell silent: a bed of one or
+  two publishing channels whose clock moved). The span keeps a burst of a second publisher's
+  samples, delivered together before the bed's next one, from passing for silence (issue 31:
+  25 samples of a key 2 s ahead arrived in 64 ms and moved the bed's clock).
 
 A candidate not confirmed once the bed's clock has gone ``hold_s`` past its start is dropped:
 its samples are counted as clock faults (a lone sample stamped 9e9, a clock that jumped on one
@@ -40,7 +43,8 @@ class ClockPolicy:
             Above the alignment wait and the reordering a bed shows (0.25 s), below the offsets
             to be caught (a second publisher 2 s ahead). ``UNGUARDED``: inf, one channel confirms.
         confirm_channels: distinct channels that confirm a candidate clock (at most the bed's).
-        confirm_samples: samples that confirm one while nothing arrives on the bed's clock.
+        confirm_samples: samples that confirm one while nothing arrives on the bed's clock...
+        confirm_span_s: ... when they also span this much sensor time, s.
         hold_s: bed time a candidate waits for confirmation before it is dropped, s.
         max_held: samples held at most, every candidate of a bed (beyond: counted, not kept).
         max_candidates: candidate clocks at most; a new one drops the oldest.
@@ -56,6 +60,7 @@ class ClockPolicy:
     max_jump_s: float = 1.0
     confirm_channels: int = 3
     confirm_samples: int = 8
+    confirm_span_s: float = 1.0
     hold_s: float = 2.0
     max_held: int = 1024
     max_candidates: int = 4
@@ -67,6 +72,9 @@ class ClockPolicy:
         x = self.hold_s
         if not (isinstance(x, (int, float)) and math.isfinite(x) and x > 0):
             raise ValueError(f"hold_s must be a finite number > 0, got {x!r}")
+        x = self.confirm_span_s
+        if not (isinstance(x, (int, float)) and math.isfinite(x) and 0 <= x < self.hold_s):
+            raise ValueError(f"confirm_span_s must be a number in [0, hold_s), got {x!r}")
         for name in ("confirm_channels", "confirm_samples", "max_held", "max_candidates"):
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {getattr(self, name)!r}")
@@ -77,6 +85,7 @@ class Candidate:
     """Samples held apart, within ``max_jump_s`` of one another: a clock not confirmed yet."""
 
     newest: float  # the newest time among them, s
+    oldest: float  # the oldest time among them, s
     since: float | None  # the bed's clock when it began (None: the bed had none yet)
     taken: int  # the guard's count of samples taken on the bed's clock when it began
     samples: list[Held] = field(default_factory=list)  # in arrival order (at most the guard's share)
@@ -137,14 +146,16 @@ class ClockGuard:
         if cand is None:
             if len(self._cands) >= self.policy.max_candidates:
                 self._drop(self._cands.pop(0))
-            cand = Candidate(t, clock, self.taken)
+            cand = Candidate(t, t, clock, self.taken)
             self._cands.append(cand)
         cand.newest = max(cand.newest, t)
+        cand.oldest = min(cand.oldest, t)
         cand.per_channel[channel] += 1
         if len(cand.samples) < self._share:
             cand.samples.append((channel, t, v))
         if (len(cand.per_channel) >= self.need
                 or (sum(cand.per_channel.values()) >= self.policy.confirm_samples
+                    and cand.newest - cand.oldest >= self.policy.confirm_span_s
                     and cand.taken == self.taken)):
             self._cands.remove(cand)
             self.faults += sum(cand.per_channel.values()) - len(cand.samples)  # beyond the share
