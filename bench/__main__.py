@@ -21,6 +21,7 @@ BENCHMARKS = {
     "top-curves": "bench.top_curves",
     "stiffness-drift": "bench.stiffness_drift",
     "thresholds": "bench.thresholds",
+    "plans": "bench.plans",
 }
 
 
