@@ -22,6 +22,7 @@ BENCHMARKS = {
     "top-curves": "bench.top_curves",
     "stiffness-drift": "bench.stiffness_drift",
     "thresholds": "bench.thresholds",
+    "plans": "bench.plans",
 }
 
 

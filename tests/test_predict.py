@@ -8,14 +8,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from node.cli import main
 from node.contract import OrdervibError
 from node.models.bundle import load_model
 from node.runtime.history import HISTORY_CHANNELS
 from node.training.prediction import (
+    AmplitudeBound,
     InputFill,
+    IntervalWidths,
+    Profile,
     history_after,
+    predict_profile,
     predict_recorded_run,
     predict_runs,
     schedule_profile,
@@ -42,6 +48,14 @@ def model(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def train_runs():
     return read_runs(str(RUNS))
+
+
+def _read(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    """A prediction CSV's notes (the lines above the header, without "# ") and its rows."""
+    with open(path, newline="") as f:
+        lines = f.read().splitlines()
+    notes = [line[2:] for line in lines if line.startswith("# ")]
+    return notes, list(csv.DictReader(line for line in lines if not line.startswith("#")))
 
 
 @pytest.mark.parametrize("text, message", [
@@ -99,9 +113,13 @@ def test_planned_profile_gives_a_prediction_per_oc_and_history(model, tmp_path, 
                  "--energy", "40000", "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "OC13" in text and "prediction written to" in text
-    with open(out, newline="") as f:
-        rows = list(csv.DictReader(f))
-    assert list(rows[0]) == ["history", "t", "oc", "yB", *HISTORY_CHANNELS, "nB", "tF", "tH", "tI"]
+    notes, rows = _read(out)
+    assert list(rows[0]) == ["history", "t", "oc", "yB", "yB_lo", "yB_hi", *HISTORY_CHANNELS,
+                             "nB", "tF", "tH", "tI"]
+    assert any(n.startswith("filled tF, tH, tI: from the 4 training runs the model keeps") for n in notes)
+    assert any(n.startswith("bounds: amplitudes >= 0") for n in notes)
+    assert any(n.startswith("interval: yB_lo..yB_hi: 90 % interval") for n in notes)
+    assert sum(n.startswith("bounds acted (") for n in notes) == 2  # one per stated history
     assert {r["history"] for r in rows} == {"0.5", "24"}
     n = int(round((plan.t[-1] - plan.t[0]) * 40)) + 1
     assert len(rows) == 2 * n
@@ -177,7 +195,6 @@ def test_engine_state_file_needs_its_bed_named_when_it_holds_several(model, tmp_
 def test_a_gap_in_the_profile_is_a_shutdown_the_history_sees(model, train_runs):
     """Two engine runs 30 minutes apart in one profile: the second starts a new run for the
     node, and its hist_shutdown is the half hour the engine stood."""
-    from node.training.prediction import Profile
     bundle = load_model(model)
     one = schedule_profile(bundle.schedule, plateau_s=8.0)
     gap = one.t[-1] + 1800.0
@@ -222,8 +239,134 @@ def test_a_stated_history_the_model_cannot_use_is_one_warning(tmp_path, capsys):
     err = capsys.readouterr().err.splitlines()
     warned = [line for line in err if "takes no engine-history input" in line]
     assert len(warned) == 1 and warned[0].startswith("warning: ")
-    with open(tmp_path / "p.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = _read(tmp_path / "p.csv")[1]
     by = {h: [r["yB"] for r in rows if r["history"] == h] for h in ("0.5", "24")}
     assert by["0.5"] == by["24"]  # indeed the same numbers
 
+
+
+# -- inputs that follow the plan, predictions within physics (issue 32) ------------------------------
+def _plan(order: list[int], holds: list[float], offsets: list[float], ramp: float, schedule) -> Profile:
+    """From standstill through the schedule's OCs ``order`` (indices), each at its speed x (1 +
+    offset) held ``holds`` s, ramps at ``ramp`` rpm/s, back to standstill."""
+    t, v = [0.0, 5.0], [0.0, 0.0]
+    for o, hold, off in zip(order, holds, offsets):
+        s = schedule.ocs[o].speed * (1.0 + off)
+        t += [t[-1] + abs(s - v[-1]) / ramp, 0.0]
+        t[-1] = t[-2] + hold
+        v += [s, s]
+    t.append(t[-1] + v[-1] / ramp)
+    v.append(0.0)
+    return Profile(np.array(t), np.array(v)[:, None], ("nB",), "nB")
+
+
+@pytest.fixture(scope="module")
+def limits(model, train_runs):
+    """The fill, bound and CV interval of the module's model from its training runs."""
+    bundle = load_model(model)
+    return (InputFill.fit(train_runs, bundle.schedule, ["nA", "tF", "tH", "tI"]),
+            AmplitudeBound.fit(train_runs, bundle.schedule, bundle.targets))
+
+
+@settings(max_examples=5, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_random_plans_are_never_negative_and_within_the_bound(model, limits, data):
+    """Plans of random OC order, plateau lengths, speeds within the schedule's tolerance and ramp
+    rates: every predicted amplitude is >= 0 and <= 1.5 x the training runs' largest in that
+    OC within 100 rpm (computed here from the runs), and lo <= predicted <= hi."""
+    bundle = load_model(model)
+    fill, bound = limits
+    sched = bundle.schedule
+    n = data.draw(st.integers(2, 4))
+    order = data.draw(st.permutations(range(len(sched.ocs))))[:n]
+    holds = data.draw(st.lists(st.floats(8.0, 25.0), min_size=n, max_size=n))
+    offsets = data.draw(st.lists(st.floats(-0.01, 0.01), min_size=n, max_size=n))
+    ramp = data.draw(st.floats(60.0, 400.0))
+    p = predict_profile(bundle, _plan(order, holds, offsets, ramp, sched), fill=fill, bound=bound)
+    y = p.predicted[:, 0]
+    ok = np.isfinite(y)
+    assert ok.any()
+    assert (y[ok] >= 0).all()
+    for o in np.unique(p.oc[ok]):
+        mine = ok & (p.oc == o)
+        cap = bound.limits("yB", int(o), p.speed[mine])
+        assert (y[mine] <= cap + 1e-9).all()
+    assert (p.lo[ok, 0] <= y[ok]).all() and (y[ok] <= p.hi[ok, 0]).all() and (p.lo[ok, 0] >= 0).all()
+    raw = p.raw[:, 0]
+    assert ((p.bounded[:, 0] != 0) == (np.isfinite(raw) & (raw != y))).all()
+
+
+def test_the_bound_is_the_training_runs_largest_in_the_oc_near_the_speed(train_runs):
+    """The bound against a brute-force reading of its rule on the training runs (speeds in 5 rpm
+    steps, the window inclusive): the same numbers; beyond every training speed, the OC's largest."""
+    from node.contract.schedule import load_schedule
+    from node.training.dataset import segment_runs
+    sched = load_schedule(str(SCHEDULE))
+    bound = AmplitudeBound.fit(train_runs, sched, ["yB"])
+    segs = segment_runs(train_runs, sched)
+
+    def steps(x):
+        return np.round(np.asarray(x, float) / 5.0) * 5.0
+
+    for o in (0, 6, 11):
+        mine = [s for s in segs if s.oc == o]
+        speed = steps(np.concatenate([train_runs[s.run].column("nB")[s.start:s.stop] for s in mine]))
+        y = np.concatenate([train_runs[s.run].column("yB")[s.start:s.stop] for s in mine])
+        for q in (sched.ocs[o].speed, sched.ocs[o].speed - 61.0, float(np.nanmedian(speed)) + 2.0):
+            near = np.abs(speed - steps(q)) <= 100.0 + 1e-9
+            want = 1.5 * np.nanmax(y[near])
+            assert float(bound.limits("yB", o, np.array([q]))[0]) == pytest.approx(want, rel=1e-12), (o, q)
+        assert float(bound.limits("yB", o, np.array([20000.0]))[0]) == pytest.approx(1.5 * np.nanmax(y))
+
+
+def test_filled_channels_follow_the_plans_speed(model, train_runs, limits):
+    """A profile of only t and nB, its OCs in another order, ramps three times faster than the
+    engine's: on each plateau the filled nA lies where the training runs had nA at that nB in
+    that OC (within 2 %), and across the plateaus it rises with nB as theirs does."""
+    from node.contract import Phase
+    from node.training.dataset import label_runs, segment_runs
+    bundle = load_model(model)
+    fill = limits[0]
+    sched = bundle.schedule
+    order, offsets = [11, 3, 8, 0, 6], [0.005, -0.005, 0.0, 0.0, 0.008]
+    planned = {o: sched.ocs[o].speed * (1.0 + off) for o, off in zip(order, offsets)}
+    run = _plan(order, [20.0] * 5, offsets, 270.0, sched).runs(100.0)[0]
+    na = fill.fill(run, sched, "nA")
+    train_segs = segment_runs(train_runs, sched)
+    steady = label_runs([run], sched)[0][1] == Phase.STEADY.code
+    medians = []
+    for s in segment_runs([run], sched):
+        if s.oc not in planned:  # (the detector's passing guess on a ramp)
+            continue
+        nb = planned[s.oc]
+        sl = np.flatnonzero(steady[s.start:s.stop] & (np.abs(run.column("nB")[s.start:s.stop] - nb) < 1.0))
+        if not sl.size:  # (the OC passed again on a ramp)
+            continue
+        sl += s.start  # the plateau
+        assert sl.size > 10 * 40
+        mine = [t for t in train_segs if t.oc == s.oc]
+        ref_b = np.concatenate([train_runs[t.run].column("nB")[t.start:t.stop] for t in mine])
+        ref_a = np.concatenate([train_runs[t.run].column("nA")[t.start:t.stop] for t in mine])
+        near = np.abs(ref_b - nb) <= 50.0
+        assert near.sum() > 100, sched.names[s.oc]
+        lo, hi = np.nanpercentile(ref_a[near], [1, 99])
+        assert (na[sl] >= 0.98 * lo).all() and (na[sl] <= 1.02 * hi).all(), (sched.names[s.oc], lo, hi)
+        medians.append((nb, float(np.median(na[sl])), float(np.nanmedian(ref_a[near]))))
+    assert len(medians) == len(order)
+    by_speed = sorted(medians)
+    assert [m[2] for m in by_speed] == sorted(m[2] for m in by_speed)  # theirs rises with nB ...
+    assert [m[1] for m in by_speed] == sorted(m[1] for m in by_speed)  # ... and so does the fill
+
+
+def test_interval_from_the_chained_training_runs_is_wider_than_the_cv_one(model, train_runs, limits):
+    """IntervalWidths.fit: at least the CV sigma's interval, and the Student-t factor of four runs."""
+    bundle = load_model(model)
+    cv = IntervalWidths.from_cv(bundle)
+    fitted = IntervalWidths.fit(bundle, train_runs, limits[1])
+    ok = np.isfinite(cv.half)
+    assert ok.any() and (fitted.half[ok] >= cv.half[ok]).all()
+    assert (fitted.runs[ok] == 4).all()
+    from scipy.stats import t as student
+    factor = student.ppf(0.95, 3) * np.sqrt(1.25)
+    np.testing.assert_allclose(fitted.half[ok], factor * np.fmax(fitted.chain_rms, fitted.cv_sigma)[ok])

@@ -15,7 +15,7 @@ from node.contract.errors import OrdervibError
 if TYPE_CHECKING:
     from node.models.bundle import Model
     from node.runtime.history import EngineState
-    from node.training.prediction import InputFill, Prediction, Profile
+    from node.training.prediction import AmplitudeBound, InputFill, IntervalWidths, Prediction, Profile
     from node.training.runs import Run
 
 log = logging.getLogger(__name__)
@@ -34,9 +34,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "a new engine run); or a schedule "
                         "(.toml): its plateaus in order, each held --plateau-s")
     p.add_argument("--out", required=True, metavar="OUT.csv",
-                   help="the prediction at 40 Hz: history, t, oc, each target, the engine-history "
-                        "channels and every input fed to the node")
-    p.add_argument("--png", metavar="OUT.png", help="plot of the expected amplitudes over the profile")
+                   help="the prediction at 40 Hz: history, t, oc, each target with its 90 %% interval "
+                        "(yB, yB_lo, yB_hi), the engine-history channels and every input fed to the "
+                        "node; notes above the header (lines starting with #) state the bounds and where "
+                        "they acted, the interval, and how each filled channel was filled")
+    p.add_argument("--png", metavar="OUT.png",
+                   help="plot of the expected amplitudes over the profile, with their interval and bound")
     p.add_argument("--history-png", metavar="OUT.png",
                    help="plot of the engine-history parameters over the profile (figure A.5)")
     p.add_argument("--shutdown-hours", type=float, nargs="+", metavar="H",
@@ -49,8 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a node's engine-history file: the history before the profile")
     p.add_argument("--bed", metavar="BED", help="the bed of --engine-state (needed when it holds several)")
     p.add_argument("--train", nargs="+", metavar="REC.mcap",
-                   help="recordings whose runs fill the inputs the profile lacks (default: the model's "
-                        "training recordings, when they are where and as they were at training)")
+                   help="recordings whose runs fill the inputs the profile lacks and set the upper bound "
+                        "and the interval (default: the training runs the model keeps, training-runs.npz; "
+                        "else its training recordings, when they are where and as they were at training)")
     p.add_argument("--plateau-s", type=float, default=60.0, metavar="S",
                    help="with a schedule as --profile: seconds each plateau is held (default 60)")
     p.add_argument("--seed", choices=("chain", "absent"), default="chain",
@@ -88,17 +92,22 @@ def run(args: argparse.Namespace) -> int:
         log.warning("the model takes no engine-history input (%s): the stated history (--shutdown-hours, "
                     "--energy, --engine-state) cannot change its prediction, every history gives the "
                     "same numbers", ", ".join(HISTORY_CHANNELS))
-    fill = _fill(args, model, profile)
+    training, source = _training_runs(args, model)
+    fill = _fill(args, model, profile, training, source)
+    bound, widths = _limits(model, training, source)
     runs = profile.runs(OCDetector(model.schedule, model.config).off_level)
     start = _first_on(runs, model)
     preds = []
     for h in hours:
         state = stated_history(start, h, args.energy, engine)
         label = "" if h is None else f"{h:g}"
-        preds.append(predict_profile(model, profile, state, fill, args.seed, label))
+        preds.append(predict_profile(model, profile, state, fill, args.seed, label, bound, widths))
         if not preds[-1].per_oc():
             log.warning("the node found no OC of the schedule in the profile: nothing is predicted "
                         "(does it hold each plateau for some seconds, within the schedule's tolerance?)")
+        for line in preds[-1].bound_notes():
+            stood = f" ({h:g} h stood)" if h is not None else ""
+            (log.warning if "capped" in line else log.info)("bounds%s: %s", stood, line)
         if not args.quiet:
             log.info("predicted %d samples%s", preds[-1].t.size,
                      f" for {h:g} h stood" if h is not None else "")
@@ -141,9 +150,30 @@ def _engine(args: argparse.Namespace) -> EngineState | None:
     return next(iter(states.values()))
 
 
-def _fill(args: argparse.Namespace, model: Model, profile: Profile) -> InputFill | None:
-    """The InputFill of the channels the profile lacks, from --train or the model's training
-    recordings; None when the profile holds every channel the node needs."""
+def _training_runs(args: argparse.Namespace, model: Model) -> tuple[list[Run], str]:
+    """The training runs that fill the channels a profile lacks and set the bound and the
+    interval, and what they are: --train's recordings; else the runs the model keeps
+    (``node.training.kept_runs``); else its training recordings, when they are where and as
+    they were; else none (an empty list, and why)."""
+    from node.training.fit import load_runs
+    from node.training.kept_runs import RUNS_META, load_kept_runs
+
+    if args.train:
+        return load_runs(args.train, args.quiet), f"runs of {', '.join(args.train)}"
+    if os.path.isfile(os.path.join(args.model, RUNS_META)):
+        runs = load_kept_runs(args.model)[0]
+        log.info("the model keeps %d training run(s)", len(runs))
+        return runs, "training runs the model keeps"
+    paths = _training_recordings(model)
+    if paths:
+        return load_runs(paths, args.quiet), f"training runs of {', '.join(paths)}"
+    return [], "the model keeps no training runs and its training recordings are not at hand"
+
+
+def _fill(args: argparse.Namespace, model: Model, profile: Profile, runs: list[Run],
+          source: str) -> InputFill | None:
+    """The InputFill of the channels the profile lacks, from the training ``runs``; None when
+    the profile holds every channel the node needs."""
     from node.runtime.history import SLOW_TEMPERATURES
     from node.training.prediction import InputFill, needed_channels
 
@@ -151,21 +181,33 @@ def _fill(args: argparse.Namespace, model: Model, profile: Profile) -> InputFill
     lacking = [c for c in need if c not in profile.channels]
     if not lacking:
         return None
-    paths = args.train or _training_recordings(model)
-    if not paths:
+    if not runs:
         raise OrdervibError(f"the profile lacks {', '.join(lacking)}, which the model takes: add them as "
                             "columns, or give --train REC.mcap (recordings of this engine) to fill them from")
-    from node.training.fit import load_runs
-    runs = load_runs(paths, args.quiet)
     want = sorted({*lacking, *(c for c in SLOW_TEMPERATURES if c not in profile.channels)})
-    fill = InputFill.fit(runs, model.schedule, want)
+    fill = InputFill.fit(runs, model.schedule, want, source)
     still = [c for c in lacking if c not in fill.channels]
     if still:
         raise OrdervibError(f"the profile lacks {', '.join(still)}, which the model takes, and the "
-                            f"recordings {', '.join(paths)} do not hold it either")
-    if not args.quiet:
-        log.info("filled %s from %d run(s) of %s", ", ".join(lacking), len(runs), ", ".join(paths))
+                            f"{source} do not hold it either")
+    log.info("filled %s from %d %s, at the planned %s in each OC", ", ".join(lacking), len(runs), source,
+             model.schedule.switch)
     return fill
+
+
+def _limits(model: Model, runs: list[Run], source: str
+            ) -> tuple[AmplitudeBound | None, IntervalWidths | None]:
+    """The upper bound and the interval's widths from the training ``runs`` (none: no bound
+    above, the interval from the CV residuals alone, said once)."""
+    from node.training.prediction import AmplitudeBound, IntervalWidths
+
+    if not runs:
+        log.warning("%s: the prediction is bounded at 0 only, not above, and its interval is the CV "
+                    "residuals' alone (narrower than a plan's error); give --train REC.mcap", source)
+        return None, None
+    bound = AmplitudeBound.fit(runs, model.schedule, model.targets)
+    log.info("interval: the chained prediction of %d %s", len(runs), source)
+    return bound, IntervalWidths.fit(model, runs, bound)
 
 
 def _training_recordings(model: Model) -> list[str]:

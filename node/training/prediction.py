@@ -9,11 +9,12 @@ Design:
 * The numbers are the node's own: the profile is put on the 40 Hz grid and fed, sample by
   sample, through ``NodeCore`` (``handle_aligned``): the same OC detector, model switching,
   seeding and derived inputs (engine history, run curve) as live; no model is re-implemented.
-* Inputs the profile does not carry (typically the temperatures) are filled from training
-  runs (:class:`InputFill`): inside an OC, the training runs' mean of the channel at each
-  second since the OC's start (its transition, then its plateau: the thermal drift an OC
-  brings), held beyond the longest; outside every OC, the channel's mean at the speed (its
-  characteristic curve against the switch speed). A recorded run's own inputs are used as
+* Inputs the profile does not carry (the other shafts' speeds, the temperatures, the
+  pressures) are filled from training runs (:class:`InputFill`) as functions of the planned
+  speed and the OC, never of the time alone: in each OC, the training runs' mean of the
+  channel at the planned switch speed over that OC's samples, plus on the plateau their mean
+  drift by second since its start; outside every OC, their mean at the speed over all
+  samples. ``Prediction.filled_how`` says how. A recorded run's own inputs are used as
   recorded.
 * The target is never measured. The node, finding no measured past at an OC switch, starts
   the OC's model from rest: a state-space model from state 0 (it then predicts its own
@@ -30,6 +31,13 @@ Design:
   ``EngineState`` (:func:`stated_history`: the hours the engine stood before the profile and
   the energy it carried; or the history of recorded runs, :func:`history_after`);
   ``Prediction.history`` holds the four channels over the profile (figure A.5).
+* Within physics (:class:`AmplitudeBound`): a predicted amplitude is never negative (raised
+  to 0; a model of the 1x vector: its modulus) nor above 1.5 x the largest the training runs
+  measured in that OC within 100 rpm of the speed; the chain feeds on the bounded value, and
+  ``Prediction.bounded`` says where a bound acted (``bound_notes``).
+* Every predicted sample carries a 90 % interval for a new run (:class:`IntervalWidths`):
+  from the OC model's CV residual sigma and the chained prediction's residual on the
+  training runs, with the Student-t factor of a new run over their number.
 
 No files are written here: ``read_profile`` reads and validates a profile CSV, ``write_csv``
 writes rows to an open text stream; the command is ``node.cli.predict``.
@@ -51,7 +59,7 @@ import numpy as np
 from node.contract import FS, RUN_GAP, monitor_key, phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.models.baseline import CharacteristicCurve
+from node.models.baseline import bin_sums
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.align import AlignedSample
 from node.runtime.core import NodeCore
@@ -196,62 +204,147 @@ def schedule_profile(schedule: Schedule, plateau_s: float = 60.0, ramp_rpm_s: fl
 
 
 # -- filling inputs the profile lacks ------------------------------------------------------------
+FILL_BIN_RPM = 50.0  # speed bins of the fill's curves, rpm
+FILL_MIN_SAMPLES = 10  # training samples a bin of an OC's own curve needs (a quarter second)
+
+
+def _binned(speed: np.ndarray, x: np.ndarray, min_samples: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Mean of x per FILL_BIN_RPM bin of speed over bins holding ``min_samples`` or more finite
+    pairs: (centres (B,) rpm, means (B,)); None when no bin does. speed, x: (K,)."""
+    ok = np.isfinite(speed) & np.isfinite(x)
+    if not ok.any():
+        return None
+    bins, sums, counts = bin_sums(speed[ok], x[ok], FILL_BIN_RPM)
+    keep = counts >= min_samples
+    if not keep.any():
+        return None
+    return (bins[keep] + 0.5) * FILL_BIN_RPM, sums[keep] / counts[keep]
+
+
+def _along(speed: np.ndarray, own: tuple[np.ndarray, np.ndarray],
+           whole: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """An OC's curve at ``speed`` (K,) rpm: interpolated within the speeds its training samples
+    reached; beyond them, its value at the nearest such speed moved along the all-runs curve
+    ``whole`` (so that it still follows the speed). Returns (values (K,), within (K,) bool)."""
+    centres, means = own
+    out = np.interp(speed, centres, means)
+    lo, hi = float(centres[0]), float(centres[-1])
+    below, above = speed < lo, speed > hi
+    if below.any():
+        out[below] += np.interp(speed[below], *whole) - float(np.interp(lo, *whole))
+    if above.any():
+        out[above] += np.interp(speed[above], *whole) - float(np.interp(hi, *whole))
+    return out, ~(below | above)
+
+
 @dataclass
 class InputFill:
-    """Channels a profile lacks, as the training runs had them (see the module's design).
+    """Channels a profile lacks, as the training runs had them at the planned speed and OC.
 
-    speed_curves: per channel, its characteristic curve against the switch speed (centres, means);
-    tracks: per channel, per OC index, the training runs' mean at each whole second since the
-    OC's start (L,).
+    A filled channel follows the plan's switch speed, never the time alone: inside an OC (as
+    ``segment_runs`` cuts the profile), the OC's own curve of the channel against the switch
+    speed (the training runs' mean in FILL_BIN_RPM bins over that OC's segments, interpolated;
+    beyond the speeds they reached, moved along the all-runs curve), plus, on the plateau, the
+    training runs' mean deviation from that curve at each whole second since the plateau's
+    start (the thermal drift a plateau brings; held beyond the longest); outside every OC, the
+    all-runs curve.
+
+    speed_curves: per channel, its curve over every training sample (centres (B,) rpm, means
+    (B,)); oc_curves: per channel, per OC index, the curve over that OC's segments; drifts: per
+    channel, per OC index, the mean deviation (L,) at each second since the plateau's start;
+    runs: the training runs it was learned from; source: where they came from (for the notes).
     """
 
     switch: str
     speed_curves: dict[str, tuple[np.ndarray, np.ndarray]]
-    tracks: dict[str, dict[int, np.ndarray]]
+    oc_curves: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = dataclasses.field(default_factory=dict)
+    drifts: dict[str, dict[int, np.ndarray]] = dataclasses.field(default_factory=dict)
+    runs: int = 0
+    source: str = "training runs"
 
     @property
     def channels(self) -> tuple[str, ...]:
         return tuple(self.speed_curves)
 
     @classmethod
-    def fit(cls, runs: list[Run], schedule: Schedule, channels: Sequence[str]) -> InputFill:
+    def fit(cls, runs: list[Run], schedule: Schedule, channels: Sequence[str],
+            source: str = "training runs") -> InputFill:
         """From training runs holding the switch and ``channels`` (those some run lacks are left
-        out: ``channels`` tells what was learned)."""
+        out: ``channels`` tells what was learned); ``source`` names them in the notes."""
         sw = schedule.switch
         have = [c for c in channels if c != sw and all(c in r.channels for r in runs)]
-        curves, tracks = {}, {}
         segs = segment_runs(runs, schedule, min_samples=1)
+        speeds = [hold_last(np.asarray(r.column(sw), float)) for r in runs]
+        curves: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        oc_curves: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
+        drifts: dict[str, dict[int, np.ndarray]] = {}
+        by_oc: dict[int, list[Segment]] = {}
+        for s in segs:
+            by_oc.setdefault(s.oc, []).append(s)
         for c in have:
-            speed = np.concatenate([r.column(sw) for r in runs])
-            vals = np.concatenate([r.column(c) for r in runs])
-            try:
-                cc = CharacteristicCurve(50.0).fit(speed, vals)
-            except ValueError:
+            vals = [np.asarray(r.column(c), float) for r in runs]
+            whole = _binned(np.concatenate(speeds), np.concatenate(vals), 1)
+            if whole is None:
                 continue
-            curves[c] = (cc.centres_, cc.means_)
-            sums: dict[int, list[np.ndarray]] = {}
-            for s in segs:
-                x = runs[s.run].column(c)[s.start:s.stop]
-                sec = np.arange(x.size) // int(FS)
-                ok = np.isfinite(x)
-                n = np.bincount(sec[ok], minlength=int(sec[-1]) + 1)
-                tot = np.bincount(sec[ok], weights=x[ok], minlength=int(sec[-1]) + 1)
-                sums.setdefault(s.oc, []).append(np.where(n > 0, tot / np.maximum(n, 1), np.nan))
-            tracks[c] = {oc: _mean_track(parts) for oc, parts in sums.items()}
-        return cls(sw, curves, tracks)
+            curves[c] = whole
+            oc_curves[c], drifts[c] = {}, {}
+            for oc, mine in by_oc.items():
+                own = _binned(np.concatenate([speeds[s.run][s.start:s.stop] for s in mine]),
+                              np.concatenate([vals[s.run][s.start:s.stop] for s in mine]), FILL_MIN_SAMPLES)
+                if own is None:
+                    continue
+                oc_curves[c][oc] = own
+                parts = []
+                for s in mine:
+                    if s.steady_start >= s.stop:
+                        continue
+                    sl = slice(s.steady_start, s.stop)
+                    dev = vals[s.run][sl] - _along(speeds[s.run][sl], own, whole)[0]
+                    parts.append(_per_second(dev))
+                if parts:
+                    drifts[c][oc] = _mean_track(parts)
+        return cls(sw, curves, oc_curves, drifts, len(runs), source)
 
     def fill(self, run: Run, schedule: Schedule, channel: str) -> np.ndarray:
         """The channel over a run (K,) from its switch speed and OCs (as segment_runs cuts them)."""
-        speed = hold_last(np.asarray(run.column(self.switch), float))
-        centres, means = self.speed_curves[channel]
-        out = np.interp(np.nan_to_num(speed, nan=0.0), centres, means)
-        for s in segment_runs([run], schedule, min_samples=1):
-            track = self.tracks[channel].get(s.oc)
-            if track is None or not track.size:
+        return self.fill_parts(run, schedule, channel)[0]
+
+    def fill_parts(self, run: Run, schedule: Schedule, channel: str,
+                   segments: list[Segment] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``fill`` and where each sample came from: (values (K,), own (K,) bool: from its OC's
+        own curve within the speeds that OC's training samples reached). segments: the run's
+        (``segment_runs([run], schedule, min_samples=1)``; None: cut here)."""
+        speed = np.nan_to_num(hold_last(np.asarray(run.column(self.switch), float)), nan=0.0)
+        whole = self.speed_curves[channel]
+        out = np.interp(speed, *whole)
+        own = np.zeros(speed.size, dtype=bool)
+        segs = segment_runs([run], schedule, min_samples=1) if segments is None else segments
+        for s in segs:
+            curve = self.oc_curves.get(channel, {}).get(s.oc)
+            if curve is None:
                 continue
-            sec = np.minimum(np.arange(s.stop - s.start) // int(FS), track.size - 1)
-            out[s.start:s.stop] = track[sec]
-        return out
+            sl = slice(s.start, s.stop)
+            out[sl], own[sl] = _along(speed[sl], curve, whole)
+            drift = self.drifts.get(channel, {}).get(s.oc)
+            if drift is not None and drift.size and s.steady_start < s.stop:
+                sec = np.minimum(np.arange(s.stop - s.steady_start) // int(FS), drift.size - 1)
+                out[s.steady_start:s.stop] += drift[sec]
+        return out, own
+
+    def describe(self, channel: str) -> str:
+        """How ``channel`` is filled, in a line (for the CSV's notes and the plot)."""
+        return (f"from the {self.runs} {self.source}: in each OC, their mean at the planned {self.switch} "
+                f"({FILL_BIN_RPM:g} rpm bins of that OC's samples) plus their mean drift on the plateau "
+                f"by second since its start; outside the OCs, their mean at {self.switch} over all samples")
+
+
+def _per_second(x: np.ndarray) -> np.ndarray:
+    """Mean of x (K,) over each whole second (40 samples), NaN-aware: (ceil(K / 40),)."""
+    sec = np.arange(x.size) // int(FS)
+    ok = np.isfinite(x)
+    n = np.bincount(sec[ok], minlength=int(sec[-1]) + 1)
+    tot = np.bincount(sec[ok], weights=x[ok], minlength=int(sec[-1]) + 1)
+    return np.where(n > 0, tot / np.maximum(n, 1), np.nan)
 
 
 def _mean_track(parts: list[np.ndarray]) -> np.ndarray:
@@ -301,16 +394,202 @@ def history_after(runs: list[Run], model: Bundle | Model, state: EngineState | N
     return state_after(ordered, m.schedule.switch, on, m.config.history_cooling, state)
 
 
+# -- predictions within physics: the bounds and the interval ----------------------------------------
+BOUND_FACTOR = 1.5  # the upper bound: this many times the training runs' largest amplitude ...
+BOUND_WINDOW_RPM = 100.0  # ... in the same OC within this many rpm of the speed
+BOUND_STEP_RPM = 5.0  # rpm: the resolution of the bound's speed window
+INTERVAL_LEVEL = 0.90  # the interval's coverage for a new run
+RAISED, MODULUS, CAPPED = 1, 2, 3  # how a sample was bounded (``Prediction.bounded``; 0: as predicted)
+
+
+@dataclass(frozen=True)
+class AmplitudeBound:
+    """The upper bound of each target's predicted amplitude, from the training runs' measurements.
+
+    The rule: ``factor`` x the largest amplitude the training runs measured in the same OC (as
+    ``segment_runs`` cuts them) within ``window`` rpm of the speed (speeds taken in
+    BOUND_STEP_RPM steps: rounded to 5 rpm, the window inclusive); where that OC's training
+    samples never came that close, the largest of any training sample within the window;
+    where none did, the OC's largest at any speed (an OC never trained: the largest of all).
+
+    near (n, O + 1, S): the largest measured within the window of each BOUND_STEP_RPM speed step
+    from 0 rpm (row O: of any OC; NaN: none there), mm/s; oc_top (n, O): each OC's largest,
+    top (n,): the largest of all (NaN: never measured); runs: the training runs.
+    """
+
+    targets: tuple[str, ...]
+    near: np.ndarray
+    oc_top: np.ndarray
+    top: np.ndarray
+    factor: float = BOUND_FACTOR
+    window: float = BOUND_WINDOW_RPM
+    runs: int = 0
+
+    @classmethod
+    def fit(cls, runs: list[Run], schedule: Schedule, targets: Sequence[str], factor: float = BOUND_FACTOR,
+            window: float = BOUND_WINDOW_RPM) -> AmplitudeBound:
+        """From training runs (a target some run lacks is left out of those runs)."""
+        sw, O = schedule.switch, len(schedule.names)
+        speeds = [np.asarray(r.column(sw), float) for r in runs]
+        labels = [np.full(len(r.t), O, dtype=np.int64) for r in runs]
+        for s in segment_runs(runs, schedule):
+            labels[s.run][s.start:s.stop] = s.oc
+        w = int(round(window / BOUND_STEP_RPM))
+        top_speed = max((float(np.nanmax(v)) for v in speeds if np.isfinite(v).any()), default=0.0)
+        steps = int(max(top_speed, 0.0) // BOUND_STEP_RPM) + 2 + w
+        near = np.full((len(targets), O + 1, steps), np.nan)
+        for j, tg in enumerate(targets):
+            raw = np.full((O + 1, steps), -np.inf)
+            for r, run in enumerate(runs):
+                if tg not in run.channels:
+                    continue
+                y = np.asarray(run.column(tg), float)
+                ok = np.isfinite(y) & np.isfinite(speeds[r])  # a sample at an unknown speed is at none
+                idx = np.clip((speeds[r][ok] / BOUND_STEP_RPM).round().astype(np.int64), 0, steps - 1)
+                np.maximum.at(raw, (labels[r][ok], idx), y[ok])
+                np.maximum.at(raw[O], idx, y[ok])
+            padded = np.pad(raw, ((0, 0), (w, w)), constant_values=-np.inf)
+            mx = np.lib.stride_tricks.sliding_window_view(padded, 2 * w + 1, axis=1).max(axis=2)
+            near[j] = np.where(np.isfinite(mx), mx, np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an OC never measured: NaN
+            oc_top = np.nanmax(near[:, :O], axis=2) if steps else np.full((len(targets), O), np.nan)
+            top = np.nanmax(near[:, O], axis=1) if steps else np.full(len(targets), np.nan)
+        return cls(tuple(targets), near, oc_top, top, factor, window, len(runs))
+
+    def limits(self, target: str, oc: int, speed: np.ndarray) -> np.ndarray:
+        """The bound (K,) mm/s of ``target`` in OC ``oc`` (-1: outside every OC) at ``speed`` (K,)
+        rpm, by the rule (NaN: the training runs never measured the target)."""
+        j = self.targets.index(target)
+        O = self.oc_top.shape[1]
+        steps = self.near.shape[2]
+        idx = (np.clip(np.nan_to_num(speed, nan=0.0), 0.0, None) / BOUND_STEP_RPM).round().astype(np.int64)
+        beyond = idx >= steps  # faster than any training sample by more than the window
+        idx = np.minimum(idx, steps - 1)
+        mine = np.where(beyond, np.nan, self.near[j, oc if 0 <= oc < O else O, idx])
+        anyone = np.where(beyond, np.nan, self.near[j, O, idx])
+        last = self.oc_top[j, oc] if 0 <= oc < O and np.isfinite(self.oc_top[j, oc]) else self.top[j]
+        return self.factor * np.where(np.isfinite(mine), mine, np.where(np.isfinite(anyone), anyone, last))
+
+    def describe(self) -> str:
+        """The rule in a line (for the CSV's notes and the plot)."""
+        return (f"amplitudes >= 0 (a model of the 1x vector: its modulus), and <= {self.factor:g} x the "
+                f"largest that {self.runs} training runs measured in the same OC within "
+                f"{self.window:g} rpm (speeds in {BOUND_STEP_RPM:g} rpm steps; none there: of any OC within "
+                f"{self.window:g} rpm; none either: the OC's largest)")
+
+
+@dataclass(frozen=True)
+class IntervalWidths:
+    """The half-width of each target's interval in each OC, mm/s: a prediction's interval is
+    [max(0, pred - half), min(pred + half, the bound)].
+
+    A plan's prediction starts each OC's model from the prediction before it, never from a
+    measured level, so its error is mostly the run's own level (its imbalance, its bow), which
+    a model seeded with the measured past (its cross-validation, ``Calibration.sigma``) never
+    shows. ``fit`` measures it: the chained prediction of each training run from its own
+    profile, the RMS of its residual in each OC (``chain_rms``), at least the CV sigma, times
+    the Student-t quantile of a new run's prediction interval over the n runs that reached the
+    OC (t_{(1+level)/2, n-1} sqrt(1 + 1/n)). ``from_cv``: the CV sigma times the normal quantile
+    alone (no training runs at hand; narrower than a plan's error).
+
+    half, cv_sigma, chain_rms (n targets, O): mm/s (NaN: none); runs (n, O): the training runs
+    that reached each OC (0 with ``from_cv``).
+    """
+
+    targets: tuple[str, ...]
+    half: np.ndarray
+    cv_sigma: np.ndarray
+    chain_rms: np.ndarray
+    runs: np.ndarray
+    level: float = INTERVAL_LEVEL
+
+    @staticmethod
+    def _sigmas(model: Model) -> np.ndarray:
+        names = model.schedule.names
+        out = np.full((len(model.bundles), len(names)), np.nan)
+        for j, b in enumerate(model.bundles):
+            for o, name in enumerate(names):
+                r = b.oc(name)
+                if r is not None and r.calibration is not None and r.model is not None:
+                    out[j, o] = r.calibration.sigma
+        return out
+
+    @classmethod
+    def from_cv(cls, model: Bundle | Model, level: float = INTERVAL_LEVEL) -> IntervalWidths:
+        """The OC models' CV residual sigma times the normal quantile of ``level``."""
+        from scipy.stats import norm
+
+        m = as_model(model)
+        sig = cls._sigmas(m)
+        z = float(norm.ppf(0.5 + level / 2.0))
+        return cls(tuple(m.targets), z * sig, sig, np.full_like(sig, np.nan), np.zeros(sig.shape, np.int64),
+                   level)
+
+    @classmethod
+    def fit(cls, model: Bundle | Model, runs: list[Run], bound: AmplitudeBound | None = None,
+            level: float = INTERVAL_LEVEL) -> IntervalWidths:
+        """From the chained prediction of each training run (one engine's, each with the history
+        the runs before it leave) against what it measured (see the class)."""
+        return cls.from_recorded(model, predict_recorded_runs(model, runs, bound=bound), level)
+
+    @classmethod
+    def from_recorded(cls, model: Bundle | Model, recs: Sequence[RecordedPrediction],
+                      level: float = INTERVAL_LEVEL) -> IntervalWidths:
+        """From recorded runs' chained predictions against what they measured (``fit``'s, of
+        runs already predicted: ``predict_recorded_runs``)."""
+        from scipy.stats import norm
+        from scipy.stats import t as student
+
+        m = as_model(model)
+        sig = cls._sigmas(m)
+        n, O = sig.shape
+        sq, count, reached = np.zeros((n, O)), np.zeros((n, O)), np.zeros((n, O), np.int64)
+        for rec in recs:
+            p = rec.prediction
+            for j in range(n):
+                res = rec.measured[:, j] - p.predicted[:, j]
+                ok = np.isfinite(res) & (p.oc >= 0)
+                np.add.at(sq[j], p.oc[ok], res[ok] ** 2)
+                np.add.at(count[j], p.oc[ok], 1)
+                reached[j] += np.bincount(p.oc[ok], minlength=O) >= FS  # a second or more
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rms = np.sqrt(sq / count)
+        scale = np.fmax(rms, sig)
+        half = np.full((n, O), np.nan)
+        few = reached < 2
+        n_runs = np.maximum(reached, 2)
+        factor = student.ppf(0.5 + level / 2.0, n_runs - 1) * np.sqrt(1.0 + 1.0 / n_runs)
+        half[~few] = (factor * scale)[~few]
+        half[few] = float(norm.ppf(0.5 + level / 2.0)) * sig[few]
+        return cls(tuple(m.targets), np.where(np.isfinite(sig), half, np.nan), sig, rms, reached, level)
+
+    def describe(self) -> str:
+        """The rule in a line (for the CSV's notes and the plot)."""
+        pct = f"{100 * self.level:g} %"
+        if not self.runs.any():
+            return (f"{pct} interval: prediction -/+ the normal quantile x the OC model's CV residual sigma "
+                    "(no training runs at hand: narrower than a plan's error), at least 0")
+        return (f"{pct} interval for a new run: prediction -/+ t_(n-1) sqrt(1 + 1/n) x the larger of the OC "
+                "model's CV residual sigma and the RMS residual of the chained prediction of the n training "
+                "runs in that OC, at least 0, at most the bound")
+
+
 # -- the prediction ---------------------------------------------------------------------------------
 @dataclass
 class Prediction:
     """The expected orders over a profile (on the 40 Hz grid).
 
     t (K,) s; run (K,) the engine run of each sample (0, 1, ...); inputs (K, c) the channels
-    fed to the node (``channels``; those in ``filled`` came from ``InputFill``); oc (K,) the
-    OC index the node was in (-1: none); predicted (K, n) per target (``targets``), mm/s (NaN
-    where no model predicted); history (K, 4) the engine-history channels
-    (``HISTORY_CHANNELS``); engine: the stated history before; label: what it is.
+    fed to the node (``channels``; those in ``filled`` came from ``InputFill``, each as
+    ``filled_how`` says, ``filled_own`` the share of its samples from its OC's own curve);
+    oc (K,) the OC index the node was in (-1: none); predicted (K, n)
+    per target (``targets``), mm/s, within the bounds (NaN where no model predicted); raw
+    (K, n) the node's own prediction before them; bounded (K, n) how each sample was bounded
+    (0: as predicted, RAISED to 0, MODULUS of the 1x vector, CAPPED at the bound); upper (K, n)
+    the bound, mm/s (NaN: none); lo, hi (K, n) the interval of ``level``, mm/s; history (K, 4) the
+    engine-history channels (``HISTORY_CHANNELS``); engine: the stated history before;
+    bound_rule, interval_rule: the rules in words; label: what it is.
     """
 
     t: np.ndarray
@@ -325,7 +604,17 @@ class Prediction:
     predicted: np.ndarray
     history: np.ndarray
     engine: EngineState
+    raw: np.ndarray
+    bounded: np.ndarray
+    upper: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    filled_how: dict[str, str] = dataclasses.field(default_factory=dict)
+    filled_own: dict[str, float] = dataclasses.field(default_factory=dict)
+    bound_rule: str = ""
+    interval_rule: str = ""
     label: str = ""
+    level: float = INTERVAL_LEVEL
 
     @property
     def speed(self) -> np.ndarray:
@@ -340,6 +629,28 @@ class Prediction:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)  # a target never predicted
                     out.append((name, int(mine.sum()), np.nanmean(self.predicted[mine], axis=0)))
+        return out
+
+    def bound_notes(self) -> list[str]:
+        """Per target, where the bounds acted, in a line: the samples raised to 0, taken as the
+        modulus and capped, each with the OCs (and for the cap the node's largest)."""
+        out = []
+        for j, tg in enumerate(self.targets):
+            parts = []
+            for code, what in ((RAISED, "raised to 0"), (MODULUS, "taken as the 1x vector's modulus"),
+                               (CAPPED, "capped at the bound")):
+                hit = self.bounded[:, j] == code
+                if not hit.any():
+                    continue
+                ocs = np.bincount(self.oc[hit][self.oc[hit] >= 0], minlength=len(self.oc_names))
+                where = ", ".join(f"{self.oc_names[o]} {int(c)}" for o, c in enumerate(ocs) if c)
+                text = f"{what} on {int(hit.sum())} samples ({where})"
+                if code == CAPPED:
+                    k = int(np.flatnonzero(hit)[np.argmax(self.raw[hit, j])])
+                    text += (f", the node's largest {self.raw[k, j]:.3g} mm/s at {self.speed[k]:,.0f} rpm "
+                             f"against {self.upper[k, j]:.3g}")
+                parts.append(text)
+            out.append(f"{tg}: " + ("; ".join(parts) if parts else "within the bounds as predicted"))
         return out
 
 
@@ -358,31 +669,44 @@ def needed_channels(model: Bundle | Model) -> list[str]:
 
 
 def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | None = None,
-                 fill: InputFill | None = None, seed: Seed = "chain", label: str = "") -> Prediction:
+                 fill: InputFill | None = None, seed: Seed = "chain", label: str = "",
+                 bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None) -> Prediction:
     """The node's prediction over ``runs`` (on the 40 Hz grid, in time order, one engine) with
     the targets unmeasured (see the module's design); ``engine``: the history before the
     first run. A channel the node needs that the runs lack and ``fill`` cannot give is a
-    one-line OrdervibError."""
+    one-line OrdervibError.
+
+    Every predicted amplitude is bounded below by 0 (a model of the 1x vector: its modulus)
+    and above by ``bound`` (None: not above), and the bounded value is what the chain feeds
+    on; its interval comes from ``widths`` (None: ``IntervalWidths.from_cv``)."""
     m = as_model(model)
     sched = m.schedule
     need = needed_channels(m)
     slow = [c for c in SLOW_TEMPERATURES if c not in need]
     targets = tuple(m.targets)
+    widths = widths if widths is not None else IntervalWidths.from_cv(m)
     uses_phase = [phase_channel(b.target) in MonitorPipeline(b).channels for b in m.bundles]
     fleet = [b.curve for b in m.bundles]
     core = NodeCore(m, {_BED: engine} if engine is not None else None)
     keys = {monitor_key(_BED, tg): j for j, tg in enumerate(targets)}
     history = HistoryTracker(OCDetector(sched, m.config).off_level, m.config.history_cooling, engine)
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "run", "inputs", "oc", "pred", "hist")}
-    filled: set[str] = set()
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "run", "inputs", "oc", "pred", "raw", "code",
+                                                          "upper", "hist")}
+    filled: dict[str, list[int]] = {}  # samples filled, of them from the OC's own curve
     for r, run in enumerate(runs):
         cols = []
+        segs: list[Segment] | None = None
         for c in [*need, *slow]:
             if c in run.channels:
                 cols.append(np.asarray(run.column(c), float))
             elif fill is not None and c in fill.channels:
-                cols.append(fill.fill(run, sched, c))
-                filled.add(c)
+                if segs is None:
+                    segs = segment_runs([run], sched, min_samples=1)
+                values, own = fill.fill_parts(run, sched, c, segs)
+                cols.append(values)
+                tally = filled.setdefault(c, [0, 0])
+                tally[0] += values.size
+                tally[1] += int(own.sum())
             elif c in need:
                 raise OrdervibError(
                     f"the model takes {c!r}, which the profile does not hold: add it as a column, or "
@@ -391,33 +715,68 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
                 cols.append(np.full(len(run.t), _NAN))
         X = np.column_stack(cols)
         t = np.asarray(run.t, float)
-        pred, oc = _step_node(core, keys, t, X, need, targets, uses_phase, fleet, seed, sched)
+        step = _step_node(core, keys, t, X, need, targets, uses_phase, fleet, seed, sched, bound)
         speed = hold_last(X[:, need.index(sched.switch)])
         slow_cols = np.column_stack([hold_last(X[:, [*need, *slow].index(c)]) for c in SLOW_TEMPERATURES])
         parts["hist"].append(history_columns(t, speed, slow_cols, history))
         parts["t"].append(t)
         parts["run"].append(np.full(t.size, r))
         parts["inputs"].append(X)
-        parts["oc"].append(oc)
-        parts["pred"].append(pred)
+        for key, arr in zip(("pred", "raw", "code", "upper", "oc"), step):
+            parts[key].append(arr)
     cat = {k: np.concatenate(v) for k, v in parts.items()}
+    pred, oc, upper = cat["pred"], cat["oc"], cat["upper"]
+    lo, hi = _interval(pred, oc, upper, widths)
+    how = {c: fill.describe(c) for c in sorted(filled)} if fill is not None else {}
+    own_share = {c: filled[c][1] / max(filled[c][0], 1) for c in sorted(filled)}
+    rule = bound.describe() if bound is not None else "amplitudes >= 0 (a model of the 1x vector: its " \
+        "modulus); not bounded above (no training runs at hand)"
     return Prediction(cat["t"], cat["run"], sched.switch, (*need, *slow), cat["inputs"],
-                      tuple(sorted(filled)), cat["oc"], sched.names, targets, cat["pred"], cat["hist"],
-                      engine or EngineState(), label)
+                      tuple(sorted(filled)), oc, sched.names, targets, pred, cat["hist"],
+                      engine or EngineState(), cat["raw"], cat["code"], upper, lo, hi,
+                      how, own_share, rule, widths.describe(), label, widths.level)
+
+
+def _interval(pred: np.ndarray, oc: np.ndarray, upper: np.ndarray,
+              widths: IntervalWidths) -> tuple[np.ndarray, np.ndarray]:
+    """The interval (lo, hi) (K, n) mm/s of predictions ``pred`` (K, n) in OCs ``oc`` (K,) under
+    the bound ``upper`` (K, n; NaN: none): pred -/+ the OC's half-width, lo at least 0, hi at most
+    the bound (never below pred)."""
+    half = np.full(pred.shape, _NAN)
+    inside = oc >= 0
+    half[inside] = widths.half[:, oc[inside]].T
+    lo = np.maximum(pred - half, 0.0)
+    hi = np.where(np.isfinite(upper), np.fmax(np.minimum(pred + half, upper), pred), pred + half)
+    return lo, hi
+
+
+def with_interval(p: Prediction, widths: IntervalWidths) -> Prediction:
+    """``p`` with its interval from ``widths`` (e.g. widths learned from the very runs predicted)."""
+    lo, hi = _interval(p.predicted, p.oc, p.upper, widths)
+    return dataclasses.replace(p, lo=lo, hi=hi, interval_rule=widths.describe(), level=widths.level)
 
 
 def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarray, need: list[str],
                targets: tuple[str, ...], uses_phase: list[bool],
                fleet: list[tuple[np.ndarray, np.ndarray] | None], seed: Seed,
-               sched: Schedule) -> tuple[np.ndarray, np.ndarray]:
-    """Feed one run through the node sample by sample: (predicted (K, n), oc index (K,))."""
+               sched: Schedule, bound: AmplitudeBound | None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Feed one run through the node sample by sample: (predicted within the bounds (K, n), the
+    node's own (K, n), how each was bounded (K, n), the bound (K, n), oc index (K,))."""
     K, n = t.size, len(targets)
+    O = len(sched.names)
     pred = np.full((K, n), _NAN)
+    raw = np.full((K, n), _NAN)
+    code = np.zeros((K, n), dtype=np.int8)
+    upper = np.full((K, n), _NAN)
     oc = np.full(K, -1, dtype=np.int64)
     index = {name: j for j, name in enumerate(sched.names)}
     speed = X[:, need.index(sched.switch)]
     level = np.column_stack([np.interp(np.nan_to_num(speed), *f) if f is not None else np.full(K, _NAN)
                              for f in fleet])
+    # the bound of each target in each OC (row O: outside every OC) at each sample's speed
+    caps = [np.vstack([bound.limits(tg, o, hold_last(speed)) for o in range(-1, O)])
+            if bound is not None and tg in bound.targets else None for tg in targets]
     phases = [phase_channel(tg) for tg in targets]
     fed = [_NAN] * n
     fed_ph = [_NAN] * n
@@ -434,22 +793,34 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
                 continue
             j = keys[key]
             p = msg["predicted"]
-            pred[k, j] = _NAN if p is None else p
             if msg["oc"] is not None:
                 oc[k] = index[msg["oc"]]
+            ph = msg.get("predicted_phase")
+            v = _NAN
+            if p is not None:
+                raw[k, j] = v = p
+                if v < 0.0:  # a model of the 1x vector: the amplitude is its modulus
+                    v, code[k, j] = (-v, MODULUS) if ph is not None else (0.0, RAISED)
+                cap = caps[j]
+                if cap is not None:
+                    u = upper[k, j] = cap[oc[k] + 1, k]
+                    if v > u:
+                        v, code[k, j] = u, CAPPED
+                pred[k, j] = v
             if seed == "chain":
-                fed[j] = p if p is not None else float(level[k, j])
-                ph = msg.get("predicted_phase")
+                fed[j] = v if p is not None else float(level[k, j])
                 fed_ph[j] = _NAN if ph is None or p is None else ph
-    return pred, oc
+    return pred, raw, code, upper, oc
 
 
 def predict_profile(model: Bundle | Model, profile: Profile, engine: EngineState | None = None,
-                    fill: InputFill | None = None, seed: Seed = "chain", label: str = "") -> Prediction:
-    """The expected orders over a planned profile (``read_profile``, ``schedule_profile``)."""
+                    fill: InputFill | None = None, seed: Seed = "chain", label: str = "",
+                    bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None) -> Prediction:
+    """The expected orders over a planned profile (``read_profile``, ``schedule_profile``);
+    the bounds and the interval as ``predict_runs`` sets them."""
     m = as_model(model)
     runs = profile.runs(OCDetector(m.schedule, m.config).off_level)
-    return predict_runs(m, runs, engine, fill, seed, label)
+    return predict_runs(m, runs, engine, fill, seed, label, bound, widths)
 
 
 @dataclass
@@ -495,20 +866,23 @@ def recorded_eps(recs: Sequence[RecordedPrediction]) -> np.ndarray:
 
 
 def predict_recorded_run(model: Bundle | Model, run: Run, engine: EngineState | None = None,
-                         seed: Seed = "chain", label: str = "") -> RecordedPrediction:
+                         seed: Seed = "chain", label: str = "", bound: AmplitudeBound | None = None,
+                         widths: IntervalWidths | None = None) -> RecordedPrediction:
     """The prediction for a held-out ``run`` from its own profile (its switch speed and every
     other input as recorded, the targets left out) and a stated history ``engine`` (e.g.
     ``history_after(training_runs, model)``, or ``stated_history``), compared per OC with the
-    targets it measured (eps_td, ``node.sysid.metrics``)."""
+    targets it measured (eps_td, ``node.sysid.metrics``); bounds and interval as
+    ``predict_runs``."""
     m = as_model(model)
-    pred = predict_runs(m, [run], engine, None, seed, label)
+    pred = predict_runs(m, [run], engine, None, seed, label, bound, widths)
     measured = np.column_stack([run.column(tg) if tg in run.channels else np.full(len(run.t), _NAN)
                                 for tg in pred.targets])
     return RecordedPrediction(pred, measured, segment_runs([run], m.schedule))
 
 
 def predict_recorded_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | None = None,
-                          seed: Seed = "chain") -> list[RecordedPrediction]:
+                          seed: Seed = "chain", bound: AmplitudeBound | None = None,
+                          widths: IntervalWidths | None = None) -> list[RecordedPrediction]:
     """``predict_recorded_run`` of each of one engine's ``runs`` (returned in the order given),
     each with the history the runs before it (in time order) leave, from ``engine`` (the
     history before the first: default unknown, a cold engine); ``recorded_eps`` pools them."""
@@ -516,30 +890,57 @@ def predict_recorded_runs(model: Bundle | Model, runs: list[Run], engine: Engine
     out: dict[int, RecordedPrediction] = {}
     state = engine
     for i in time_order(runs):
-        out[i] = predict_recorded_run(m, runs[i], state, seed, f"run {i + 1}")
+        out[i] = predict_recorded_run(m, runs[i], state, seed, f"run {i + 1}", bound, widths)
         state = history_after([runs[i]], m, state)
     return [out[i] for i in range(len(runs))]
 
 
 # -- output ---------------------------------------------------------------------------------------
 def csv_columns(preds: Sequence[Prediction]) -> list[str]:
-    """The columns ``write_csv`` writes: the stated history's label, time, OC, the targets
-    predicted, the engine-history channels, and every input fed to the node."""
+    """The columns ``write_csv`` writes: the stated history's label, time, OC, each target
+    predicted with its interval (``yB``, ``yB_lo``, ``yB_hi``), the engine-history channels,
+    and every input fed to the node."""
     p = preds[0]
-    return ["history", "t", "oc", *p.targets, *HISTORY_CHANNELS, *p.channels]
+    return ["history", "t", "oc", *(c for tg in p.targets for c in (tg, f"{tg}_lo", f"{tg}_hi")),
+            *HISTORY_CHANNELS, *p.channels]
+
+
+def csv_notes(preds: Sequence[Prediction]) -> list[str]:
+    """The notes ``write_csv`` puts above the header (without their "# "): the bounds and where
+    they acted, the interval, and how each filled channel was filled."""
+    p = preds[0]
+    out = [f"bounds: {p.bound_rule}"]
+    for q in preds:
+        at = f" ({q.label} h stood)" if len(preds) > 1 and q.label else ""
+        out += [f"bounds acted{at}: {line}" for line in q.bound_notes()]
+    out.append(f"interval: {', '.join(f'{tg}_lo..{tg}_hi' for tg in p.targets)}: {p.interval_rule}")
+    for how in dict.fromkeys(p.filled_how.values()):
+        mine = [c for c, h in p.filled_how.items() if h == how]
+        out.append(f"filled {', '.join(mine)}: {how}")
+    if p.filled_own:
+        out.append("filled from the OC's own curve: " + ", ".join(
+            f"{c} {100 * v:.0f} %" for c, v in p.filled_own.items()) + " of the samples")
+    if not p.filled_how:
+        out.append("filled: none (the profile holds every channel the model takes)")
+    return out
 
 
 def write_csv(preds: Sequence[Prediction], f: TextIO) -> int:
     """Rows of each prediction (one per stated history) into ``f``; returns the rows written.
 
-    ``history``: each prediction's label (``ordervib predict``: the hours the engine stood
-    before the profile as stated); numbers with 6 significant digits, NaN as an empty cell."""
+    Lines starting with "# " come first (``csv_notes``: read with a CSV reader that skips
+    comments, e.g. pandas' ``comment="#"``), then the header (``csv_columns``). ``history``:
+    each prediction's label (``ordervib predict``: the hours the engine stood before the
+    profile as stated); numbers with 6 significant digits, NaN as an empty cell."""
+    for line in csv_notes(preds):
+        f.write(f"# {line}\n")
     w = csv.writer(f, lineterminator="\n")
     w.writerow(csv_columns(preds))
     n = 0
     for p in preds:
         names = [p.oc_names[i] if i >= 0 else "" for i in p.oc.tolist()]
-        body = np.column_stack([p.predicted, p.history, p.inputs])
+        band = np.stack([p.predicted, p.lo, p.hi], axis=2).reshape(p.t.size, -1)
+        body = np.column_stack([band, p.history, p.inputs])
         for k in range(p.t.size):
             w.writerow([p.label, f"{p.t[k]:.3f}", names[k], *map(_g, body[k].tolist())])
         n += p.t.size

@@ -336,7 +336,9 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     runs and after a cold start, with the history parameters of appendix A.2.5 (figure A.5)."""
     from node.contract import OrdervibError
     from node.training.prediction import (
+        AmplitudeBound,
         InputFill,
+        IntervalWidths,
         RecordedPrediction,
         history_after,
         needed_channels,
@@ -345,14 +347,18 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
         recorded_eps,
         schedule_profile,
         stated_history,
+        with_interval,
     )
     from replay.views.prediction_plots import fig_history, fig_prediction
 
     blocks: list[Block] = []
     try:
-        recs = predict_recorded_runs(bundle, runs.runs)
+        bound = AmplitudeBound.fit(runs.runs, schedule, [bundle.target])
+        recs = predict_recorded_runs(bundle, runs.runs, bound=bound)
     except OrdervibError as exc:
         return [Paragraph(f"prediction: {exc}", note=True)]
+    widths = IntervalWidths.from_recorded(bundle, recs)
+    recs = [dataclasses.replace(r, prediction=with_interval(r.prediction, widths)) for r in recs]
     eps = recorded_eps(recs)[0]
     cc = CharacteristicCurve()
     cc.centres_, cc.means_ = fleet_curve(bundle, runs.runs, schedule.switch, target)
@@ -368,7 +374,10 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     blocks += [
         Paragraph(f"{target} predicted from each run's own speed profile, inputs and engine history, "
                   "without its measured order (each OC's model seeded from the prediction of the OC "
-                  "before it; the first from the fleet level), against what the run measured."),
+                  "before it; the first from the fleet level), against what the run measured; never "
+                  f"below 0 nor above {bound.factor:g} x the largest these runs measured in the OC within "
+                  f"{bound.window:g} rpm, with the {100 * widths.level:g} % interval of a new run from "
+                  "these runs' residuals."),
         Figure.of(fig_prediction(recs[0]), f"{runs.labels[0]}: predicted against measured"),
         Table(["run", *(schedule.names[j] for j in present)], rows,
               f"{target}: eps_td of the prediction per OC (all runs: pooled; curve: the characteristic "
@@ -379,15 +388,16 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     try:
         fill = InputFill.fit(runs.runs, schedule, needed_channels(bundle))
         now = history_after(runs.runs, bundle)
-        preds = [predict_profile(bundle, plan, now, fill, label="after these runs"),
-                 predict_profile(bundle, plan, stated_history(start, 24.0), fill, label="cold (24 h)")]
+        states = ((now, "after these runs"), (stated_history(start, 24.0), "cold (24 h)"))
+        preds = [predict_profile(bundle, plan, state, fill, label=label, bound=bound, widths=widths)
+                 for state, label in states]
     except OrdervibError as exc:
         return blocks + [Paragraph(f"planned pass-off: {exc}", note=True)]
     blocks += [
         Heading("A planned pass-off"),
         Paragraph(f"The schedule's plateaus in order ({len(schedule.names)} OCs, 60 s each, ramps at 250 "
-                  "rpm/s); inputs the profile lacks filled from these runs; the engine's history as these "
-                  "runs leave it, and after 24 h standing."),
+                  "rpm/s); inputs the profile lacks filled from these runs at the planned speed in each OC; "
+                  "the engine's history as these runs leave it, and after 24 h standing."),
         Figure.of(fig_prediction(preds), f"expected {target} over the planned profile"),
         Figure.of(fig_history(preds), "Figure A.5: the speed profile, the cumulative energy (hist_energy, "
                   "rpm min) and the cumulative rate of change of speed (hist_rate, rpm)"),

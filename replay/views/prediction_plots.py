@@ -1,9 +1,11 @@
 """Figures of the prediction for a planned run (the toolbox's panel IV; matplotlib Figures on
 no canvas, no pyplot, no file I/O: ``replay.views.phase_plots.save_png`` writes one).
 
-- ``fig_prediction``: the speed profile on top, then per target the expected amplitude over
-  the profile, one line per stated history, the OCs shaded and named; with a recorded run
-  (``RecordedPrediction``) its measured amplitude beside, eps_td per OC in the titles.
+- ``fig_prediction``: the speed profile on top (the channels filled from training runs named),
+  then per target the expected amplitude over the profile, one line per stated history with
+  its interval as a band and the upper bound dotted, where the bounds acted in the title, the
+  OCs shaded and named; with a recorded run (``RecordedPrediction``) its measured amplitude
+  beside, eps_td per OC in the titles.
 - ``fig_history``: figure A.5: (a) the speed profiles, (b) the cumulative energy parameter
   ς (``hist_energy``), (c) the cumulative rate of change of speed ξ (``hist_rate``), one line
   per prediction (profile or stated history).
@@ -18,7 +20,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from node.runtime.history import HISTORY_CHANNELS
-from node.training.prediction import Prediction, RecordedPrediction
+from node.training.prediction import CAPPED, MODULUS, RAISED, Prediction, RecordedPrediction
 
 MEASURED = "0.35"  # grey: what a recorded run measured
 
@@ -63,6 +65,9 @@ def fig_prediction(preds: Sequence[Prediction] | RecordedPrediction, unit: str =
     _shade_ocs(ax, first, label=True)
     ax.plot(_minutes(first), first.speed, color="black", lw=1.0)
     ax.set_ylabel(f"{first.switch} (rpm)")
+    if first.filled:
+        ax.set_title(f"filled from training runs at the planned {first.switch} in each OC: "
+                     f"{', '.join(first.filled)}", fontsize=8, loc="left", pad=24)
     for j, (ax, tg) in enumerate(zip(axes[1:], first.targets)):
         _shade_ocs(ax, first, label=False)
         if recorded is not None:
@@ -73,12 +78,33 @@ def fig_prediction(preds: Sequence[Prediction] | RecordedPrediction, unit: str =
                 ax.set_title(f"{tg}: eps_td per OC, mean {np.mean(eps[ok]):.3f} over {int(ok.sum())} OCs",
                              fontsize=9, loc="left")
         for i, p in enumerate(ps):
-            ax.plot(_minutes(p), p.predicted[:, j], lw=1.1, label=f"predicted ({_label(p, i)})"
-                    if recorded is None else "predicted")
+            x = _minutes(p)
+            line, = ax.plot(x, p.predicted[:, j], lw=1.1, label=f"predicted ({_label(p, i)})"
+                            if recorded is None else "predicted")
+            pct = f"{100 * p.level:g} %"
+            ax.fill_between(x, p.lo[:, j], p.hi[:, j], color=line.get_color(), alpha=0.2, lw=0,
+                            label=f"{pct} interval" if i == 0 else None)
+            if i == 0 and np.isfinite(p.upper[:, j]).any():
+                ax.plot(x, p.upper[:, j], color="0.4", lw=0.6, ls=":", label="bound")
+        if recorded is None:
+            acted = _acted(ps, j)
+            if acted:
+                ax.set_title(f"{tg}: {acted}", fontsize=8, loc="left")
         ax.set_ylabel(f"{tg} ({unit})")
         ax.legend(fontsize=7, loc="upper left")
     axes[-1].set_xlabel("time since the profile's start (min)")
     return fig
+
+
+def _acted(ps: Sequence[Prediction], j: int) -> str:
+    """Where the bounds acted on target j, over every prediction: "" when nowhere."""
+    words = ((RAISED, "raised to 0"), (MODULUS, "modulus of the 1x vector"), (CAPPED, "capped at the bound"))
+    parts = []
+    for code, what in words:
+        n = sum(int(np.sum(p.bounded[:, j] == code)) for p in ps)
+        if n:
+            parts.append(f"{what} on {n} samples")
+    return "bounds acted: " + ", ".join(parts) if parts else ""
 
 
 def fig_history(preds: Sequence[Prediction]) -> Figure:

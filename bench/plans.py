@@ -1,0 +1,277 @@
+"""Predictions of planned runs within physics (issue 32): the bound on random plans, and the
+interval's coverage on held-out runs.
+
+    python -m bench plans [--seed 3] [--train-runs 8] [--held-out 10] [--plans 20]
+        [--plateau-scale 0.25] [--targets yA,yB] [--workdir W] [--workers 2]
+
+On one simulated engine (the project's simulator, one seed, plateaus at ``--plateau-scale``):
+its first ``--train-runs`` runs train a model with the defaults (``--targets``), the next
+``--held-out`` runs are held out. Then, through ``node.training.prediction`` (the node's own
+code, as ``ordervib predict`` runs it):
+
+1. ``--plans`` random plans within the training speeds: 3-7 OCs in random order, each at its
+   schedule speed moved by up to half the schedule's tolerance (within the training runs' nB
+   range), held 8-40 s, ramps of 50-300 rpm/s, from and back to standstill; only t and nB, the
+   other inputs filled from the training runs. Per target: the share of predicted samples
+   within [0, 1.5 x the largest the training runs measured in the same OC within 100 rpm]
+   (none there: of any OC within 100 rpm; none either: the OC's largest), computed here from
+   the training runs by brute force, not by the product's bound (speeds in the rule's 5 rpm
+   steps). Target: all of them. The
+   node's own share before the bounds is printed beside it.
+2. The held-out runs, each given its own profile (its recorded nB and channels, its targets
+   left out; the engine history the training runs and the held-out runs before it leave): per
+   target the share of measured samples inside the 90 % interval (target 85-95 %), beside the
+   share inside the interval of the CV sigma alone (``IntervalWidths.from_cv``).
+
+``--workdir`` keeps the recordings and the model: a later run with the same settings reuses
+them. The default run takes about 2 minutes on 2 cores (most of it the training).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from harness import make
+from node.contract.schedule import Schedule
+from node.models.bundle import Model, load_model
+from node.runtime.history import SLOW_TEMPERATURES
+from node.training.dataset import segment_runs
+from node.training.fit import load_runs
+from node.training.prediction import (
+    BOUND_FACTOR,
+    BOUND_STEP_RPM,
+    BOUND_WINDOW_RPM,
+    AmplitudeBound,
+    InputFill,
+    IntervalWidths,
+    Profile,
+    history_after,
+    needed_channels,
+    predict_profile,
+    predict_recorded_runs,
+    with_interval,
+)
+from node.training.runs import Run
+
+log = logging.getLogger("bench.plans")
+COVERAGE = (0.85, 0.95)  # the issue's target for the 90 % interval on held-out runs
+
+
+def _recordings(work: Path, seed: int, n: int, m: int, scale: float) -> tuple[Path, Path]:
+    """train.mcap (runs 1..n) and held.mcap (runs n+1..n+m) of one engine, reused when there."""
+    train, held = work / "train.mcap", work / "held.mcap"
+    for rec, runs, skip in ((train, n, 0), (held, n + m, n)):
+        truth = rec.with_suffix(".truth.json")
+        if rec.exists() and truth.exists():
+            t = json.loads(truth.read_text())
+            if len(t["runs"]) == runs - skip and t["seed"] == seed:
+                continue
+        make.simulate(rec, runs=runs, seed=seed, skip=skip, plateau_scale=scale)
+    return train, held
+
+
+def _model(work: Path, train: Path, targets: str, workers: int) -> Path:
+    """The model of train.mcap (defaults, ``targets``), reused when the work dir holds it."""
+    out = work / "model"
+    stamp = work / "model.json"
+    want = {"targets": targets, "train": train.stat().st_size}
+    if (out / "manifest.json").exists() and stamp.exists() and json.loads(stamp.read_text()) == want:
+        log.info("model: reused %s", out)
+        return out
+    make.train([train], train.with_suffix(".schedule.toml"), out, workers=workers, target=targets)
+    stamp.write_text(json.dumps(want))
+    return out
+
+
+def random_plan(rng: np.random.Generator, schedule: Schedule, lo: float, hi: float) -> Profile:
+    """A plan of t and nB (see the module): 3-7 OCs in random order within [lo, hi] rpm."""
+    k = int(rng.integers(3, 8))
+    order = rng.choice(len(schedule.ocs), size=min(k, len(schedule.ocs)), replace=False)
+    t, v = [0.0, 5.0], [0.0, 0.0]
+    for o in order:
+        speed = schedule.ocs[int(o)].speed * (1.0 + rng.uniform(-0.5, 0.5) * schedule.tolerance)
+        speed = float(np.clip(speed, lo, hi))
+        ramp = rng.uniform(50.0, 300.0)
+        t.append(t[-1] + abs(speed - v[-1]) / ramp)
+        v.append(speed)
+        t.append(t[-1] + rng.uniform(8.0, 40.0))
+        v.append(speed)
+    t += [t[-1] + v[-1] / rng.uniform(50.0, 300.0), 0.0]
+    t[-1] = t[-2] + 5.0
+    v += [0.0, 0.0]
+    return Profile(np.array(t), np.array(v)[:, None], (schedule.switch,), schedule.switch)
+
+
+class BruteBound:
+    """The issue's rule read off the training runs directly: per target and OC (as
+    ``segment_runs`` cuts them), the samples sorted by speed (in the rule's 5 rpm steps); the
+    largest within the window by a sparse table of maxima."""
+
+    def __init__(self, runs: list[Run], schedule: Schedule, target: str) -> None:
+        O = len(schedule.names)
+        label = [np.full(len(r.t), O) for r in runs]
+        for s in segment_runs(runs, schedule):
+            label[s.run][s.start:s.stop] = s.oc
+        speed = _steps(np.concatenate([r.column(schedule.switch) for r in runs]))
+        y = np.concatenate([r.column(target) for r in runs])
+        oc = np.concatenate(label)
+        ok = np.isfinite(speed) & np.isfinite(y)
+        self.tables = {o: self._table(speed[ok & (oc == o)], y[ok & (oc == o)]) for o in range(O)}
+        self.tables[-1] = self._table(speed[ok], y[ok])
+        self.top = {o: float(np.max(y[ok & (oc == o)])) if (ok & (oc == o)).any() else np.nan
+                    for o in range(O)}
+        self.all_top = float(np.max(y[ok]))
+
+    @staticmethod
+    def _table(speed: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+        order = np.argsort(speed)
+        levels = [y[order]]
+        while 2 ** len(levels) <= len(order):
+            prev, half = levels[-1], 2 ** (len(levels) - 1)
+            levels.append(np.maximum(prev[:-half], prev[half:]))
+        return speed[order], levels
+
+    @staticmethod
+    def _max(table: tuple[np.ndarray, list[np.ndarray]], q: np.ndarray, window: float) -> np.ndarray:
+        speed, levels = table
+        a = np.searchsorted(speed, q - window, "left")
+        b = np.searchsorted(speed, q + window, "right")
+        out = np.full(q.size, np.nan)
+        has = b > a
+        if has.any():
+            n = b[has] - a[has]
+            k = np.floor(np.log2(n)).astype(int)
+            vals = np.empty(n.size)
+            for lv in np.unique(k):
+                sel = k == lv
+                arr = levels[lv]
+                vals[sel] = np.maximum(arr[a[has][sel]], arr[b[has][sel] - 2 ** lv])
+            out[has] = vals
+        return out
+
+    def limit(self, oc: int, speed: np.ndarray) -> np.ndarray:
+        """1.5 x the rule's largest (K,) at ``speed`` (K,) rpm in OC ``oc`` (-1: outside every OC)."""
+        q = _steps(speed)
+        window = BOUND_WINDOW_RPM + 1e-6  # inclusive
+        mine = self._max(self.tables[oc], q, window)
+        anyone = self._max(self.tables[-1], q, window)
+        last = self.top.get(oc, np.nan)
+        last = last if np.isfinite(last) else self.all_top
+        return BOUND_FACTOR * np.where(np.isfinite(mine), mine, np.where(np.isfinite(anyone), anyone, last))
+
+
+def _steps(speed: np.ndarray) -> np.ndarray:
+    """Speeds (rpm) rounded to the rule's 5 rpm steps (NaN stays NaN)."""
+    return np.round(np.asarray(speed, float) / BOUND_STEP_RPM) * BOUND_STEP_RPM
+
+
+def _verdict(ok: bool) -> str:
+    return "PASS" if ok else "FAIL"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench plans")
+    ap.add_argument("--seed", type=int, default=3, help="the simulated engine (default 3)")
+    ap.add_argument("--train-runs", type=int, default=8)
+    ap.add_argument("--held-out", type=int, default=10,
+                    help="held-out runs (default 10: a run is inside its interval nearly all or nothing, "
+                         "its level being its own, so a share needs several)")
+    ap.add_argument("--plans", type=int, default=20)
+    ap.add_argument("--plateau-scale", type=float, default=0.25)
+    ap.add_argument("--targets", default="yA,yB")
+    ap.add_argument("--workdir", default=None, help="keep the recordings and the model here (reused)")
+    ap.add_argument("--workers", type=int, default=2)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="ordervib-plans-"))
+    work.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    train_rec, held_rec = _recordings(work, args.seed, args.train_runs, args.held_out, args.plateau_scale)
+    log.info("recordings in %s (%.0f s)", work, time.perf_counter() - t0)
+    model: Model = load_model(_model(work, train_rec, args.targets, args.workers))
+    sched = model.schedule
+    log.info("model of %s (%.0f s)", args.targets, time.perf_counter() - t0)
+    train, held = load_runs([str(train_rec)], True), load_runs([str(held_rec)], True)
+    t1 = time.perf_counter()
+    bound = AmplitudeBound.fit(train, sched, model.targets)
+    widths = IntervalWidths.fit(model, train, bound)
+    want = sorted({*needed_channels(model), *SLOW_TEMPERATURES} - {sched.switch})
+    fill = InputFill.fit(train, sched, want, "training runs")
+    engine = history_after(train, model)
+    log.info("bound, interval and fill from %d training runs (%.0f s)", len(train), time.perf_counter() - t1)
+    speeds = np.concatenate([r.column(sched.switch) for r in train])
+    on = speeds[speeds > 0.5 * min(oc.speed for oc in sched.ocs)]
+    lo, hi = float(np.nanmin(on)), float(np.nanmax(on))
+    brute = {tg: BruteBound(train, sched, tg) for tg in model.targets}
+
+    # 1. random plans: within [0, the rule's bound]
+    rng = np.random.default_rng(args.seed)
+    n = len(model.targets)
+    within, raw_within, total, acted = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    t1 = time.perf_counter()
+    samples = 0
+    for _ in range(args.plans):
+        p = predict_profile(model, random_plan(rng, sched, lo, hi), engine, fill, bound=bound, widths=widths)
+        samples += p.t.size
+        for j, tg in enumerate(model.targets):
+            y, raw = p.predicted[:, j], p.raw[:, j]
+            ok = np.isfinite(y) & (p.oc >= 0)
+            cap = np.full(y.size, np.nan)
+            for o in np.unique(p.oc[ok]):
+                mine = ok & (p.oc == o)
+                cap[mine] = brute[tg].limit(int(o), p.speed[mine])
+            within[j] += np.sum((y[ok] >= 0) & (y[ok] <= cap[ok] + 1e-9))
+            raw_within[j] += np.sum((raw[ok] >= 0) & (raw[ok] <= cap[ok] + 1e-9))
+            total[j] += ok.sum()
+            acted[j] += np.sum(p.bounded[ok, j] != 0)
+    log.info("%d plans, %d samples predicted (%.0f s)", args.plans, samples, time.perf_counter() - t1)
+
+    # 2. held-out runs from their own profiles: inside the 90 % interval
+    t1 = time.perf_counter()
+    recs = predict_recorded_runs(model, held, engine, bound=bound, widths=widths)
+    cv = IntervalWidths.from_cv(model)
+    inside, inside_cv, measured = np.zeros(n), np.zeros(n), np.zeros(n)
+    per_run: list[list[float]] = [[] for _ in range(n)]
+    for rec in recs:
+        p = rec.prediction
+        p_cv = with_interval(p, cv)
+        for j in range(n):
+            y = rec.measured[:, j]
+            ok = np.isfinite(y) & np.isfinite(p.predicted[:, j]) & (p.oc >= 0)
+            hit = (y >= p.lo[:, j]) & (y <= p.hi[:, j])
+            inside[j] += np.sum(hit[ok])
+            inside_cv[j] += np.sum(((y >= p_cv.lo[:, j]) & (y <= p_cv.hi[:, j]))[ok])
+            measured[j] += ok.sum()
+            per_run[j].append(float(np.mean(hit[ok])) if ok.any() else np.nan)
+    log.info("%d held-out runs predicted (%.0f s)", len(held), time.perf_counter() - t1)
+
+    print(f"\nengine seed {args.seed}: {len(train)} training runs, {len(held)} held out, plateaus x "
+          f"{args.plateau_scale:g}; training nB {lo:,.0f}-{hi:,.0f} rpm; model {args.targets}")
+    print(f"bound: [0, {BOUND_FACTOR:g} x the training runs' largest in the OC within "
+          f"{BOUND_WINDOW_RPM:g} rpm]")
+    print(f"interval: {widths.describe()}")
+    failed = False
+    for j, tg in enumerate(model.targets):
+        share = within[j] / max(total[j], 1)
+        ok = total[j] > 0 and within[j] == total[j]
+        failed |= not ok
+        print(f"{_verdict(ok)}  {tg} plans: {int(within[j])} of {int(total[j])} predicted samples "
+              f"({share:.2%}) within the bound over {args.plans} plans (target: all); the node's own "
+              f"before the bounds {raw_within[j] / max(total[j], 1):.2%}, bounds acted on {int(acted[j])}")
+    for j, tg in enumerate(model.targets):
+        cover = inside[j] / max(measured[j], 1)
+        ok = measured[j] > 0 and COVERAGE[0] <= cover <= COVERAGE[1]
+        failed |= not ok
+        runs = ", ".join(f"{c:.0%}" for c in per_run[j])
+        print(f"{_verdict(ok)}  {tg} held-out: {cover:.1%} of {int(measured[j])} measured samples inside the "
+              f"90 % interval (target {COVERAGE[0]:.0%}-{COVERAGE[1]:.0%}); per run {runs}; the CV sigma's "
+              f"interval alone {inside_cv[j] / max(measured[j], 1):.1%}")
+    print(f"total {time.perf_counter() - t0:.0f} s")
+    return 1 if failed else 0
