@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 CHUNK, MESSAGE, MESSAGE_INDEX = 0x06, 0x05, 0x07
 
 
-def _chunk_records(data: bytes, offset: int) -> bytes:
+def chunk_records(data: bytes, offset: int) -> bytes:
     """The decompressed records of the Chunk record at ``offset``."""
     op, _ = struct.unpack_from("<BQ", data, offset)
     assert op == CHUNK, f"no chunk at {offset}"
@@ -58,7 +58,7 @@ def check_indexed(path: str | Path) -> int:
     assert summary.chunk_indexes or summary.statistics.message_count == 0, f"{path}: no chunk indexes"
     seen = 0
     for ci in summary.chunk_indexes:
-        in_chunk = _messages_in(_chunk_records(data, ci.chunk_start_offset))
+        in_chunk = _messages_in(chunk_records(data, ci.chunk_start_offset))
         assert set(ci.message_index_offsets) == set(in_chunk), f"{path}: a chunk lacks message indexes"
         total = 0
         for cid, off in ci.message_index_offsets.items():

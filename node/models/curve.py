@@ -605,8 +605,8 @@ class CurveRuntime:
     def step_speed(self, x: float) -> complex:
         """Prediction at speed x (rpm) (NaN: NaN, and the recent speeds are kept); complex for a
         vector curve, else real."""
-        fade = self._fade
-        if self._fades:
+        if self._fades:  # the fade advances with every sample, a NaN one too
+            fade = self._fade
             self._fade = fade * self._ratio
         if x != x:
             return math.nan
