@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import sparse
 
 from node.sysid import (
     IODMD,
@@ -209,7 +210,14 @@ def test_stability_and_mac():
         (lambda: WDMD(rcond=-1), (np.zeros((10, 1)), np.zeros((10, 1))), "rcond"),
         (lambda: DelayDMD(delays=0), (np.zeros((10, 1)), np.zeros((10, 1))), "delays"),
         (lambda: WDMD(estimator="magic"), (np.zeros((10, 1)), np.zeros((10, 1))), "estimator"),
-        (lambda: IODMD(), (np.zeros((10, 1)), np.zeros((10, 1))), "states"),
+        (lambda: IODMD(), (np.zeros((10, 1)), np.zeros((10, 1)), np.zeros((9, 2))), "X has 9"),
+        (lambda: WDMD(), (np.zeros(10), np.zeros((10, 1))), "2-D"),
+        (lambda: WDMD(), (np.zeros((10, 0)), np.zeros((10, 1))), "0 feature"),
+        (lambda: DelayDMD(), (np.ones((10, 1)) + 1j, np.zeros((10, 1))), "Complex data not supported"),
+        (lambda: DelayDMD(), (np.ones((10, 1)), np.ones((10, 1)) * 1j), "Complex data not supported in U"),
+        (lambda: IODMD(), (sparse.csr_array(np.eye(10)), np.zeros((10, 1))), "sparse input is not"),
+        (lambda: IODMD(), (np.zeros((10, 1)), np.zeros((10, 1)), sparse.csr_array(np.eye(10))),
+         "X is a sparse"),
     ],
 )
 def test_bad_input_raises_value_error_saying_what(make, args, message):

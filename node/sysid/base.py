@@ -13,6 +13,7 @@ from enum import StrEnum
 import numpy as np
 from sklearn.base import BaseEstimator
 from sklearn.exceptions import NotFittedError
+from sklearn.utils import InputTags, Tags, TargetTags
 
 from node.sysid.lstsq import pod_basis, truncated_lstsq
 from node.sysid.observer import estimate_state
@@ -71,6 +72,15 @@ class LinearDMD(BaseEstimator):
         self.dt = dt
         self.warmup = warmup
         self.seed_window = seed_window
+
+    def __sklearn_tags__(self) -> Tags:
+        """Dense, finite, real 2-D outputs Y (the ``X`` of scikit-learn's checks); inputs U
+        (its ``y``) optional, one column or several."""
+        tags = super().__sklearn_tags__()
+        tags.input_tags = InputTags(two_d_array=True, sparse=False, allow_nan=False)
+        tags.target_tags = TargetTags(required=False, one_d_labels=False, two_d_labels=False,
+                                      multi_output=True, single_output=True)
+        return tags
 
     # --- what a method defines ------------------------------------------
     def _lift(self, Y: np.ndarray, U: np.ndarray) -> np.ndarray:
@@ -141,6 +151,7 @@ class LinearDMD(BaseEstimator):
         self.model_ = StateSpace(A.copy(), B.copy(), C.copy(), D.copy(), float(self.dt))
         self.n_inputs_ = Us[0].shape[1]
         self.n_outputs_ = Ys[0].shape[1]
+        self.n_features_in_ = self.n_outputs_
         return self
 
     def _iv_solve(self, Xs, Ys, Us) -> tuple[np.ndarray, int]:
@@ -170,7 +181,7 @@ class LinearDMD(BaseEstimator):
     def fit(self, Y, U=None):
         """Fit on outputs Y (K, p) and inputs U (K, m), or lists of such (one per trajectory)."""
         self._check_params()
-        Ys, Us = as_trajectories(Y, U)
+        Ys, Us = as_trajectories(Y, U, strict_outputs=True)
         Zs = [self._lift(y, u) for y, u in zip(Ys, Us)]
         return self._fit_lifted(Zs, Ys, Us)
 
@@ -190,6 +201,7 @@ class LinearDMD(BaseEstimator):
         self.refined_ = refined
         self.n_inputs_ = model.n_inputs
         self.n_outputs_ = model.n_outputs
+        self.n_features_in_ = model.n_outputs
         return self
 
     def _require_fit(self) -> StateSpace:
@@ -242,15 +254,23 @@ class LinearDMD(BaseEstimator):
             U1 = np.tile(guess, (Y1.shape[0], 1))
         K1 = Y1.shape[0]
         W = self.seed_window_length(K1)
-        if W <= 1:
-            keep = self.memory() + 1
-            x_last = self._project(self._lift(Y1[-keep:], U1[-keep:])[-1])
+        x_last = self._lifted_state(Y1, U1) if W <= 1 else None
+        if x_last is not None:
             return model.A @ x_last + model.B @ U1[-1]
-        # lifted state at the window start, corrected by least squares on the window's outputs
+        if W == 0:
+            raise ValueError(f"{type(self).__name__} has no lifted state to seed from "
+                             f"(seed_window=0): use seed_window=None or >= 1, or pass x0=")
+        # lifted state at the window start (zero where there is none), corrected by least
+        # squares on the window's outputs
         start = K1 - W
-        lo = max(0, start - self.memory())
-        x_s = self._project(self._lift(Y1[lo:start + 1], U1[lo:start + 1])[-1])
+        x_s = self._lifted_state(Y1[:start + 1], U1[:start + 1])
         return estimate_state(model, Y1[start:], U1[start:], x_s, rcond=self.seed_rcond)
+
+    def _lifted_state(self, Y1: np.ndarray, U1: np.ndarray) -> np.ndarray | None:
+        """The (projected) lifted state at the last sample of (Y1, U1), or None where the
+        method cannot lift measurements into its state."""
+        keep = self.memory() + 1
+        return self._project(self._lift(Y1[-keep:], U1[-keep:])[-1])
 
     def seed_window_length(self, n_history: int) -> int:
         """Samples of history the seeding observer uses (0 or 1: the lifted state alone).
