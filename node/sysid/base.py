@@ -55,7 +55,12 @@ class LinearDMD(BaseEstimator):
 
     Learned attributes: ``model_`` (:class:`StateSpace`), ``rank_`` (rank kept
     by the pseudo-inverse), ``basis_`` (POD basis or None), ``n_inputs_``,
-    ``n_outputs_``, ``refined_`` (whether the OE step ran).
+    ``n_outputs_`` (= ``n_features_in_``: Y is scikit-learn's X), ``refined_``
+    (whether the OE step ran).
+
+    Y must be a dense, real, finite 2-D array (a 1-D U is one input); anything else is
+    refused with a one-line error. scikit-learn's ``check_estimator`` passes but for the
+    name of ``fit``'s second argument (see docs/sysid.md).
     """
 
     min_samples = 3
