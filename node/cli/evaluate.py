@@ -121,13 +121,15 @@ def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word
     base_eps = [float("nan")] * len(evals)
     if bundle.curve is not None:
         base_eps = curve_eps(bundle.curve, runs, preds, bundle.schedule, bundle.target)
-    header = ["OC", "model", "segments", f"{word} eps_td", "CV eps_td", "baseline eps_td", "outside"]
+    header = ["OC", "model", "segments", f"{word} eps_td", "CV eps_td", "baseline eps_td", "outside",
+              "on the curve"]
     rows = []
     hold, base = [], []
     for e, b in zip(evals, base_eps):
         res = bundle.oc(e.name)
         rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps),
-                     _f(res.cv_eps if res else float("nan")), _f(b), _share(e.outside, e.samples)])
+                     _f(res.cv_eps if res else float("nan")), _f(b), _share(e.outside, e.samples),
+                     _share(e.guarded, e.samples)])
         if np.isfinite(e.eps):
             hold.append(e.eps)
             base.append(b)
@@ -139,6 +141,9 @@ def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word
     if samples:
         print(f"outside the training runs' envelope: {_share(outside, samples)} of {samples} modelled "
               f"samples (predicted with the inputs held at its edge, the band widened)")
+        guarded = sum(e.guarded for e in evals)
+        print(f"on the characteristic curve: {_share(guarded, samples)} of the modelled samples (the "
+              f"curve guard: where, so far in the OC, the model erred more than the curve)")
 
 
 def _share(part: int, whole: int) -> str:

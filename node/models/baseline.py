@@ -6,6 +6,9 @@ built this way). Also usable as a static nonlinear input feature.
 
 from __future__ import annotations
 
+import bisect
+import math
+
 import numpy as np
 
 
@@ -48,3 +51,31 @@ class CharacteristicCurve:
     def predict(self, speed: np.ndarray) -> np.ndarray:
         """Amplitude at each speed (K,), held constant beyond the trained range."""
         return np.interp(np.asarray(speed, float), self.centres_, self.means_)
+
+
+class FleetCurve:
+    """The characteristic curve (the training runs' mean target per switch speed) at one speed,
+    in plain floats: linear between its points, held beyond them (``np.interp``'s rule).
+
+    >>> FleetCurve(np.array([1000.0, 2000.0]), np.array([1.0, 3.0])).at(1500.0)
+    2.0
+    """
+
+    def __init__(self, speeds: np.ndarray, means: np.ndarray) -> None:
+        self._xs = [float(x) for x in np.asarray(speeds, float)]
+        self._ys = [float(x) for x in np.asarray(means, float)]
+        if not self._xs or len(self._xs) != len(self._ys):
+            raise ValueError("a characteristic curve needs as many means as speeds, at least one")
+
+    def at(self, speed: float) -> float:
+        """The curve at ``speed`` (NaN for a NaN speed)."""
+        if speed != speed:
+            return math.nan
+        xs, ys = self._xs, self._ys
+        i = bisect.bisect_right(xs, speed)
+        if i == 0:
+            return ys[0]
+        if i == len(xs):
+            return ys[-1]
+        x0, x1 = xs[i - 1], xs[i]
+        return ys[i - 1] + (ys[i] - ys[i - 1]) * (speed - x0) / (x1 - x0)

@@ -33,7 +33,7 @@ from node.contract import FS
 from node.contract.documents import NPZ_OVERHEAD, parse_json, read_bounded, read_document, read_npz
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
-from node.models.config import V1_SETTINGS, RuntimeConfig, SettingError
+from node.models.config import BEFORE_GUARD, V1_SETTINGS, RuntimeConfig, SettingError
 from node.models.envelope import Envelope
 from node.models.kinds import model_from_arrays
 from node.models.ocmodel import RUN_CURVE
@@ -342,8 +342,8 @@ def _config(root: Path, manifest: dict) -> RuntimeConfig:
     and the setting."""
     try:
         if manifest["format_version"] == 1:  # written before the settings were stored: that code's
-            return RuntimeConfig(**V1_SETTINGS, history_s=manifest["history_s"])
-        return RuntimeConfig.from_dict(manifest["runtime"])
+            return RuntimeConfig(**V1_SETTINGS, **BEFORE_GUARD, history_s=manifest["history_s"])
+        return RuntimeConfig.from_dict(manifest["runtime"], **BEFORE_GUARD)
     except SettingError as exc:
         raise OrdervibError(f"{root}: {exc}") from None
 

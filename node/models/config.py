@@ -35,6 +35,7 @@ from typing import Any, NamedTuple
 from node.contract import FS
 
 V1_SETTINGS = {"align_wait_s": 0.1}  # where bundles of format version 1 differ from the defaults
+BEFORE_GUARD = {"guard_wait_s": 0.0}  # bundles stored before the curve guard keep it off
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,11 @@ class RuntimeConfig:
         history_cooling: energy the engine-history input ``hist_energy`` loses per hour of
             shutdown, rpm min per h (``node.runtime.history``); training estimates it from
             its runs, the default is the dissertation's one-engine value 4.5e5 / 12.
+        guard_wait_s: samples an OC model and the characteristic curve are compared on within
+            an OC visit (their errors so far) before the curve may take over
+            (``node.runtime.guard``); 0: never (the guard off).
+        guard_margin: the guard's hysteresis: the curve takes over beyond ``1 + margin`` times
+            its error so far, the model again below ``1 / (1 + margin)`` times it.
     """
 
     align_wait_s: float = 0.25
@@ -80,6 +86,8 @@ class RuntimeConfig:
     step_noise_s: float = 10.0
     step_persist_s: float = 0.25
     history_cooling: float = 4.5e5 / 12.0
+    guard_wait_s: float = 5.0
+    guard_margin: float = 0.1
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -171,4 +179,8 @@ RANGES: dict[str, Range] = {
     "history_cooling": Range(0.0, 1e9, "rpm min per h", "hist_energy lost per hour of shutdown; "
                              "training searches up to 1e7: beyond 1e9 any run's energy is gone "
                              "within seconds of standing"),
+    "guard_wait_s": Range(0.0, 600.0, "s", "an OC model and the curve are compared this long before "
+                          "the curve may take over: 0 turns the guard off, beyond 10 min it never acts"),
+    "guard_margin": Range(0.0, 100.0, "", "the guard's hysteresis, a fraction of the curve's error: "
+                          "beyond 100 the curve never takes over"),
 }

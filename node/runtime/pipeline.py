@@ -37,6 +37,7 @@ from node.models.envelope import HELD, OUTSIDE, Envelope
 from node.models.ocmodel import OCRuntime
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
+from node.runtime.guard import CURVE, guard_of
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
 from node.runtime.ocdetect import OCDetector, OCState
 from node.runtime.runcurve import RUN_CURVE, RunCurve
@@ -115,6 +116,8 @@ class MonitorPipeline:
         self._jump = StepCheck(float(thr), cfg, FS) if thr else None
         prior = bundle.checks.get("run_scale_prior_ocs")
         self._runscale = RunScale(float(prior)) if prior else None
+        # the curve guard (node.runtime.guard): the characteristic curve where the OC model erred more
+        self._guard = guard_of(bundle.curve, cfg)
         self._curve = None  # this run's own characteristic, when a model takes it as input
         if RUN_CURVE in self.channels and bundle.curve is not None:
             self._curve = RunCurve(*bundle.curve, cfg.run_curve_bin)
@@ -173,12 +176,17 @@ class MonitorPipeline:
             if e > OUTSIDE:
                 model_id, widen = model_id + HELD, env.band_factor
         pred = a.runtime.step(u)
+        on = False
+        if self._guard is not None:
+            pred, on = self._guard.step(measured, pred, vals[self.switch])
+            if on:
+                model_id += CURVE
         r = measured - pred if math.isfinite(measured) and math.isfinite(pred) else _NAN
         score, raised = a.check.step(r / widen if widen != 1.0 else r)
         msg.update(predicted=_num(pred), residual=None if r != r else r, score=score,
                    band=a.check.band * widen if widen != 1.0 else a.check.band,
                    model=model_id, run_scale=a.check.run_scale, envelope=e)
-        if a.vector is not None:
+        if a.vector is not None and not on:
             v = a.vector.vector
             msg.update(predicted_phase=_num(lag_degrees(v)), vector_residual=_num(abs(z - v)))
         if raised:
@@ -257,6 +265,8 @@ class MonitorPipeline:
                     vector.start(z, U)
         else:
             rt.start(np.zeros(0), np.zeros((0, len(res.inputs))))
+        if self._guard is not None:
+            self._guard.reset()
         c = res.calibration
         scale = 1.0 if self._runscale is None else self._runscale.factor
         check = ResidualCheck(c.sigma, c.threshold, c.ewma_alpha, c.persist, self._clear, scale)

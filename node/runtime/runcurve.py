@@ -14,12 +14,12 @@ The node (``MonitorPipeline``) and training (``add_run_curve``) step the very sa
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import math
 
 import numpy as np
 
+from node.models.baseline import FleetCurve
 from node.models.config import RuntimeConfig
 from node.models.ocmodel import RUN_CURVE
 
@@ -42,23 +42,9 @@ class RunCurve:
 
     def __init__(self, fleet_speed: np.ndarray, fleet_mean: np.ndarray,
                  bin_width: float = RuntimeConfig.run_curve_bin) -> None:
-        self._xs = [float(x) for x in np.asarray(fleet_speed, float)]
-        self._ys = [float(x) for x in np.asarray(fleet_mean, float)]
-        if not self._xs or len(self._xs) != len(self._ys):
-            raise ValueError("the fleet curve needs as many means as speeds, at least one")
+        self.fleet = FleetCurve(fleet_speed, fleet_mean).at  # the fleet curve at a speed
         self.bin_width = bin_width
         self.reset()
-
-    def fleet(self, speed: float) -> float:
-        """The fleet curve at ``speed``: linear between its points, held beyond them."""
-        xs, ys = self._xs, self._ys
-        i = bisect.bisect_right(xs, speed)
-        if i == 0:
-            return ys[0]
-        if i == len(xs):
-            return ys[-1]
-        x0, x1 = xs[i - 1], xs[i]
-        return ys[i - 1] + (ys[i] - ys[i - 1]) * (speed - x0) / (x1 - x0)
 
     def reset(self) -> None:
         """A new run: forget every bin."""

@@ -15,8 +15,9 @@ from node.models.config import RuntimeConfig
 from node.models.envelope import OUTSIDE
 from node.models.ocmodel import Trajectory
 from node.models.result import OCResult
+from node.runtime.guard import guard_of, guard_segment
 from node.runtime.history import HISTORY_CHANNELS
-from node.runtime.runcurve import RUN_CURVE, add_run_curve
+from node.runtime.runcurve import RUN_CURVE, add_run_curve, hold_last
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import alarm_mask
 from node.training.dataset import run_arrays, segment_runs, target_vectors, with_history
@@ -31,6 +32,7 @@ class SegmentPrediction:
     measured: np.ndarray  # (K,)
     predicted: np.ndarray  # (K,)
     envelope: np.ndarray | None = None  # (K,) the model's envelope value (None: the model has none)
+    guarded: np.ndarray | None = None  # (K,) bool: predicted with the curve (None: no guard)
 
     def widened(self, res: OCResult) -> np.ndarray:
         """(K,) the residual over the band's widening (``Envelope.band_factor`` where outside)."""
@@ -48,6 +50,7 @@ class OCEvaluation:
     alarm_samples: int  # samples flagged (persistent smoothed score beyond threshold)
     samples: int
     outside: int = 0  # samples beyond the model's envelope (predicted with its inputs held at the edge)
+    guarded: int = 0  # samples the curve guard predicted with the characteristic curve
 
 
 def derived_runs(runs: list[Run], schedule: Schedule, target: str, channels: list[str],
@@ -72,7 +75,8 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
     fleet: the bundle's characteristic curve, needed when a model takes ``run_curve``.
     config: the bundle's settings (the measured past seeding each segment, ``history_s``;
     the engine history's cooling, when a model takes its channels: ``runs`` are then one
-    engine's, in time order, its history derived from them as the node derives it).
+    engine's, in time order, its history derived from them as the node derives it; the curve
+    guard, ``node.runtime.guard``, stepped as the node steps it, on ``fleet``).
     """
     config = config or RuntimeConfig()
     by_oc = {schedule.index(r.name): r for r in results if r.model is not None}
@@ -82,6 +86,9 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
     runs = derived_runs(runs, schedule, target, inputs_needed, fleet, config)
     arrays = [run_arrays(run, target, inputs_needed) for run in runs]
     vectors = [target_vectors(run, target) for run in runs]
+    guard = guard_of(fleet, config)
+    if guard is not None:  # what the node sees: the target as measured, the switch speed held
+        seen = [(run.column(target), hold_last(run.column(schedule.switch))) for run in runs]
     for s in segment_runs(runs, schedule):
         res = by_oc.get(s.oc)
         if res is None or res.model is None:
@@ -99,7 +106,12 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
         traj = Trajectory(ra.y[lo:s.stop], U, s.start - lo, None if z is None else z[lo:s.stop])
         with np.errstate(all="ignore"):
             pred = res.model.predict(traj)
-        out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], traj.seg_y, pred, env))
+        used = None
+        if guard is not None:
+            y, speed = seen[s.run]
+            pred, used = guard_segment(guard, y[s.start:s.stop], pred, speed[s.start:s.stop])
+        out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], traj.seg_y, pred, env,
+                                     used))
     return out
 
 
@@ -128,8 +140,9 @@ def score_segments(results: list[OCResult], schedule: Schedule, preds: list[Segm
             continue
         alarms = sum(int(alarm_mask(p.widened(res), res).sum()) for p in mine)
         outside = sum(int(np.sum(p.envelope > OUTSIDE)) for p in mine if p.envelope is not None)
+        guarded = sum(int(np.sum(p.guarded)) for p in mine if p.guarded is not None)
         out.append(OCEvaluation(name, pooled_eps([(p.measured, p.predicted) for p in mine]),
-                                len(mine), alarms, sum(p.t.size for p in mine), outside))
+                                len(mine), alarms, sum(p.t.size for p in mine), outside, guarded))
     return out
 
 
