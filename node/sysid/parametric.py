@@ -361,7 +361,8 @@ class ParametricROM(BaseEstimator):
     pole, then the real poles), ``residues_`` (n, r, p, m) discrete residues, ``D_`` (n, p, m),
     ``dt_`` (s), ``unmatched_`` (list of (sample index, pole at the root sample, cost) of the
     first bad link; the root and inf when its group has no common basis),
-    ``dc_`` (n, p, m) the samples' full static gains. ``to_arrays`` / ``from_arrays`` store and
+    ``dc_`` (n, p, m) the samples' full static gains, ``groups_`` (lists of columns of
+    ``poles_``: the veering groups, interpolated as blocks). ``to_arrays`` / ``from_arrays`` store and
     restore what ``at`` needs (no estimators, no pickle).
 
     Three oscillators seen through different mode shapes; the first one's stiffness grows
@@ -493,6 +494,7 @@ class ParametricROM(BaseEstimator):
         return self
 
     def _set_discrete(self) -> None:
+        self.groups_ = [list(g) for g in self._groups]
         z = np.exp(self._s * self.dt_)
         self.residues_ = self._R * ((z - 1.0) / self._s)[:, :, None, None]
         self.poles_ = z
