@@ -75,3 +75,14 @@ def test_an_unmatched_group_falls_back_to_the_nearest_sample(caplog):
         ParametricROM(None, fallback="none").fit_models(lib, hv.LIBRARY)
     with pytest.raises(ValueError, match="match"):
         ParametricROM(None, match="greedy").fit_models(lib, hv.LIBRARY)
+
+
+def test_format_1_arrays_still_load():
+    """Arrays saved before veering groups (format 1: no groups, no fallback modes) give the
+    same model as the ROM they came from when it has neither."""
+    k = hv.CASES["crossing"]
+    rom = ParametricROM(None, n_pairs=2).fit_models([hv.system(p, k) for p in hv.LIBRARY], hv.LIBRARY)
+    assert rom.groups_ == [] and rom.unmatched_ == []
+    old = {key: v for key, v in rom.to_arrays().items() if not key.startswith(("rom_group", "rom_fb_"))}
+    again = ParametricROM.from_arrays({**old, "rom_format": np.array([1])})
+    np.testing.assert_array_equal(again.at(0.1).model_.A, rom.at(0.1).model_.A)

@@ -701,7 +701,7 @@ class ParametricROM(BaseEstimator):
         ev = roots[c[np.argsort(r)]]
         # modal: X = A'^2, A' = i sqrt(-X), the upper half plane's branch
         s = 1j * np.sqrt(-ev) if self.scheme == "modal" else ev
-        Bm = np.linalg.solve(V, Y)
+        Bm = np.linalg.pinv(V) @ Y  # (a defective interpolated block: least squares, not an error)
         if self.scheme == "modal":  # Y = A' B'
             Bm = Bm / s[:, None]
         s = np.minimum(s.real, -tiny) + 1j * np.maximum(s.imag, tiny)
