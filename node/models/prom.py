@@ -40,7 +40,9 @@ def _rom(params: Mapping) -> ParametricROM:
     return ParametricROM(None, n_pairs=int(params.get("pairs", 0)), n_real=int(params.get("real", 1)),
                          scheme=str(params.get("scheme", "direct")),
                          weights=str(params.get("weights", "regress")), tol=MATCH_TOL, static=True, clip=True,
-                         verbose=False)  # a mode without a match drops a CV candidate: no warning
+                         verbose=False,  # a mode without a match drops a CV candidate: no warning
+                         # the matcher these models were measured with (docs/parametric.md, Table 6.1)
+                         match="assignment", fallback="drop")
 
 
 def _speed_only(t: Trajectory) -> Trajectory:

@@ -10,6 +10,13 @@ ZOH discretisation is that discrete mode), interpolated there, and mapped back. 
 s-plane a stiffness-like parameter moves the physical quantities w^2 = |s|^2 and
 2 zeta w = -2 Re s almost linearly, and a force-to-displacement residue scales as
 1 / w, so R_s w carries only the mode shape; the discrete z and R_z bend all of these.
+
+Where two modes veer or cross (their frequencies come close, their shapes rotate into each
+other), one-to-one matching has no right answer: such a group is interpolated as a block,
+its upper-half-plane realisation (A', B', C') put in a basis common to all samples (the one
+in which C' is the same, up to a least-squares projection) and A'^2, A' B', C' interpolated
+there (for a stiffness-like parameter -A'^2 is the stiffness matrix in that basis, linear in
+the parameter, and A' B' the force distribution); its modes at ``p`` are the eigenvectors.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.linalg import subspace_angles
 from scipy.optimize import linear_sum_assignment
 from sklearn.base import BaseEstimator
 
@@ -33,7 +41,13 @@ log = logging.getLogger(__name__)
 
 SCHEMES = ("modal", "direct")
 WEIGHTS = ("auto", "lagrange", "linear", "rbf", "regress", "mean")
-FORMAT = 1  # version of ``to_arrays``
+FORMAT = 2  # version of ``to_arrays`` (1: no groups nor fallback modes, still read)
+FALLBACKS = ("nearest", "drop")
+MATCHES = ("continuation", "assignment")
+# continuation's matching cost of a factor e between two modes' peak shares: a mode's peak gain
+# changes slowly along the parameter, a jump by 100 (a physical mode to a noise mode) costs 0.46
+SHARE_WEIGHT = 0.1
+ROTATION = 0.02  # 1 - MAC_out MAC_in along a track above which close tracks are a veering group
 
 
 @dataclass(frozen=True)
@@ -115,12 +129,109 @@ def _directions(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u[:, :, 0].T, vh[:, 0, :].conj().T
 
 
-def _cost(a: _Modes, b: _Modes, mac_weight: float) -> np.ndarray:
-    """(k_a, k_b): relative s-plane distance + mac_weight (1 - MAC_out MAC_in)."""
-    dist = np.abs(a.s[:, None] - b.s[None, :]) / np.maximum(np.abs(a.s)[:, None], np.abs(b.s)[None, :])
+def _cost(a: _Modes, b: _Modes, mac_weight: float, pred: np.ndarray | None = None,
+          gain_weight: float = 0.0) -> np.ndarray:
+    """(k_a, k_b): relative s-plane distance + mac_weight (1 - MAC_out MAC_in) + gain_weight
+    |ln(share_a / share_b)|. With ``pred`` (k_a,) the poles of a predicted by continuation, the
+    distance is the smaller of the two."""
+    def dist(sa: np.ndarray) -> np.ndarray:
+        return np.abs(sa[:, None] - b.s[None, :]) / np.maximum(np.abs(sa)[:, None], np.abs(b.s)[None, :])
+    d = dist(a.s) if pred is None else np.minimum(dist(a.s), dist(pred))
     ua, va = _directions(a.R)
     ub, vb = _directions(b.R)
-    return dist + mac_weight * (1.0 - mac(ua, ub) * mac(va, vb))
+    gain = np.abs(np.log(np.maximum(a.share, 1e-12)[:, None] / np.maximum(b.share, 1e-12)[None, :]))
+    return d + mac_weight * (1.0 - mac(ua, ub) * mac(va, vb)) + gain_weight * gain
+
+
+def _predict(s_par: np.ndarray, s_gp: np.ndarray, t: float) -> np.ndarray:
+    """Continuation: poles at parameter parent + t (parent - grandparent), w^2 and 2 zeta w
+    extrapolated linearly (the modal scheme's coordinates)."""
+    w2 = np.abs(s_par) ** 2 + t * (np.abs(s_par) ** 2 - np.abs(s_gp) ** 2)
+    c = -2 * s_par.real + t * (-2 * s_par.real + 2 * s_gp.real)
+    return -c / 2 + 1j * np.sqrt(np.maximum(w2 - c ** 2 / 4, 0.0))
+
+
+def _rank1(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Columns c (p, g) and rows b (g, m) with R_j ~ outer(c_j, b_j): each residue's leading SVD term."""
+    u, sv, vh = np.linalg.svd(R)
+    return (u[:, :, 0] * sv[:, :1]).T, vh[:, 0, :]
+
+
+def _span_similarity(X: np.ndarray, Y: np.ndarray) -> float:
+    """prod cos^2 of the principal angles between the column spans of X and Y (p, g); 1 if p <= g."""
+    if X.shape[0] <= X.shape[1]:
+        return 1.0
+    return float(np.prod(np.cos(subspace_angles(X, Y)) ** 2))
+
+
+def _set_cost(a: _Modes, b: _Modes, mac_weight: float) -> float:
+    """Cost of matching two sets of modes as sets (a veering group): mean relative distance of
+    their poles in frequency order + mac_weight (1 - similarity of the spans of their output
+    and of their input directions)."""
+    sa, sb = a.s[np.argsort(np.abs(a.s))], b.s[np.argsort(np.abs(b.s))]
+    dist = float(np.mean(np.abs(sa - sb) / np.maximum(np.abs(sa), np.abs(sb))))
+    ca, ba = _rank1(a.R)
+    cb, bb = _rank1(b.R)
+    return dist + mac_weight * (1.0 - _span_similarity(ca, cb) * _span_similarity(ba.T, bb.T))
+
+
+@dataclass(frozen=True)
+class _Block:
+    """A veering group's realisations in a common basis, one per sample: X (n, g, g) (A'^2 for
+    the modal scheme, A' for direct), Y (n, g, m) (A' B' or B'), C (n, p, g) (C'), and the
+    coefficients of det(x I - X), smooth through a veering or a crossing (the sorted
+    eigenvalues have a kink at a crossing) and set by the poles alone (shapes identified from
+    noisy data scatter far more than poles, most for a weakly excited mode)."""
+
+    X: np.ndarray
+    Y: np.ndarray
+    C: np.ndarray
+    poly: np.ndarray  # (n, g + 1) characteristic polynomial of X: its eigenvalues' symmetric functions
+
+
+@dataclass(frozen=True)
+class _Matched:
+    """``_match``'s result: s (n, r), R (n, r, p, m) of the matched tracks; groups (column lists)
+    and their blocks; fallback modes fs (n, f), fR (n, f, p, m), NaN where not the mode."""
+
+    s: np.ndarray
+    R: np.ndarray
+    groups: list[list[int]]
+    blocks: list[_Block]
+    fs: np.ndarray
+    fR: np.ndarray
+
+
+def _common_basis(s: np.ndarray, R: np.ndarray, modal: bool, max_cond: float = 1e4) -> _Block | None:
+    """The upper-half-plane realisation (A' = T^-1 diag(s) T, B' = T^-1 B, C' = C T) of each
+    sample's group, s (n, g), R (n, g, p, m), in the basis where C' is the least-squares nearest
+    to one C_ref (p >= g; the leading g left singular vectors of all samples' unit output
+    directions), else where B' is nearest to one B_ref (m >= g). None when neither side has g
+    independent directions at every sample (cond > ``max_cond``): no common basis."""
+    n, g = s.shape
+    p, m = R.shape[2:]
+    CB = [_rank1(R[i]) for i in range(n)]
+    if p < g and m < g:
+        return None
+    out = p >= g
+    # the aligned side of each sample: output columns (p, g), or input rows transposed (m, g)
+    sides = [c if out else b.T for c, b in CB]
+    units = [x / np.linalg.norm(x, axis=0) for x in sides]
+    if any(np.linalg.cond(x) > max_cond for x in units):
+        return None
+    ref = np.linalg.svd(np.hstack(units))[0][:, :g]
+    X, Y, C = [], [], []
+    for i in range(n):
+        c, b = CB[i]
+        T = np.linalg.pinv(c) @ ref if out else np.linalg.inv(ref.T @ np.linalg.pinv(b))
+        Ti = np.linalg.inv(T)
+        A1 = Ti @ np.diag(s[i]) @ T
+        B1 = Ti @ b
+        X.append(A1 @ A1 if modal else A1)
+        Y.append(A1 @ B1 if modal else B1)
+        C.append(c @ T)
+    poly = np.array([np.poly(s[i] ** 2 if modal else s[i]) for i in range(n)])
+    return _Block(np.array(X), np.array(Y), np.array(C), poly)
 
 
 def _tree(P: np.ndarray) -> list[tuple[int, int]]:
@@ -213,7 +324,8 @@ class ParametricROM(BaseEstimator):
         mac_weight: weight of 1 - MAC(output directions) MAC(input directions) beside the
             relative pole distance |s_a - s_b| / max(|s_a|, |s_b|) in the matching cost.
         tol: largest matching cost accepted; a kept mode whose match costs more at some sample
-            is left out of the model and listed in ``unmatched_`` (with a logged warning).
+            (a veering group: whose match as a set does) is listed in ``unmatched_`` (with a
+            logged warning) and not interpolated (see ``fallback``).
         static: keep the static gain: ``at`` sets D so that the model's static gain is the
             weighted sum of the samples' full static gains (modal truncation with static
             correction). Identified quasi-static models carry most of their gain in D and a slow
@@ -226,12 +338,31 @@ class ParametricROM(BaseEstimator):
             held-out eps_td 1e6-1e8 without).
         verbose: a mode left out is a logged warning (False: a debug message, for callers
             that try many settings and read ``unmatched_`` themselves).
+        match: ``"continuation"`` (default): each sample's modes assigned to the tracks on the
+            cost to the parent sample's mode or to its continuation (w^2 and 2 zeta w extrapolated
+            from the two samples before), plus 0.1 |ln| of the ratio of their peak shares (a
+            physical mode does not turn into a weak noise mode); kept complex tracks that cross
+            or come within ``veer_gap`` of each other while a shape turns (1 - MAC > 0.02), or
+            that both turn at a link where as a set they cost less than apart, form a veering
+            group, matched as a set (poles in frequency order, span of the directions) and
+            interpolated as a block (module docstring): its poles are the roots of the
+            interpolated characteristic polynomial, its shapes the eigenvectors of the
+            interpolated block. Needs as many outputs (or inputs) as modes in the group, else
+            the group is unmatched. ``"assignment"``: one-to-one on pole distance and MAC alone,
+            no groups (the matcher before veering groups).
+        veer_gap: relative frequency gap |w_a - w_b| / max below which two tracks whose shapes
+            turn are a veering group (0: only crossings).
+        fallback: ``"nearest"`` (default): an unmatched mode enters the model at ``p`` as it is
+            in the sample of largest weight (the nearest, for Lagrange or linear weights), when
+            it was matched up to that sample; ``"drop"``: it is left out.
 
     Learned attributes: ``estimators_`` (the fitted copies), ``params_`` (n, q), ``poles_``
     (n, r) complex discrete-time poles of the matched modes (the pairs by their upper-half-plane
     pole, then the real poles), ``residues_`` (n, r, p, m) discrete residues, ``D_`` (n, p, m),
-    ``dt_`` (s), ``unmatched_`` (list of (sample index, pole at its parent sample, cost)),
-    ``dc_`` (n, p, m) the samples' full static gains. ``to_arrays`` / ``from_arrays`` store and
+    ``dt_`` (s), ``unmatched_`` (list of (sample index, pole at the root sample, cost) of the
+    first bad link; the root and inf when its group has no common basis),
+    ``dc_`` (n, p, m) the samples' full static gains, ``groups_`` (lists of columns of
+    ``poles_``: the veering groups, interpolated as blocks). ``to_arrays`` / ``from_arrays`` store and
     restore what ``at`` needs (no estimators, no pickle).
 
     Three oscillators seen through different mode shapes; the first one's stiffness grows
@@ -261,7 +392,8 @@ class ParametricROM(BaseEstimator):
 
     def __init__(self, base_estimator: Any, n_pairs: int = 4, n_real: int = 0, scheme: str = "modal",
                  weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5,
-                 static: bool = False, clip: bool = False, verbose: bool = True) -> None:
+                 static: bool = False, clip: bool = False, verbose: bool = True,
+                 match: str = "continuation", veer_gap: float = 0.1, fallback: str = "nearest") -> None:
         self.base_estimator = base_estimator
         self.n_pairs = n_pairs
         self.n_real = n_real
@@ -272,6 +404,9 @@ class ParametricROM(BaseEstimator):
         self.static = static
         self.clip = clip
         self.verbose = verbose
+        self.match = match
+        self.veer_gap = veer_gap
+        self.fallback = fallback
 
     # --- fit ------------------------------------------------------------------------------
     def _check_params(self) -> None:
@@ -283,6 +418,12 @@ class ParametricROM(BaseEstimator):
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"{name} must be a non-negative integer, got {v!r}")
+        if self.match not in MATCHES:
+            raise ValueError(f"match must be one of {MATCHES}, got {self.match!r}")
+        if self.fallback not in FALLBACKS:
+            raise ValueError(f"fallback must be one of {FALLBACKS}, got {self.fallback!r}")
+        if not 0 <= float(self.veer_gap) < 1:
+            raise ValueError(f"veer_gap must be in [0, 1), got {self.veer_gap!r}")
         if self.n_pairs + self.n_real < 1:
             raise ValueError("keep at least one mode (n_pairs + n_real >= 1)")
 
@@ -334,58 +475,152 @@ class ParametricROM(BaseEstimator):
             else _tree(P / self._scale)
         root = int(order[0])
         self.unmatched_: list[tuple[int, complex, float]] = []
-        s_all, R_all = [], []
-        for real, keep in ((False, int(self.n_pairs)), (True, int(self.n_real))):
-            if keep:
-                s, R = self._match([_modes(pr, real) for pr in prs], root, edges, keep)
-                s_all.append(s)
-                R_all.append(R)
-        if sum(s.shape[1] for s in s_all) == 0:
+        found = [self._match([_modes(pr, real) for pr in prs], root, edges, keep, P / self._scale, not real)
+                 for real, keep in ((False, int(self.n_pairs)), (True, int(self.n_real))) if keep]
+        n_fb = sum(f.fs.shape[1] for f in found)
+        if sum(f.s.shape[1] for f in found) + n_fb == 0:
             raise ValueError("no mode could be matched across the samples (see unmatched_)")
-        self._n_pairs_kept = s_all[0].shape[1] if self.n_pairs else 0
-        self._s = np.hstack(s_all)  # (n, r) continuous poles
-        self._R = np.concatenate(R_all, axis=1)  # (n, r, p, m) continuous residues
+        self._n_pairs_kept = found[0].s.shape[1] if self.n_pairs else 0
+        self._s = np.hstack([f.s for f in found])  # (n, r) continuous poles
+        self._R = np.concatenate([f.R for f in found], axis=1)  # (n, r, p, m) continuous residues
+        self._groups = found[0].groups if self.n_pairs else []
+        self._blocks = found[0].blocks if self.n_pairs else []
+        self._fb_s = np.hstack([f.fs for f in found])  # (n, f) fallback modes, NaN where absent
+        self._fb_R = np.concatenate([f.fR for f in found], axis=1)
+        self._fb_pair = np.concatenate([np.full(f.fs.shape[1], i == 0 and self.n_pairs > 0)
+                                        for i, f in enumerate(found)])
         self.D_ = np.stack([pr.D.real for pr in prs])
+        self._set_discrete()
+        return self
+
+    def _set_discrete(self) -> None:
+        self.groups_ = [list(g) for g in self._groups]
         z = np.exp(self._s * self.dt_)
         self.residues_ = self._R * ((z - 1.0) / self._s)[:, :, None, None]
         self.poles_ = z
-        return self
 
-    def _match(self, modes: list[_Modes], root: int, edges: list[tuple[int, int]],
-               keep: int) -> tuple[np.ndarray, np.ndarray]:
-        """Tracks from every mode of the root sample, linked along ``edges`` by assignment;
-        the ``keep`` with the largest mean peak share; those with a link above tol are reported.
-        Returns s (n, r) and R_s (n, r, p, m) of the matched tracks."""
+    def _match(self, modes: list[_Modes], root: int, edges: list[tuple[int, int]], keep: int,
+               P: np.ndarray, pairs: bool) -> _Matched:
+        """Tracks from every mode of the root sample, linked along ``edges`` by assignment on the
+        cost to the parent's mode or its continuation (``_predict``); the ``keep`` with the largest
+        mean peak share; complex tracks that cross or come within ``veer_gap`` of each other
+        grouped (matched as sets, interpolated as blocks); tracks (groups) with a link above tol
+        reported and kept aside for the fallback."""
         n = len(modes)
-        track = np.full((n, len(modes[root].s)), -1)
-        track[root] = np.arange(len(modes[root].s))
-        broke: dict[int, tuple[int, float]] = {}  # track -> (sample, cost) of its first bad link
+        k0 = len(modes[root].s)
+        track = np.full((n, k0), -1)
+        track[root] = np.arange(k0)
+        link = np.zeros((n, k0))  # cost of each track's link into each sample (root 0)
+        turn = np.zeros((n, k0))  # 1 - MAC_out MAC_in of the link
+        parent_of = dict(edges)
         for child, parent in edges:
             rows = np.where(track[parent] >= 0)[0]
             idx = track[parent, rows]
             pm = _Modes(modes[parent].s[idx], modes[parent].R[idx], modes[parent].share[idx])
-            cost = _cost(pm, modes[child], self.mac_weight)
+            pred = None
+            gp = parent_of.get(parent)
+            cont = self.match == "continuation"
+            if cont and gp is not None and np.all(track[gp, rows] >= 0):
+                dp, dc = P[parent] - P[gp], P[child] - P[parent]
+                tt = float(dc @ dp / (dp @ dp)) if dp @ dp > 0 else 0.0
+                pred = _predict(pm.s, modes[gp].s[track[gp, rows]], tt)
+            cost = _cost(pm, modes[child], self.mac_weight, pred, SHARE_WEIGHT if cont else 0.0)
             r, c = linear_sum_assignment(cost)
             track[child, rows[r]] = c
-            for j in np.setdiff1d(rows, rows[r]):
-                broke.setdefault(int(j), (child, float("inf")))
-            for j, cj in zip(rows[r], cost[r, c]):
-                if cj > self.tol:
-                    broke.setdefault(int(j), (child, float(cj)))
+            link[child, rows] = np.inf
+            link[child, rows[r]] = cost[r, c]
+            ua, va = _directions(pm.R[r])
+            ub, vb = _directions(modes[child].R[c])
+            turn[child, rows[r]] = 1.0 - np.diag(mac(ua, ub) * mac(va, vb))
+            link[child, track[parent] < 0] = np.inf
         share = np.array([[modes[i].share[t] if t >= 0 else 0.0 for t in track[i]] for i in range(n)])
         ranked = [int(j) for j in np.argsort(-share.mean(axis=0), kind="stable")[:keep]]
+        complete = np.all(track >= 0, axis=0)
+        groups = self._groups_of([j for j in ranked if complete[j]], modes, track, edges, turn, link) \
+            if pairs and self.match == "continuation" else []
+        blocks: dict[int, _Block] = {}
+        unaligned: list[int] = []
+        for gi, grp in enumerate(groups):  # a group's links cost as sets
+            for child, parent in edges:
+                sets = [_Modes(modes[i].s[track[i, grp]], modes[i].R[track[i, grp]],
+                               modes[i].share[track[i, grp]]) for i in (parent, child)]
+                link[child, grp] = _set_cost(sets[0], sets[1], self.mac_weight)
+            block = _common_basis(np.array([modes[i].s[track[i, grp]] for i in range(n)]),
+                                  np.array([modes[i].R[track[i, grp]] for i in range(n)]),
+                                  self.scheme == "modal")
+            if block is None:  # no common basis: the group is unreliable
+                unaligned += grp
+            else:
+                blocks[gi] = block
+        ok = np.zeros((n, k0), dtype=bool)  # the track is its mode at this sample (no bad link above it)
+        ok[root] = True
+        for child, parent in edges:
+            ok[child] = ok[parent] & (track[child] >= 0) & (link[child] <= self.tol)
+        whole = np.all(ok, axis=0)
+        good = [j for j in ranked if bool(whole[j]) and j not in unaligned]
         for j in ranked:
-            if j in broke:
+            if j not in good:  # the first bad link, or (no common basis for its group) the root
+                bad = [(i, link[i, j]) for i, _ in edges if ok[parent_of[i], j] and not ok[i, j]]
+                i, cst = bad[0] if bad else (root, float("inf"))
                 pole = complex(np.exp(modes[root].s[j] * self.dt_))
-                self.unmatched_.append((broke[j][0], pole, broke[j][1]))
+                self.unmatched_.append((int(i), pole, float(cst)))
                 log.log(logging.WARNING if self.verbose else logging.DEBUG,
                         "the mode at z = %.5g%+.5gj of sample %d has no match within tol %.3g at "
-                        "sample %d (cost %.3g): left out", pole.real, pole.imag, root, self.tol, *broke[j])
-        good = [j for j in ranked if j not in broke]
-        p, m = modes[root].R.shape[1:]
-        s = np.array([[modes[i].s[track[i, j]] for j in good] for i in range(n)], dtype=complex)
-        R = np.array([[modes[i].R[track[i, j]] for j in good] for i in range(n)], dtype=complex)
-        return s.reshape(n, len(good)), R.reshape(n, len(good), p, m)
+                        "sample %d (cost %.3g): %s", pole.real, pole.imag, root, self.tol, i, cst,
+                        "the nearest sample's mode is used" if self.fallback == "nearest" else "left out")
+        pm_ = modes[root].R.shape[1:]
+
+        def take(cols: list[int], mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+            s = np.full((n, len(cols)), np.nan + 0j)
+            R = np.full((n, len(cols), *pm_), np.nan + 0j)
+            for i in range(n):
+                for q, j in enumerate(cols):
+                    if track[i, j] >= 0 and (mask is None or mask[i, j]):
+                        s[i, q], R[i, q] = modes[i].s[track[i, j]], modes[i].R[track[i, j]]
+            return s, R
+
+        s, R = take(good)
+        fb = [j for j in ranked if j not in good] if self.fallback == "nearest" else []
+        fs, fR = take(fb, ok)
+        kept = [(gi, [good.index(j) for j in grp]) for gi, grp in enumerate(groups)
+                if all(j in good for j in grp)]
+        return _Matched(s, R, [cols for _, cols in kept], [blocks[gi] for gi, _ in kept], fs, fR)
+
+    def _groups_of(self, cols: list[int], modes: list[_Modes], track: np.ndarray,
+                   edges: list[tuple[int, int]], turn: np.ndarray, link: np.ndarray) -> list[list[int]]:
+        """Groups (of two or more) among the tracks ``cols`` that cross between neighbouring samples or
+        come within ``veer_gap`` (relative frequency gap) of each other at a sample, where the
+        shape of either turns (``turn`` (n, k): 1 - MAC_out MAC_in of each track's link into each
+        sample) by more than ``ROTATION``: modes that cross with fixed shapes stay one-to-one; and
+        two tracks that both turn at a link where, as a set, they cost less than apart (veering)."""
+        label = {j: j for j in cols}
+
+        def find(j: int) -> int:
+            while label[j] != j:
+                j = label[j]
+            return j
+
+        if self.veer_gap <= 0:
+            return []
+        for child, parent in edges:
+            wc = {j: abs(modes[child].s[track[child, j]]) for j in cols}
+            wp = {j: abs(modes[parent].s[track[parent, j]]) for j in cols}
+            for x in range(len(cols)):
+                for y in range(x + 1, len(cols)):
+                    a, b = cols[x], cols[y]
+                    near = min(abs(w[a] - w[b]) / max(w[a], w[b]) for w in (wc, wp)) <= self.veer_gap
+                    ta, tb = turn[child, a], turn[child, b]
+                    if (near or (wc[a] - wc[b]) * (wp[a] - wp[b]) < 0) and max(ta, tb) > ROTATION:
+                        label[find(a)] = find(b)  # a crossing or near-crossing where shapes turn
+                    elif min(ta, tb) > ROTATION:  # both turn: a veering if they span what they spanned
+                        sets = [_Modes(modes[i].s[track[i, [a, b]]], modes[i].R[track[i, [a, b]]],
+                                       modes[i].share[track[i, [a, b]]]) for i in (parent, child)]
+                        if _set_cost(sets[0], sets[1], self.mac_weight) < max(link[child, a], link[child, b]):
+                            label[find(a)] = find(b)
+        out: dict[int, list[int]] = {}
+        for j in cols:
+            out.setdefault(find(j), []).append(j)
+        return [g for g in out.values() if len(g) > 1]
 
     # --- interpolate --------------------------------------------------------------------------
     def _require_fit(self) -> None:
@@ -451,13 +686,59 @@ class ParametricROM(BaseEstimator):
                 1j * np.clip(si.imag, s.imag.min(axis=0), s.imag.max(axis=0))
         return si, Ri
 
-    def _statespace(self, s: np.ndarray, R: np.ndarray, D: np.ndarray) -> StateSpace:
+    def _block_modes(self, block: _Block, w: np.ndarray, guess: np.ndarray,
+                     lo: complex, hi: complex) -> tuple[np.ndarray, np.ndarray]:
+        """A veering group's continuous poles (g,) and residues (g, p, m) for sample weights w:
+        its common-basis realisation interpolated and diagonalised; the modes in the order of
+        ``guess`` (their one-to-one interpolation), Re s < 0 (``clip``: within lo..hi)."""
+        X = np.einsum("i,ijk->jk", w, block.X)
+        Y = np.einsum("i,ijk->jk", w, block.Y)
+        C = np.einsum("i,ijk->jk", w, block.C)
+        tiny = 1e-9 / self.dt_
+        ev, V = np.linalg.eig(X)  # the modes' shapes
+        roots = np.roots(w @ block.poly)  # their eigenvalues, from the interpolated polynomial
+        r, c = linear_sum_assignment(np.abs(ev[:, None] - roots[None, :]))
+        ev = roots[c[np.argsort(r)]]
+        # modal: X = A'^2, A' = i sqrt(-X), the upper half plane's branch
+        s = 1j * np.sqrt(-ev) if self.scheme == "modal" else ev
+        Bm = np.linalg.pinv(V) @ Y  # (a defective interpolated block: least squares, not an error)
+        if self.scheme == "modal":  # Y = A' B'
+            Bm = Bm / s[:, None]
+        s = np.minimum(s.real, -tiny) + 1j * np.maximum(s.imag, tiny)
+        if self.clip:
+            s = np.clip(s.real, lo.real, hi.real) + 1j * np.clip(s.imag, lo.imag, hi.imag)
+        Cm = C @ V
+        r, c = linear_sum_assignment(np.abs(guess[:, None] - s[None, :]))
+        order = c[np.argsort(r)]
+        return s[order], np.einsum("pj,jm->jpm", Cm[:, order], Bm[order])
+
+    def _statespace(self, s: np.ndarray, R: np.ndarray, D: np.ndarray,
+                    pair: np.ndarray | None = None) -> StateSpace:
+        """Real state space of continuous modes s (r,), R (r, p, m): ``pair`` (r,) marks the
+        complex pairs (default: the first ``_n_pairs_kept``), the others are real poles."""
         z = np.exp(s * self.dt_)
         Rz = R * ((z - 1.0) / s)[:, None, None]
-        k = self._n_pairs_kept
-        poles = np.r_[z[:k], z[:k].conj(), z[k:].real + 0j]
-        res = np.concatenate([Rz[:k], Rz[:k].conj(), Rz[k:].real + 0j])
+        pair = np.arange(len(s)) < self._n_pairs_kept if pair is None else pair
+        poles = np.r_[z[pair], z[pair].conj(), z[~pair].real + 0j]
+        res = np.concatenate([Rz[pair], Rz[pair].conj(), Rz[~pair].real + 0j])
         return PoleResidue(poles, res, D.astype(complex), self.dt_).to_statespace()
+
+    def _modes_at(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Continuous poles (r',), residues (r', p, m) and pair flags (r',) of the model for
+        sample weights w: matched modes interpolated (groups as blocks), then the fallback
+        modes of the sample of largest weight (the nearest) that has them."""
+        s, R = self._interpolate(w)
+        for grp, block in zip(self._groups, self._blocks):
+            lo = complex(self._s[:, grp].real.min(), self._s[:, grp].imag.min())
+            hi = complex(self._s[:, grp].real.max(), self._s[:, grp].imag.max())
+            s[grp], R[grp] = self._block_modes(block, w, s[grp], lo, hi)
+        pair = np.arange(len(s)) < self._n_pairs_kept
+        if self._fb_s.shape[1]:
+            i = int(np.argmax(w))
+            have = np.isfinite(self._fb_s[i])
+            s, R = np.r_[s, self._fb_s[i, have]], np.concatenate([R, self._fb_R[i, have]])
+            pair = np.r_[pair, self._fb_pair[have]]
+        return s, R, pair
 
     def at(self, p: Any) -> ParametricModel:
         """The model at parameter value ``p`` (scalar or (q,)): real, stable, discrete-time."""
@@ -466,27 +747,34 @@ class ParametricROM(BaseEstimator):
     def at_weights(self, w: np.ndarray) -> ParametricModel:
         """The model for sample weights w (n,) (``weights_at`` gives them for a parameter value)."""
         self._require_fit()
-        s, R = self._interpolate(np.asarray(w, float))
+        w = np.asarray(w, float)
+        s, R, pair = self._modes_at(w)
         D = np.einsum("i,ipm->pm", w, self.D_)
         if self.static:
-            D = np.einsum("i,ipm->pm", w, self.dc_) - static_gain(self._statespace(s, R, np.zeros_like(D)))
-        return ParametricModel(self._statespace(s, R, D))
+            bare = self._statespace(s, R, np.zeros_like(D), pair)
+            D = np.einsum("i,ipm->pm", w, self.dc_) - static_gain(bare)
+        return ParametricModel(self._statespace(s, R, D, pair))
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """What ``at`` needs, as real arrays (``from_arrays`` restores it): no estimators."""
         self._require_fit()
+        group = np.full(self._s.shape[1], -1)
+        for g, cols in enumerate(self._groups):
+            group[cols] = g
         return {"rom_format": np.array([FORMAT]), "rom_s_re": self._s.real, "rom_s_im": self._s.imag,
                 "rom_R_re": self._R.real, "rom_R_im": self._R.imag, "rom_D": self.D_, "rom_dc": self.dc_,
                 "rom_params": self.params_, "rom_scale": self._scale,
-                "rom_meta": np.array([self.dt_, float(self._n_pairs_kept)])}
+                "rom_meta": np.array([self.dt_, float(self._n_pairs_kept)]), "rom_group": group,
+                "rom_fb_s_re": self._fb_s.real, "rom_fb_s_im": self._fb_s.imag,
+                "rom_fb_R_re": self._fb_R.real, "rom_fb_R_im": self._fb_R.imag, "rom_fb_pair": self._fb_pair}
 
     @classmethod
     def from_arrays(cls, arrays: Any, **params: Any) -> ParametricROM:
         """A fitted ROM from ``to_arrays``' output and the constructor's parameters (no base
-        estimator: it cannot be refitted, only evaluated)."""
-        if int(np.asarray(arrays["rom_format"])[0]) != FORMAT:
-            raise ValueError(f"parametric model arrays of format {int(arrays['rom_format'][0])}; "
-                             f"this version reads {FORMAT}")
+        estimator: it cannot be refitted, only evaluated). Reads formats 1 and 2."""
+        version = int(np.asarray(arrays["rom_format"])[0])
+        if version not in (1, FORMAT):
+            raise ValueError(f"parametric model arrays of format {version}; this version reads 1 to {FORMAT}")
         rom = cls(None, **params)
         rom._s = np.asarray(arrays["rom_s_re"]) + 1j * np.asarray(arrays["rom_s_im"])
         rom._R = np.asarray(arrays["rom_R_re"]) + 1j * np.asarray(arrays["rom_R_im"])
@@ -497,12 +785,31 @@ class ParametricROM(BaseEstimator):
         rom.dt_ = float(arrays["rom_meta"][0])
         rom._n_pairs_kept = int(arrays["rom_meta"][1])
         rom.unmatched_ = []
-        z = np.exp(rom._s * rom.dt_)
-        rom.residues_ = rom._R * ((z - 1.0) / rom._s)[:, :, None, None]
-        rom.poles_ = z
+        n, (p, m) = len(rom.params_), rom.D_.shape[1:]
+        if version == 1:
+            group = np.full(rom._s.shape[1], -1)
+            rom._fb_s, rom._fb_R = np.zeros((n, 0), complex), np.zeros((n, 0, p, m), complex)
+            rom._fb_pair = np.zeros(0, bool)
+        else:
+            group = np.asarray(arrays["rom_group"], int)
+            rom._fb_s = np.asarray(arrays["rom_fb_s_re"]) + 1j * np.asarray(arrays["rom_fb_s_im"])
+            rom._fb_R = np.asarray(arrays["rom_fb_R_re"]) + 1j * np.asarray(arrays["rom_fb_R_im"])
+            rom._fb_pair = np.asarray(arrays["rom_fb_pair"], bool)
+        rom._groups = [[int(j) for j in np.where(group == g)[0]]
+                       for g in range(int(group.max(initial=-1)) + 1)]
+        blocks = [_common_basis(rom._s[:, cols], rom._R[:, cols], rom.scheme == "modal")
+                  for cols in rom._groups]
+        if any(b is None for b in blocks):
+            raise ValueError("parametric model arrays hold a group without a common basis")
+        rom._blocks = [b for b in blocks if b is not None]
+        rom._set_discrete()
         return rom
 
     def library_model(self, i: int) -> StateSpace:
-        """The matched modes of sample ``i`` alone, as a state space (what ``at`` reproduces there)."""
+        """The matched modes of sample ``i`` alone, and the fallback modes it has, as a state
+        space (what ``at`` reproduces there)."""
         self._require_fit()
-        return self._statespace(self._s[i], self._R[i], self.D_[i])
+        have = np.isfinite(self._fb_s[i])
+        pair = np.r_[np.arange(self._s.shape[1]) < self._n_pairs_kept, self._fb_pair[have]]
+        return self._statespace(np.r_[self._s[i], self._fb_s[i, have]],
+                                np.concatenate([self._R[i], self._fb_R[i, have]]), self.D_[i], pair)
