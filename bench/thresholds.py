@@ -11,6 +11,8 @@ code (``replay.offline.replay``). Prints, per rule and run count, the false alar
 normal held-out runs (all rules, and the residual rule alone) beside the budget (1 per hour).
 ``--few-runs 0,6`` trains each engine once per value of ``node.training.train.FEW_RUNS`` (0: a
 free-running model may be chosen alone whatever the number of runs; the product's: 6).
+``--guard on,off`` replays each training with the curve guard on (the bundle's setting) and off
+(``node.runtime.guard``; ``guard_wait_s`` 0).
 """
 
 from __future__ import annotations
@@ -73,13 +75,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rules", default="plug-in:4,predictive:1,predictive:2,predictive:4")
     ap.add_argument("--few-runs", default=str(train_module.FEW_RUNS),
                     help="values of FEW_RUNS to train with, each a training (default: the product's)")
+    ap.add_argument("--guard", default="on", help="curve guard settings to replay with: on, off or on,off")
     args = ap.parse_args(argv)
+    guards = args.guard.split(",")
+    if not guards or any(g not in ("on", "off") for g in guards):
+        ap.error(f"--guard takes on, off or both, got {args.guard!r}")
     few_values = [int(x) for x in args.few_runs.split(",")]
     rules = [(r.split(":")[0], float(r.split(":")[1])) for r in args.rules.split(",")]
     work = Path(args.workdir or tempfile.mkdtemp(prefix="ordervib-thresholds-"))
     t0 = time.perf_counter()
-    # (rule, undercoverage, n, FEW_RUNS) -> [hours, episodes, residual episodes]
-    tally: dict[tuple[str, float, int, int], list[float]] = defaultdict(lambda: [0.0, 0, 0])
+    # (rule, undercoverage, n, FEW_RUNS, guard) -> [hours, episodes, residual episodes]
+    tally: dict[tuple[str, float, int, int, str], list[float]] = defaultdict(lambda: [0.0, 0, 0])
     per_engine = []
     for n in [int(x) for x in args.runs.split(",")]:
         for seed in [int(x) for x in args.seeds.split(",")]:
@@ -93,20 +99,25 @@ def main(argv: list[str] | None = None) -> int:
                 seen = _capture()
                 model, _ = train_model(runs, schedule, model_options(target=TARGET), None, False)
                 train_module.set_thresholds = seen.original
-                bundle = model.bundles[0]
-                for rule, under in rules:
-                    per_engine.append(_judge(normal, bundle, seen, rule, under, few, seed, n, tally))
+                for guard in guards:
+                    bundle = model.bundles[0]
+                    if guard == "off":
+                        bundle = dataclasses.replace(
+                            bundle, config=dataclasses.replace(bundle.config, guard_wait_s=0.0))
+                    for rule, under in rules:
+                        per_engine.append(_judge(normal, bundle, seen, rule, under, few, seed, n, tally,
+                                                 guard))
             print(f"[engine {seed}, {n} runs] done ({time.perf_counter() - t0:.0f} s)", flush=True)
     print()
-    print_table(["engine", "training runs", "FEW_RUNS", "rule:undercoverage", "median threshold, sigma",
-                 "episodes", "residual", "hours"], per_engine, markdown=True)
+    print_table(["engine", "training runs", "FEW_RUNS", "guard", "rule:undercoverage",
+                 "median threshold, sigma", "episodes", "residual", "hours"], per_engine, markdown=True)
     print()
     rows = []
-    order = sorted(tally.items(), key=lambda kv: (kv[0][2], kv[0][3], kv[0][0], kv[0][1]))
-    for (rule, under, n, few), (h, e, r) in order:
-        rows.append([str(n), str(few), f"{rule}:{under:g}", f"{h:.2f}", f"{e / h:.2f}", f"{r / h:.2f}",
+    order = sorted(tally.items(), key=lambda kv: (kv[0][2], kv[0][3], kv[0][4], kv[0][0], kv[0][1]))
+    for (rule, under, n, few, guard), (h, e, r) in order:
+        rows.append([str(n), str(few), guard, f"{rule}:{under:g}", f"{h:.2f}", f"{e / h:.2f}", f"{r / h:.2f}",
                      "PASS" if e / h <= BUDGET_PER_H else "FAIL"])
-    print_table(["training runs", "FEW_RUNS", "rule:undercoverage", "normal hours",
+    print_table(["training runs", "FEW_RUNS", "guard", "rule:undercoverage", "normal hours",
                  "false alarms per hour (all rules)", "residual rule per hour",
                  f"<= {BUDGET_PER_H:g} per hour"], rows, markdown=True)
     print(f"work dir {work}; total {time.perf_counter() - t0:.0f} s")
@@ -114,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _judge(normal: Path, bundle: Bundle, seen: _capture, rule: str, under: float, few: int, seed: int,
-           n: int, tally: dict) -> list[str]:
+           n: int, tally: dict, guard: str) -> list[str]:
     """Thresholds by ``rule`` on ``bundle``, the normal runs replayed through the node's code:
     the engine's table row; the hours and episodes added to ``tally``."""
     levels = threshold_levels(seen.calibs, seen.hours, seen.segments, FALSE_ALARMS_PER_HOUR / 2, under, rule)
@@ -123,13 +134,13 @@ def _judge(normal: Path, bundle: Bundle, seen: _capture, rule: str, under: float
     h = sum(s["samples"] for s in rep.beds.values()) / FS / 3600.0
     eps = rep.alarm_episodes
     res = sum(1 for e in eps if e["reason"] == "residual")
-    t = tally[(rule, under, n, few)]
+    t = tally[(rule, under, n, few, guard)]
     t[0] += h
     t[1] += len(eps)
     t[2] += res
     thr = sorted(c.threshold for c in levels.values())
-    return [str(seed), str(n), str(few), f"{rule}:{under:g}", f"{thr[len(thr) // 2]:.2f}", str(len(eps)),
-            str(res), f"{h:.2f}"]
+    return [str(seed), str(n), str(few), guard, f"{rule}:{under:g}", f"{thr[len(thr) // 2]:.2f}",
+            str(len(eps)), str(res), f"{h:.2f}"]
 
 
 if __name__ == "__main__":
