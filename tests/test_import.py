@@ -397,6 +397,8 @@ def test_bad_files_and_maps_one_line(tmp_path: Path, capsys: pytest.CaptureFixtu
     _fails(capsys, [str(tmp_path / "text.tdms"), "--map", str(f["tdms_map"])], out, "not a TDMS file")
     (tmp_path / "cut.mf4").write_bytes(f["mf4"].read_bytes()[:200])
     _fails(capsys, [str(tmp_path / "cut.mf4"), "--map", str(f["mf4_map"])], out, "not a readable MDF4 file")
+    (tmp_path / "cut.tdms").write_bytes(f["tdms"].read_bytes()[:150])
+    _fails(capsys, [str(tmp_path / "cut.tdms"), "--map", str(f["tdms_map"])], out, "cut.tdms: ")
     _fails(capsys, [str(f["mf4"]), "--map", csv_map], out, "an MDF4 file carries its own time")
     _fails(capsys, [str(tmp_path / "s.xyz"), "--map", str(tmp_path / "none.toml")], out, "map file not found")
 

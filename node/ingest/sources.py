@@ -82,6 +82,8 @@ def read_source(path: str, fmt: str, imap: ImportMap) -> dict[str, Series]:
     """Every mapped channel's ``Series`` (contract name -> series), read from ``path``."""
     readers: dict[str, Callable[[str, ImportMap], dict[str, Series]]] = {
         "mf4": _read_mf4, "tdms": _read_tdms, "csv": _read_csv}
+    if fmt != "mf4" and any(cm.group is not None for cm in imap.channels):
+        raise OrdervibError("group (a channel group number) is for MDF4 files only")
     return readers[fmt](path, imap)
 
 
@@ -179,14 +181,45 @@ def _read_tdms(path: str, imap: ImportMap) -> dict[str, Series]:
     except ImportError:
         raise OrdervibError(f"reading TDMS needs npTDMS: {_INSTALL}") from None
     out: dict[str, Series] = {}
-    try:
-        f = TdmsFile.open(path)
-    except Exception as exc:  # a third-party parser on a broken file raises anything
-        raise OrdervibError(f"{path}: not a readable TDMS file ({_first_line(exc)})") from None
-    with f:
-        for cm in imap.channels:
-            out[cm.channel] = _tdms_series(f, path, cm, imap)
+    with _library_warnings("nptdms") as said:
+        try:
+            try:
+                f = TdmsFile.open(path)
+            except Exception as exc:  # a third-party parser on a broken file raises anything
+                raise OrdervibError(f"{path}: not a readable TDMS file ({_first_line(exc)})") from None
+            with f:
+                for cm in imap.channels:
+                    out[cm.channel] = _tdms_series(f, path, cm, imap)
+        except OrdervibError as exc:
+            if said:  # what the library noticed first (a cut file) tells more
+                raise OrdervibError(f"{exc} (npTDMS: {said[0]})") from None
+            raise
+    for text in said:
+        log.warning("%s: npTDMS: %s", path, text)
     return out
+
+
+@contextmanager
+def _library_warnings(name: str) -> Iterator[list[str]]:
+    """The warnings of library logger ``name`` in this block, collected (first line each) instead
+    of shown: the caller says them in its own line."""
+    said: list[str] = []
+
+    class _Collect(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            said.append(_first_line(Exception(record.getMessage())))
+
+    handler = _Collect(logging.WARNING)
+    names = [n for n in list(logging.root.manager.loggerDict) if n == name or n.startswith(name + ".")]
+    loggers = [logging.getLogger(n) for n in names or [name]]  # npTDMS: a handler per module's logger
+    saved = [(lg, lg.handlers[:], lg.propagate) for lg in loggers]
+    for lg in loggers:
+        lg.handlers, lg.propagate = [handler], False
+    try:
+        yield said
+    finally:
+        for lg, handlers, propagate in saved:
+            lg.handlers, lg.propagate = handlers, propagate
 
 
 def _tdms_channel(f: Any, path: str, name: str, group: Any = None) -> tuple[Any, Any]:
