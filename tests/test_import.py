@@ -446,3 +446,20 @@ def test_existing_out_is_never_overwritten(tmp_path: Path, capsys: pytest.Captur
     assert out.read_bytes() == b"keep"
     assert main([*argv, "--force"]) == 0
     assert check_indexed(out) == 160
+
+
+def test_format_by_option_and_slots_bound(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A file of any name is read as --format says; a source whose 40 Hz grid would pass the
+    bound per channel is refused before the grid is built."""
+    f = _small(tmp_path)
+    dat = tmp_path / "s.dat"
+    dat.write_bytes(f["csv"].read_bytes())
+    out = tmp_path / "o.mcap"
+    _fails(capsys, [str(dat), "--map", str(f["csv_map"])], out, "which format?")
+    assert main(["import", str(dat), "--map", str(f["csv_map"]), "--format", "csv", "--out", str(out),
+                 "--quiet"]) == 0
+    assert check_indexed(out) == 160
+    (tmp_path / "long.csv").write_text("time,speed,amp\n" + "".join(
+        f"{1_767_600_000.0 + 0.9 * i!r},1,1\n" for i in range(600_000)))  # 6.25 days at 40 Hz
+    _fails(capsys, [str(tmp_path / "long.csv"), "--map", str(f["csv_map"])], tmp_path / "o2.mcap",
+           "more than 20000000 per channel")

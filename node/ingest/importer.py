@@ -19,7 +19,7 @@ import numpy as np
 from node.contract import FS, OrdervibError, is_phase_channel, run_starts
 from node.contract.payload import T_MAX
 from node.ingest.mapping import ImportMap, load_map
-from node.ingest.resample import to_grid
+from node.ingest.resample import grid_size, to_grid
 from node.ingest.sources import Series, read_source, source_format
 from node.ingest.write import write_grid
 
@@ -66,17 +66,23 @@ def check_series(s: Series, where: str) -> None:
 
 
 def grid_channels(imap: ImportMap, series: dict[str, Series]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each mapped channel in the contract's unit on the 40 Hz grid, map order: (k, x) pairs."""
-    out = []
+    """Each mapped channel in the contract's unit on the 40 Hz grid, map order: (k, x) pairs.
+    Every channel is checked (times, unit, size) before the first is resampled, so a bad one
+    ends the command before any status line."""
+    plan = []
     for cm in imap.channels:
         s = series[cm.channel]
         where = f"{cm.source!r} (for {cm.channel})"
         check_series(s, where)
         scale, offset = cm.affine(s.unit)
         gap = cm.max_gap if cm.max_gap is not None else imap.time.max_gap
+        size = grid_size(s.t, max_gap=gap)
+        if size > MAX_SLOTS:
+            raise OrdervibError(f"{where}: {size} samples at {FS:g} Hz, more than {MAX_SLOTS} per channel")
+        plan.append((cm, s, scale, offset, gap))
+    out = []
+    for cm, s, scale, offset, gap in plan:
         k, x = to_grid(s.t, s.v * scale + offset, max_gap=gap, phase=is_phase_channel(cm.channel))
-        if len(k) > MAX_SLOTS:
-            raise OrdervibError(f"{where}: {len(k)} samples at {FS:g} Hz, more than {MAX_SLOTS} per channel")
         log.info("%s <- %s: %d samples at %g Hz (%d null)%s", cm.channel, cm.source, len(k), FS,
                  int(np.isnan(x).sum()), "" if scale == 1 and offset == 0 else
                  f", x {scale:.6g} + {offset:.6g}")
@@ -88,6 +94,8 @@ def import_file(path: str, imap: ImportMap, fmt: str, out: str | os.PathLike | I
                 progress: Callable[[float], None] | None = None) -> ImportReport:
     """Read ``path`` (format ``fmt``, checked by ``source_format``) as ``imap`` says and write the
     contract recording to ``out``; nothing is written when reading or checking fails."""
+    log.debug("reading %s (%s, %.1f MB): %d channels", path, fmt, os.path.getsize(path) / 1e6,
+             len(imap.channels))
     series = read_source(path, fmt, imap)
     grids = grid_channels(imap, series)
     del series

@@ -46,6 +46,21 @@ def to_grid(t: np.ndarray, v: np.ndarray, *, max_gap: float, phase: bool = False
     return np.concatenate(ks), np.concatenate(xs)
 
 
+def grid_size(t: np.ndarray, *, max_gap: float, fs: float = FS) -> int:
+    """An upper bound of the slots ``to_grid`` gives (exact but for one slot per stretch),
+    computed without building them: checked before the arrays are made.
+
+    >>> grid_size(np.array([100.0, 100.1, 200.0, 201.0]), max_gap=1.0)
+    46
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if len(t) == 0:
+        return 0
+    cuts = np.flatnonzero(np.diff(t) > max_gap) + 1
+    first, last = t[np.concatenate([[0], cuts])], t[np.concatenate([cuts - 1, [len(t) - 1]])]
+    return int(np.sum(np.ceil((last - first) * fs) + 1))
+
+
 def _stretch(t: np.ndarray, v: np.ndarray, phase: bool, fs: float) -> tuple[np.ndarray, np.ndarray]:
     """``to_grid`` of samples no further apart than the largest gap interpolated over."""
     k = np.arange(math.ceil(t[0] * fs) - 1, math.floor(t[-1] * fs) + 2, dtype=np.int64)
