@@ -400,6 +400,14 @@ def test_bad_files_and_maps_one_line(tmp_path: Path, capsys: pytest.CaptureFixtu
     (tmp_path / "cut.tdms").write_bytes(f["tdms"].read_bytes()[:150])
     _fails(capsys, [str(tmp_path / "cut.tdms"), "--map", str(f["tdms_map"])], out, "cut.tdms: ")
     _fails(capsys, [str(f["mf4"]), "--map", csv_map], out, "an MDF4 file carries its own time")
+    local = MDF(version="4.10")  # a start time kept as local time of no zone
+    local.header.start_time = dt.datetime(2026, 1, 5, 8, 0, 0)
+    local.append([Signal(np.arange(3.0), np.arange(3.0) / 100, name="speed", unit="rpm"),
+                  Signal(np.arange(3.0), np.arange(3.0) / 100, name="amp", unit="mm/s")])
+    local.save(tmp_path / "local.mf4", overwrite=True)
+    local.close()
+    _fails(capsys, [str(tmp_path / "local.mf4"), "--map", str(f["mf4_map"])], out,
+           "start time 2026-01-05 08:00:00 is a local time without zone: give [time] start")
     _fails(capsys, [str(tmp_path / "s.xyz"), "--map", str(tmp_path / "none.toml")], out, "map file not found")
 
     def bad_map(text: str, src: Path = f["csv"], words: str = "") -> None:
@@ -463,3 +471,15 @@ def test_format_by_option_and_slots_bound(tmp_path: Path, capsys: pytest.Capture
         f"{1_767_600_000.0 + 0.9 * i!r},1,1\n" for i in range(600_000)))  # 6.25 days at 40 Hz
     _fails(capsys, [str(tmp_path / "long.csv"), "--map", str(f["csv_map"])], tmp_path / "o2.mcap",
            "more than 20000000 per channel")
+
+
+def test_the_command_line_imports_neither_library() -> None:
+    """asammdf and npTDMS are imported only when a file of theirs is read: the node and every
+    other command run without them."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from node.cli import build_parser; import node.ingest; build_parser(); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('asammdf', 'nptdms')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"

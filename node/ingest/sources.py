@@ -141,14 +141,24 @@ def _read_mf4(path: str, imap: ImportMap) -> dict[str, Series]:
         raise OrdervibError(f"{path}: not a readable MDF4 file ({failure})")
     out: dict[str, Series] = {}
     try:
-        start = imap.time.start
-        if start is None:
-            start = mdf.header.start_time.timestamp()
+        start = imap.time.start if imap.time.start is not None else _mf4_start(mdf.header, path)
         for cm in imap.channels:
             out[cm.channel] = _mf4_series(mdf, path, cm, start)
     finally:
         mdf.close()
     return out
+
+
+def _mf4_start(header: Any, path: str) -> float:
+    """The MDF4 header's start time, s since the epoch (from its UTC nanoseconds); one line when the
+    file keeps a local time without its zone (the flag MDF4 allows), which no reader can place."""
+    start = header.start_time
+    if start.tzinfo is None:
+        raise OrdervibError(f"{path}: its start time {start:%Y-%m-%d %H:%M:%S} is a local time without "
+                            f"zone: give [time] start = {start:%Y-%m-%dT%H:%M:%S}+HH:MM (its zone) "
+                            "in the map")
+    abs_ns = getattr(header, "abs_time", None)
+    return abs_ns * 1e-9 if isinstance(abs_ns, int) else float(start.timestamp())
 
 
 def _mf4_series(mdf: Any, path: str, cm: ChannelMap, start: float) -> Series:
