@@ -483,3 +483,24 @@ def test_the_command_line_imports_neither_library() -> None:
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('asammdf', 'nptdms')))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]"
+
+
+def test_mdf4_name_in_two_groups_needs_group(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A name found in two MDF4 channel groups is refused in one line unless the map names the
+    group; then that group's channel is read (here at 50 Hz, its own clock)."""
+    start = 1_767_600_000.0
+    mdf = MDF(version="4.10")
+    mdf.header.start_time = dt.datetime.fromtimestamp(start, tz=dt.UTC)
+    fast, slow = np.arange(100) / 100.0, np.arange(50) / 50.0
+    mdf.append([Signal(1000.0 + 0 * fast, fast, name="speed", unit="rpm")])
+    mdf.append([Signal(2000.0 + 100.0 * slow, slow, name="speed", unit="rpm")])
+    mdf.save(tmp_path / "two.mf4", overwrite=True)
+    mdf.close()
+    m = tmp_path / "m.toml"
+    m.write_text('bed = "b1"\n[channels.nB]\nsource = "speed"\n')
+    out = tmp_path / "o.mcap"
+    _fails(capsys, [str(tmp_path / "two.mf4"), "--map", str(m)], out, "in channel groups 0, 1: give group")
+    m.write_text('bed = "b1"\n[channels.nB]\nsource = "speed"\ngroup = 1\n')
+    assert main(["import", str(tmp_path / "two.mf4"), "--map", str(m), "--out", str(out), "--quiet"]) == 0
+    t, v = _read_back_bed(out, "b1")["nB"]
+    assert len(t) == 40 and np.allclose(v, 2000.0 + 100.0 * (t - start), rtol=0, atol=1e-4)  # 0.24 us
