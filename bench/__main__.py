@@ -13,6 +13,7 @@ BENCHMARKS = {
     "faults": "bench.faults",
     "generalise": "bench.generalise",
     "read-speed": "bench.read_speed",
+    "import-speed": "bench.import_speed",
     "train-speed": "bench.train_speed",
     "replay-speed": "bench.replay_speed",
     "rotor": "bench.rotor",

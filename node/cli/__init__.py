@@ -34,6 +34,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "node.cli.demo",
     "node.cli.view",
     "node.cli.recover",
+    "node.cli.ingest",
     "node.cli.router",
 )
 

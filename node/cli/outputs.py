@@ -106,12 +106,22 @@ def _remove(path: str) -> None:
 
 
 @contextmanager
-def replacing(path: str) -> Iterator[str]:
-    """A temporary file name beside ``path``, renamed to ``path`` if the block succeeds."""
+def replacing(path: str, overwrite: bool = True) -> Iterator[str]:
+    """A temporary file name beside ``path``, renamed to ``path`` if the block succeeds.
+
+    overwrite=False: never replaces a file that appeared at ``path`` meanwhile (a hard link
+    that fails if it exists, then the temporary name removed): one-line ``OrdervibError``.
+    """
     tmp = _temp_name(path)
     try:
         yield tmp
-        os.replace(tmp, path)
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise OrdervibError(f"{path} exists: not overwritten") from None
     finally:
         _remove(tmp)
 

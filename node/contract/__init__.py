@@ -10,6 +10,7 @@ own JSON files (``documents``).
 
 from node.contract.errors import OrdervibError
 from node.contract.keys import (
+    CHANNEL_UNITS,
     FS,
     MONITOR_SUBSCRIPTION,
     OFF_FRACTION,
@@ -34,6 +35,7 @@ from node.contract.keys import (
     parse_monitor_key,
     parse_sensor_key,
     phase_channel,
+    run_starts,
     sensor_key,
     sensor_subscription,
     topic_kind,
@@ -54,12 +56,13 @@ from node.contract.payload import check_sample, decode_sample, decode_samples, l
 from node.contract.schedule import OperatingCondition, Schedule, load_schedule
 
 __all__ = [
-    "FS", "MONITOR_SUBSCRIPTION", "OFF_FRACTION", "ORDER_CHANNELS", "PHASE_CHANNELS", "RUN_GAP",
+    "CHANNEL_UNITS", "FS", "MONITOR_SUBSCRIPTION", "OFF_FRACTION", "ORDER_CHANNELS", "PHASE_CHANNELS",
+    "RUN_GAP",
     "SENSOR_CHANNELS",
     "SENSOR_SUBSCRIPTION", "SPEED_CHANNELS", "TopicKind", "bed_matcher", "bed_of", "health_key",
     "is_monitor_key", "is_name", "is_output_key",
     "is_phase_channel", "liveliness_key", "monitor_key", "node_health_key", "oc_key", "parse_monitor_key",
-    "parse_sensor_key", "phase_channel", "sensor_key", "sensor_subscription",
+    "parse_sensor_key", "phase_channel", "run_starts", "sensor_key", "sensor_subscription",
     "topic_kind", "Flag", "HealthMessage", "MonitorMessage", "NodeHealthMessage", "OCMessage", "Phase",
     "Reason", "Refused",
     "SensorSample", "json_schema", "check_sample", "decode_sample", "decode_samples", "log_time_ns",

@@ -26,6 +26,8 @@ import re
 from collections.abc import Callable
 from enum import StrEnum
 
+import numpy as np
+
 FS = 40.0  # nominal sample rate per channel, Hz (section 1)
 RUN_GAP = 60.0  # s without data separate two runs (section 3)
 OFF_FRACTION = 0.05  # the engine is off when every shaft speed is below this fraction of its maximum
@@ -41,6 +43,29 @@ SENSOR_CHANNELS: tuple[str, ...] = (
     "pA", "pB", "pC", "pD",
     "M1", "M2",
 )  # fmt: skip
+
+# The unit of each channel of section 1 ("" for the unitless control signals M1, M2).
+CHANNEL_UNITS: dict[str, str] = {
+    **dict.fromkeys(SPEED_CHANNELS, "rpm"),
+    **dict.fromkeys(ORDER_CHANNELS, "mm/s"),  # peak
+    **{f"t{c}": "degC" for c in "ABCDEFGHI"},
+    **{f"p{c}": "kPa" for c in "ABCD"},
+    "M1": "", "M2": "",
+    **dict.fromkeys(PHASE_CHANNELS, "deg"),  # lag from the once-per-rev mark, in [-180, 180)
+}
+
+
+def run_starts(t: np.ndarray) -> np.ndarray:
+    """Where a new run starts in sorted times t (K,) s by the gap rule of section 3 (a gap of
+    ``RUN_GAP`` s or more): the indices i (int64, ascending, never 0) with t[i] - t[i-1] >= 60 s.
+    The other half of the rule (every shaft speed below ``OFF_FRACTION`` of its maximum) needs
+    the speeds: ``node.training.runs``.
+
+    >>> run_starts(np.array([0.0, 0.025, 59.0, 119.0, 119.025])).tolist()
+    [3]
+    """
+    return np.flatnonzero(np.diff(np.asarray(t, dtype=float)) >= RUN_GAP) + 1
+
 
 PREFIX = "testbed"
 SENSOR_SUBSCRIPTION = f"{PREFIX}/*/sensor/**"  # every test bed's sensors

@@ -18,11 +18,11 @@ import numpy as np
 from node.contract import (
     FS,
     OFF_FRACTION,
-    RUN_GAP,
     SENSOR_CHANNELS,
     SPEED_CHANNELS,
     decode_samples,
     parse_sensor_key,
+    run_starts,
 )
 from node.contract.slotting import ChannelPhase
 from node.mcap.reader import ReadStats, Source, read_payloads
@@ -168,7 +168,7 @@ def _bed_runs(
     tops = np.where(np.isfinite(tops) & (tops > 0), tops, np.inf)
 
     order = np.argsort(t, kind="stable")  # t, v, col stay in recorded order, channel by channel
-    cuts = np.flatnonzero(np.diff(t[order]) >= RUN_GAP) + 1
+    cuts = run_starts(t[order])
     runs: list[Run] = []
     last_on_end: float | None = None
     for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [len(t)]]), strict=True):
