@@ -1,6 +1,6 @@
 """Held-out accuracy on engines the defaults were not chosen on (issues 13 and 30's judge).
 
-    python -m bench generalise [--set report|dev|all] [--workdir DIR]
+    python -m bench generalise [--set report|dev|all] [--workdir DIR] [--reuse]
 
 Each engine of the set is simulated by the project's simulator (its own seed: its own
 rotor, imbalance, bow and thermal history; shutdowns between runs of 10 minutes to 12 hours),
@@ -15,12 +15,16 @@ prints the mean held-out eps_td of
   issue 30) or learning how their anchor fades (``CurveModel.decay``),
 * ``default, held`` / ``default``: ``ordervib train [--no-fade]``, which use the order's
   phase (the recordings carry it: ``yB_ph``), and which kind won the OC,
+* ``no phase, guarded`` / ``default, guarded``: the same models as ``no phase`` and
+  ``default`` with the curve guard on (``node.runtime.guard``: within an OC visit the curve
+  where the model erred more so far); the four columns before are scored with it off,
 * ``curve``: the characteristic-curve baseline,
 
 all measured in this one run, then per set the mean, the OCs worse than the curve by more than
 5 %, and the same for the first OC of each run (the one after a start, where a bow is). The
 defaults were chosen on the ``dev`` engines only; ``report`` (the default set) holds the
-others. Simulated recordings are kept in --workdir and reused.
+others. Simulated recordings are kept in --workdir and reused; with ``--reuse`` the models
+found there too (trained by an earlier run of this bench: say which code trained them).
 """
 
 from __future__ import annotations
@@ -89,20 +93,25 @@ def train_quietly(train: Path, schedule: Path, model: Path, options: dict) -> bo
     return True
 
 
-def held_out(model: Path, train: Path, test: Path) -> list[tuple[str, float, str]]:
-    """Per OC: (name, held-out eps_td, model kind), the history derived through the training
-    runs first (as a node that ran them would have it)."""
+def held_out(model: Path, tr: list, te: list, guard: bool) -> list[tuple[str, float, str]]:
+    """Per OC: (name, held-out eps_td, model kind) over the held-out runs ``te``, the history
+    derived through the training runs ``tr`` first (as a node that ran them would have it);
+    guard: the curve guard on with the product's settings, else off (whatever the bundle says)."""
+    import dataclasses
+
     from node.models.bundle import load_bundle
+    from node.models.config import RuntimeConfig
     from node.runtime.history import HISTORY_CHANNELS
     from node.training.dataset import with_history
     from node.training.evaluation import evaluate
-    from node.training.fit import load_runs
 
     b = load_bundle(model)
-    tr, te = load_runs([str(train)], quiet=True), load_runs([str(test)], quiet=True)
+    product = RuntimeConfig()
+    config = dataclasses.replace(b.config, guard_wait_s=product.guard_wait_s if guard else 0.0,
+                                 guard_margin=product.guard_margin)
     if any(c in HISTORY_CHANNELS for c in b.inputs):
         te = with_history(tr + te, b.schedule, b.config)[len(tr):]
-    evals, _ = evaluate(b.ocs, te, b.schedule, b.target, b.curve, b.config)
+    evals, _ = evaluate(b.ocs, te, b.schedule, b.target, b.curve, config)
     kinds = {r.name: r.kind for r in b.ocs}
     return [(e.name, e.eps, kinds[e.name]) for e in evals]
 
@@ -113,14 +122,22 @@ def engine_args(name: str, default_set: str, argv: list[str] | None) -> tuple[Pa
     ap = argparse.ArgumentParser(prog=f"python -m bench {name}")
     ap.add_argument("--set", choices=[*SETS, "all"], default=default_set)
     ap.add_argument("--workdir", help="keep the simulated recordings here (default: a new temp folder)")
+    if name == "generalise":
+        ap.add_argument("--reuse", action="store_true",
+                        help="reuse the models found in --workdir (else each is trained afresh)")
     args = ap.parse_args(argv)
     work = Path(args.workdir or tempfile.mkdtemp(prefix=f"ordervib-{name}-"))
     work.mkdir(parents=True, exist_ok=True)
+    global REUSE
+    REUSE = bool(getattr(args, "reuse", False))
     return work, args.set, SETS["dev"] + SETS["report"] if args.set == "all" else SETS[args.set]
 
 
-COLUMNS = (("no phase, held", {"phase": False, "fade": False}), ("no phase", {"phase": False}),
-           ("default, held", {"fade": False}), ("default", {}))
+COLUMNS: tuple[tuple[str, dict], ...] = (
+    ("no phase, held", {"phase": False, "fade": False}), ("no phase", {"phase": False}),
+    ("default, held", {"fade": False}), ("default", {}))
+GUARDED = (("no phase, guarded", 1), ("default, guarded", 3))  # the curve guard on that column's model
+REUSE = False  # --reuse: the models already in the work dir
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -134,23 +151,27 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         train, test = simulate(e, work)
         schedule = train.with_suffix(".schedule.toml")
-        scores = []
+        scores, models = [], []
+        tr, te = load_runs([str(train)], quiet=True), load_runs([str(test)], quiet=True)
         for name, extra in COLUMNS:
             model = work / f"{e.name}-{name.replace(', ', '-').replace(' ', '-')}"
-            if not train_quietly(train, schedule, model, extra):
+            reused = REUSE and (model / "manifest.json").exists()
+            if not reused and not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")
                 return 2
-            scores.append(held_out(model, train, test))
+            scores.append(held_out(model, tr, te, guard=False))
+            models.append(model)
+        scores += [held_out(models[c], tr, te, guard=True) for _, c in GUARDED]
         sched = load_schedule(schedule)
-        base = baseline_eps(load_runs([str(train)], quiet=True), load_runs([str(test)], quiet=True),
-                            sched, "yB")
+        base = baseline_eps(tr, te, sched, "yB")
         print(f"\n{e.name} (seed {e.seed}, schedule {e.schedule}, noise x{e.noise:g}; "
               f"{time.perf_counter() - t0:.0f} s)")
-        print("| OC | " + " | ".join(n for n, _ in COLUMNS) + " | default's model | curve |")
-        print("|---|" + "---|" * (len(COLUMNS) + 2))
+        labels = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED]
+        print("| OC | " + " | ".join(labels) + " | default's model | curve |")
+        print("|---|" + "---|" * (len(labels) + 2))
         for k, (oc, b) in enumerate(zip([s[0] for s in scores[0]], base)):
             eps = [col[k][1] for col in scores]
-            kind = scores[-1][k][2]
+            kind = scores[len(COLUMNS) - 1][k][2]
             print(f"| {oc} | " + " | ".join(f"{v:.3f}" for v in eps) + f" | {kind} | {b:.3f} |")
             rows.append((e.name, k, oc, eps, b, kind))
         mine = np.array([r[3] + [r[4]] for r in rows if r[0] == e.name], dtype=float)
@@ -163,16 +184,16 @@ def main(argv: list[str] | None = None) -> int:
     a = np.array([r[3] for r in rows], dtype=float)
     curve = np.array([r[4] for r in rows], dtype=float)
     first = np.array([r[1] == 0 for r in rows])
-    for c, (label, _) in enumerate(COLUMNS):
+    for c, label in enumerate([n for n, _ in COLUMNS] + [n for n, _ in GUARDED]):
         v, worse = a[:, c], a[:, c] > 1.05 * curve
         print(f"| {label} | {np.nanmean(v):.3f} | {int(worse.sum())} of {v.size} | "
               f"{np.nanmean(v[first]):.3f} | {int(worse[first].sum())} of {int(first.sum())} |")
     print(f"| characteristic curve | {np.nanmean(curve):.3f} | - | {np.nanmean(curve[first]):.3f} | - |")
-    for held, new in ((0, 1), (2, 3)):
+    labels = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED]
+    for held, new in ((0, 1), (2, 3), (0, 4), (2, 5)):
         change = 100 * (np.nanmean(a[:, new]) / np.nanmean(a[:, held]) - 1)
         change_first = 100 * (np.nanmean(a[first, new]) / np.nanmean(a[first, held]) - 1)
-        print(f"{COLUMNS[new][0]} against {COLUMNS[held][0]}: {change:+.1f} % "
-              f"(first OCs {change_first:+.1f} %)")
+        print(f"{labels[new]} against {labels[held]}: {change:+.1f} % (first OCs {change_first:+.1f} %)")
     return 0
 
 

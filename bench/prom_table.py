@@ -69,15 +69,15 @@ def main(argv: list[str] | None = None) -> int:
         schedule = train.with_suffix(".schedule.toml")
         held: dict[str, dict[str, tuple[float, str]]] = {}
         cvs: dict[str, dict[str, float]] = {}
+        tr, te = load_runs([str(train)], quiet=True), load_runs([str(test)], quiet=True)
         for name, extra in VARIANTS.items():
             model = work / f"{e.name}-{name.lower()}"
             if not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")
                 return 2
-            held[name] = {oc: (eps, kind) for oc, eps, kind in held_out(model, train, test)}
+            held[name] = {oc: (eps, kind) for oc, eps, kind in held_out(model, tr, te, guard=False)}
             cvs[name] = _cv(model)
-        base = baseline_eps(load_runs([str(train)], quiet=True), load_runs([str(test)], quiet=True),
-                            load_schedule(schedule), "yB")
+        base = baseline_eps(tr, te, load_schedule(schedule), "yB")
         print(f"\n{e.name} (seed {e.seed}, schedule {e.schedule}, noise x{e.noise:g}; "
               f"{time.perf_counter() - t0:.0f} s)")
         print("| OC | pROM (CV) | WDMD (CV) | Delay-DMD (CV) | curve | default (CV) | default's model |")

@@ -35,9 +35,10 @@ from typing import Any
 import numpy as np
 import orjson
 
-from node.contract import FS, OrdervibError, is_output_key, log_time_ns
-from node.mcap import ReadStats, RecordingWriter, iter_messages_fast, message_time_span
+from node.contract import FS, OrdervibError, TopicKind, is_output_key, log_time_ns, topic_kind
+from node.mcap import ReadStats, RecordingWriter, iter_messages_fast, message_time_span, recorded_topics
 from node.models.bundle import Bundle, Model
+from node.runtime.clock import ClockPolicy
 from node.runtime.core import NodeCore, recording_order
 
 BATCH = 4096  # messages per batch
@@ -66,8 +67,9 @@ class ReplayReport:
 class _Logic:
     """NodeCore plus what replay needs around it: encoded outputs and the report."""
 
-    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None) -> None:
-        self.core = NodeCore(bundle, engines)
+    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None,
+                 clock: ClockPolicy | None = None) -> None:
+        self.core = NodeCore(bundle, engines, clock=clock)
         self.encode = encode
 
     def _outputs(self, outs) -> list[Encoded]:
@@ -94,8 +96,9 @@ class _Logic:
 class _InProcess:
     workers = 0
 
-    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None) -> None:
-        self.logic = _Logic(bundle, encode, engines)
+    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None,
+                 clock: ClockPolicy | None = None) -> None:
+        self.logic = _Logic(bundle, encode, engines, clock)
         self.done: deque = deque()
 
     def submit(self, keys, payloads, recv) -> None:
@@ -111,11 +114,12 @@ class _InProcess:
         pass
 
 
-def _serve(bundle: Bundle | Model, encode: bool, engines: dict | None, tasks, results) -> None:
+def _serve(bundle: Bundle | Model, encode: bool, engines: dict | None, clock: ClockPolicy | None,
+           tasks, results) -> None:
     """The worker process: batches in, encoded outputs out, in order; None ends."""
     gc.disable()
     try:
-        logic = _Logic(bundle, encode, engines)
+        logic = _Logic(bundle, encode, engines, clock)
         while (task := tasks.get()) is not None:
             results.put(("batch", logic.batch(*task)))
         results.put(("finish", logic.finish()))
@@ -128,12 +132,13 @@ class _Forked:
 
     workers = 1
 
-    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None) -> None:
+    def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None,
+                 clock: ClockPolicy | None = None) -> None:
         self.finished = False
         ctx = multiprocessing.get_context("fork")
         self.tasks, self.results = ctx.Queue(), ctx.Queue()
-        self.proc = ctx.Process(target=_serve, args=(bundle, encode, engines, self.tasks, self.results),
-                                name="ordervib-replay", daemon=True)
+        self.proc = ctx.Process(target=_serve, name="ordervib-replay", daemon=True,
+                                args=(bundle, encode, engines, clock, self.tasks, self.results))
         self.proc.start()
 
     def submit(self, keys, payloads, recv) -> None:
@@ -209,6 +214,28 @@ def _u64(values: Iterable[int], n: int) -> np.ndarray:
     return np.fromiter(values, dtype=np.uint64, count=n)
 
 
+CLOCK_SCAN = 200_000  # messages a node's first health message is looked for in (20 beds: ~12 s)
+
+
+def recorded_clock(recording: str) -> ClockPolicy | None:
+    """The clock guard the node that wrote ``recording`` ran with: from its first own health
+    message (``ordervib/node/<id>/health``, field ``clock``) among the first ``CLOCK_SCAN``
+    messages; None when there is none (a test bed's recording, an older node's). A malformed
+    one is an ``OrdervibError`` (one line)."""
+    topics = recorded_topics(recording)
+    if topics is not None and not any(topic_kind(t) is TopicKind.NODE_HEALTH for t in topics):
+        return None  # a finished recording without a node's health: nothing to look for
+    for m in islice(iter_messages_fast(recording, ReadStats()), CLOCK_SCAN):
+        if topic_kind(m.topic) is not TopicKind.NODE_HEALTH:
+            continue
+        try:
+            settings = orjson.loads(m.payload).get("clock")
+            return None if settings is None else ClockPolicy.from_settings(settings)
+        except (orjson.JSONDecodeError, AttributeError, ValueError) as exc:
+            raise OrdervibError(f"{recording}: the node's clock settings in {m.topic}: {exc}") from None
+    return None
+
+
 def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int | None = None,
            engines: dict | None = None,
            progress: Callable[[float, int], None] | None = None) -> ReplayReport:
@@ -217,13 +244,15 @@ def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int
     engines: each bed's engine history before the recording (``node.runtime.history``;
     default: derived from the recording alone, its first run taken as a cold start).
     progress: called after each batch with the fraction of the recording's time span read
-    (when its summary tells the span) and the messages read."""
+    (when its summary tells the span) and the messages read. The beds' clock guard is the one
+    the recording's node said it ran with (``recorded_clock``), else the default."""
     workers = default_workers() if workers is None else workers
     stats = ReadStats()
     gc_was_on = gc.isenabled()
     gc.disable()  # no reference cycles are made here; collections would only cost time
     t0 = time.perf_counter()
-    engine = (_Forked if workers > 0 else _InProcess)(bundle, out is not None, engines)
+    clock = recorded_clock(recording)
+    engine = (_Forked if workers > 0 else _InProcess)(bundle, out is not None, engines, clock)
     writer = None
     n_in = 0
     try:

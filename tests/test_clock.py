@@ -212,3 +212,46 @@ def test_a_data_gap_within_a_run_is_followed_at_once():
     assert len(_measured(monitor, T0 + 30)) >= 199
     h = core.health("b1", wall=0.0)
     assert (h["clock_faults"], h["clock_jumps"]) == (0, 1)
+
+
+# -- the clock guard's settings: the command line, the node's health, the replay
+
+def test_clock_options_are_checked_before_anything_opens(tmp_path, capsys):
+    from node.cli import main
+
+    for option, value, word in (("--clock-jump", "0", "--clock-jump: max_jump_s"),
+                                ("--clock-jump", "nan", "--clock-jump: max_jump_s"),
+                                ("--clock-hold", "inf", "--clock-hold: hold_s"),
+                                ("--clock-hold", "0.5", "--clock-hold: confirm_span_s")):
+        assert main(["run", "--model", str(tmp_path / "none"), "--record", str(tmp_path / "n.mcap"),
+                     option, value]) == 2
+        err = capsys.readouterr().err.strip()
+        assert word in err and "\n" not in err, err
+        assert not (tmp_path / "n.mcap").exists()
+
+
+def test_a_replay_guards_the_clock_as_the_recording_node_did(tmp_path):
+    """A node run without the guard (``--clock-jump inf``) took a sample stamped an hour ahead
+    and lost the bed's later slots to it; the replay of its recording, told so by the node's
+    health, does the same, and a recording without a node's health is guarded by default."""
+    from node.mcap import RecordingWriter
+    from node.runtime.clock import ClockPolicy
+    from replay.offline import recorded_clock, replay
+
+    msgs = _stream(400)
+    msgs.insert(400, ("testbed/b1/sensor/nB", orjson.dumps({"t": T0 + 3600.0, "v": 4000.0})))
+    unguarded = ClockPolicy(max_jump_s=float("inf"))
+    health = orjson.dumps({"t": T0, "clock": unguarded.settings()})
+    for name, with_health in (("bed.mcap", False), ("node.mcap", True)):
+        with RecordingWriter(str(tmp_path / name)) as w:
+            if with_health:
+                w.write("ordervib/node/abc/health", T0, health, int(T0 * NS))
+            for k, (key, payload) in enumerate(msgs):
+                w.write(key, orjson.loads(payload)["t"], payload, int(T0 * NS) + k * NS // 80)
+    assert recorded_clock(str(tmp_path / "bed.mcap")) is None
+    assert recorded_clock(str(tmp_path / "node.mcap")) == unguarded
+    guarded, free = (replay(str(tmp_path / n), _bundle(), None, workers=0) for n in ("bed.mcap", "node.mcap"))
+    assert guarded.beds["b1"]["late"] == 0
+    assert free.beds["b1"]["late"] > 100  # the hour-ahead sample moved the bed's clock
+    core = NodeCore(_bundle(), clock=unguarded)
+    assert core.clock == unguarded

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from node.cli.outputs import check_new_files, check_output
 from node.contract.errors import OrdervibError
+from node.runtime.clock import ClockPolicy
 
 NAME = "run"
 HELP = "the live node: subscribe to test beds over Zenoh, predict, publish, record to MCAP"
@@ -47,6 +48,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bed-expiry", type=float, default=None, metavar="S",
                    help="free a bed's state after S seconds without a message from it (default 300); "
                         "its last health message says expired, a new message admits it afresh")
+    p.add_argument("--clock-jump", type=float, default=None, metavar="S",
+                   help="a sample further than S seconds from its bed's clock is held apart until the "
+                        "bed's other channels confirm the jump, else counted as a clock fault (default "
+                        "1; inf: no guard); docs/clock.md")
+    p.add_argument("--clock-hold", type=float, default=None, metavar="S",
+                   help="bed time a held-apart clock waits for confirmation before its samples are "
+                        "dropped as clock faults (default 2, above 1)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing recording (or rotated files of that name); without it "
@@ -84,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     given = (("max_beds", args.max_beds), ("max_channels", args.max_channels),
              ("bed_expiry_s", args.bed_expiry))
     limits = {name: value for name, value in given if value is not None}
+    clock = clock_policy(args.clock_jump, args.clock_hold)
     listen = args.listen
     if not (listen or args.connect or config_file_endpoints(args.zenoh_config)):
         listen = [DEFAULT_ENDPOINT]
@@ -100,5 +109,16 @@ def run(args: argparse.Namespace) -> int:
     else:
         record = RecordingWriter(args.record, deferred=True, exclusive=not args.force)
     run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file, args.beds,
-             **limits)
+             clock=clock, **limits)
     return 0
+
+
+def clock_policy(jump: float | None, hold: float | None) -> ClockPolicy:
+    """The clock guard ``--clock-jump`` and ``--clock-hold`` ask for (the others: the defaults);
+    a value ``ClockPolicy`` refuses is one line naming the option."""
+    try:
+        return ClockPolicy(max_jump_s=ClockPolicy.max_jump_s if jump is None else jump,
+                           hold_s=ClockPolicy.hold_s if hold is None else hold)
+    except ValueError as exc:
+        option = "--clock-jump" if str(exc).startswith("max_jump_s") else "--clock-hold"
+        raise OrdervibError(f"{option}: {exc}") from None

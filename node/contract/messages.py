@@ -187,6 +187,8 @@ class NodeHealthMessage(TypedDict):
                                                 "1e6 / R minus this; null before any"]
     worker_lag_s: Annotated[float, "the age (receive time to now, node's clock) of the oldest "
                                    "message waiting in the node's queue, s; 0 when none waits"]
+    clock: Annotated[dict[str, float | None], "the beds' clock guard: max_jump_s (s; null: no guard) "
+                                              "and hold_s (s); a replay of the recording guards alike"]
 
 
 MESSAGE_TYPES: dict[TopicKind, type] = {

@@ -87,6 +87,7 @@ from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle, Model
+from node.runtime.clock import ClockPolicy
 from node.runtime.core import MAX_BEDS, MAX_CHANNELS, NodeCore, recording_order
 
 log = logging.getLogger(__name__)
@@ -145,7 +146,7 @@ class LiveNode:
                  connect: list[str] | None = None, config_file: str | None = None,
                  queue_size: int = 1_000_000, engine_file: str | None = None, beds: str = "*",
                  max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
-                 bed_expiry_s: float = BED_EXPIRY_S) -> None:
+                 bed_expiry_s: float = BED_EXPIRY_S, clock: ClockPolicy | None = None) -> None:
         self.subscription = sensor_subscription(beds)  # ValueError for a bad pattern, before any I/O
         if not bed_expiry_s > 0:
             raise ValueError(f"bed_expiry_s must be > 0, got {bed_expiry_s}")
@@ -153,7 +154,7 @@ class LiveNode:
         self.bed_expiry_s = bed_expiry_s
         self.engine_file = engine_file  # each bed's engine history (node.live.engine_file)
         self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None,
-                             beds=beds, max_beds=max_beds, max_channels=max_channels)
+                             beds=beds, max_beds=max_beds, max_channels=max_channels, clock=clock)
         self._engine_saved: dict = {}  # what the file holds now
         self._engine_next = 0.0  # monotonic time of the next save
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
@@ -398,7 +399,8 @@ class LiveNode:
                 "tracked": len(self.core.beds), "max_beds": self.core.max_beds,
                 "max_channels": self.core.max_channels, "expired": self.stats.expired,
                 "recording": self.recording, "unrecorded": self.unrecorded,
-                "cpu_us_per_message": self._cpu_us, "worker_lag_s": self._worker_lag()}
+                "cpu_us_per_message": self._cpu_us, "worker_lag_s": self._worker_lag(),
+                "clock": self.core.clock.settings()}
 
     def _worker_lag(self) -> float:
         """The age of the oldest message waiting in the queue (s; 0 when none waits)."""
@@ -506,7 +508,7 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
              listen: list[str] | None, connect: list[str] | None, config_file: str | None,
              duration: float | None, engine_file: str | None = None, beds: str = "*",
              max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
-             bed_expiry_s: float = BED_EXPIRY_S) -> LiveStats:
+             bed_expiry_s: float = BED_EXPIRY_S, clock: ClockPolicy | None = None) -> LiveStats:
     """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged.
 
     Raises ``OrdervibError`` (one line) when the worker thread died (the watchdog stops
@@ -518,7 +520,8 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
         signal.signal(sig, lambda *_: stop.set())
     deadline = None if duration is None else time.monotonic() + duration
     with LiveNode(bundle, record, listen, connect, config_file, engine_file=engine_file, beds=beds,
-                  max_beds=max_beds, max_channels=max_channels, bed_expiry_s=bed_expiry_s) as node:
+                  max_beds=max_beds, max_channels=max_channels, bed_expiry_s=bed_expiry_s,
+                  clock=clock) as node:
         where = listen or connect or f"the endpoints of {config_file}"
         log.info("ordervib node on %s, serving beds %s; recording to %s; Ctrl-C stops", where, beds, record)
         while node.thread.is_alive():  # the watchdog

@@ -19,6 +19,7 @@ from node.mcap.reader import (
     message_time_span,
     open_recording,
     read_payloads,
+    recorded_topics,
     warn_unfinished,
 )
 from node.mcap.rotation import RotatingRecorder, rotated_path
@@ -27,6 +28,6 @@ from node.mcap.writer import SCHEMA_NAMES, McapWriter, RecordingWriter, schema_k
 __all__ = [
     "LIBRARY", "MAGIC", "Channel", "Compression", "Opcode", "Schema", "Message", "ReadStats", "Recording",
     "copy_messages", "iter_messages", "iter_messages_fast", "message_time_span", "open_recording",
-    "read_payloads", "warn_unfinished",
+    "recorded_topics", "read_payloads", "warn_unfinished",
     "RotatingRecorder", "rotated_path", "McapWriter", "RecordingWriter", "SCHEMA_NAMES", "schema_kind",
 ]

@@ -318,6 +318,19 @@ def message_time_span(path: str) -> tuple[int, int] | None:
     return int(stats.message_start_time), int(stats.message_end_time)
 
 
+def recorded_topics(path: str) -> set[str] | None:
+    """A finished recording's topics from its summary (its Channel records); None when it has
+    no summary (an unfinished file) or cannot be read (the reading proper reports that)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+    except Exception:  # noqa: BLE001 - any failure here only means: not known
+        return None
+    return None if summary is None else {c.topic for c in summary.channels.values()}
+
+
 def warn_unfinished(logger: logging.Logger, path: str, read: str) -> None:
     """Say that recording ``path`` is unfinished (no footer) and what was read of it: the one
     warning every reader of a recording gives for an unfinished file."""

@@ -79,6 +79,29 @@ class ClockPolicy:
             if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {getattr(self, name)!r}")
 
+    def settings(self) -> dict[str, float | None]:
+        """What a node says of its guard (its health, so that a replay of its recording guards
+        alike): ``max_jump_s`` (None: no guard) and ``hold_s``.
+
+        >>> p = ClockPolicy(max_jump_s=math.inf, hold_s=3.0)
+        >>> p.settings(), ClockPolicy.from_settings(p.settings()) == p
+        ({'max_jump_s': None, 'hold_s': 3.0}, True)
+        """
+        return {"max_jump_s": None if math.isinf(self.max_jump_s) else self.max_jump_s, "hold_s": self.hold_s}
+
+    @classmethod
+    def from_settings(cls, d: object) -> ClockPolicy:
+        """The policy ``settings`` gave; a ``ValueError`` (one line) for anything else."""
+        if not isinstance(d, dict) or set(d) != {"max_jump_s", "hold_s"}:
+            raise ValueError(f"clock settings must be an object of max_jump_s and hold_s, got {d!r}")
+        jump, hold = d["max_jump_s"], d["hold_s"]
+        for name, v in (("max_jump_s", jump), ("hold_s", hold)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise ValueError(f"clock setting {name} must be a number, got {v!r}")
+        if hold is None:
+            raise ValueError("clock setting hold_s must be a number, got None")
+        return cls(max_jump_s=math.inf if jump is None else float(jump), hold_s=float(hold))
+
 
 @dataclass
 class Candidate:

@@ -46,6 +46,7 @@ from node.contract import (
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import AlignedSample, Aligner
+from node.runtime.clock import ClockPolicy
 from node.runtime.history import HISTORY_CHANNELS, EngineState
 from node.runtime.pipeline import MonitorPipeline
 
@@ -140,16 +141,19 @@ class NodeCore:
     """
 
     def __init__(self, model: Bundle | Model, engines: Mapping[str, EngineState] | None = None,
-                 beds: str = "*", max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS) -> None:
+                 beds: str = "*", max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
+                 clock: ClockPolicy | None = None) -> None:
         """engines: each bed's engine history before (a state file's); others start unknown.
         beds: the pattern of the beds admitted (``sensor_subscription``'s); max_beds: beds tracked
-        at once at most; max_channels: channels per bed at most (the model's always admitted)."""
+        at once at most; max_channels: channels per bed at most (the model's always admitted);
+        clock: every bed's clock guard (``ClockPolicy``; default its defaults)."""
         if max_beds < 1 or max_channels < 1:
             raise ValueError(f"max_beds and max_channels must be >= 1, got {max_beds}, {max_channels}")
         self.model = as_model(model)
         self._admits = bed_matcher(beds)  # ValueError for a bad pattern
         self.max_beds = max_beds
         self.max_channels = max_channels
+        self.clock = clock or ClockPolicy()
         self._engines = dict(engines or {})
         # the slow temperatures feed the bed's engine history when any target's models use it
         self._slow_temperatures = any(c in HISTORY_CHANNELS for b in self.model.bundles for c in b.inputs)
@@ -390,7 +394,7 @@ class NodeCore:
                                                slow_temperatures=self._slow_temperatures)
                                for b in self.model.bundles[1:]]
             channels = sorted({c for p in pipes for c in p.sensor_channels})
-            aligner = Aligner(channels, max_wait=self.model.config.align_wait_s)
+            aligner = Aligner(channels, max_wait=self.model.config.align_wait_s, clock=self.clock)
             keys = [monitor_key(name, p.target) for p in pipes]
             bed = self.beds[name] = Bed(aligner, pipes, keys, frozenset(channels))
         return bed
