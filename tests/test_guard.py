@@ -139,3 +139,19 @@ def test_the_node_and_the_evaluation_guard_alike_where_the_curve_knows_better(ca
         manifest["runtime"].pop(key)
     (tmp_path / "m" / "manifest.json").write_text(json.dumps(manifest))
     assert load_bundle(tmp_path / "m").config.guard_wait_s == 0.0
+
+
+def test_a_prediction_that_measures_nothing_is_never_guarded(campaign):
+    """``predict`` feeds the node its own chained prediction as the target: the guard would
+    compare the model with itself, so ``predict_runs`` runs the node ``unguarded``."""
+    import inspect
+
+    from node.runtime.guard import unguarded
+    from node.training import prediction
+
+    bundle = load_bundle(campaign / "m")
+    model = unguarded(bundle)
+    assert bundle.config.guard_wait_s > 0
+    assert [b.config.guard_wait_s for b in model.bundles] == [0.0]
+    assert model.bundles[0].ocs is bundle.ocs and model.bundles[0].curve is bundle.curve
+    assert "NodeCore(unguarded(m)" in inspect.getsource(prediction.predict_runs)

@@ -26,12 +26,14 @@ with a 5 s wait gained most there, a margin of 0 to 0.5 all alike.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
 from node.contract import FS
 from node.models.baseline import FleetCurve
+from node.models.bundle import Bundle, Model, as_model
 from node.models.config import RuntimeConfig
 
 CURVE = "@curve"  # a model id's suffix where the node predicted with the characteristic curve
@@ -109,3 +111,11 @@ def guard_of(curve: tuple[np.ndarray, np.ndarray] | None, config: RuntimeConfig)
     if config.guard_wait_s <= 0 or curve is None:
         return None
     return CurveGuard(FleetCurve(*curve), max(1, round(config.guard_wait_s * FS)), config.guard_margin)
+
+
+def unguarded(model: Bundle | Model) -> Model:
+    """``model`` with the curve guard off in every target: for a prediction that measures
+    nothing (``ordervib predict``), where the guard has no errors to compare."""
+    m = as_model(model)
+    return Model(tuple(dataclasses.replace(b, config=dataclasses.replace(b.config, guard_wait_s=0.0))
+                       for b in m.bundles))

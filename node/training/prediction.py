@@ -63,6 +63,7 @@ from node.models.baseline import bin_sums
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.align import AlignedSample
 from node.runtime.core import NodeCore
+from node.runtime.guard import unguarded
 from node.runtime.history import (
     HISTORY_CHANNELS,
     SLOW_TEMPERATURES,
@@ -687,7 +688,7 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
     widths = widths if widths is not None else IntervalWidths.from_cv(m)
     uses_phase = [phase_channel(b.target) in MonitorPipeline(b).channels for b in m.bundles]
     fleet = [b.curve for b in m.bundles]
-    core = NodeCore(m, {_BED: engine} if engine is not None else None)
+    core = NodeCore(unguarded(m), {_BED: engine} if engine is not None else None)  # nothing measured
     keys = {monitor_key(_BED, tg): j for j, tg in enumerate(targets)}
     history = HistoryTracker(OCDetector(sched, m.config).off_level, m.config.history_cooling, engine)
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "run", "inputs", "oc", "pred", "raw", "code",
