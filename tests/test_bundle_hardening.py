@@ -132,6 +132,13 @@ def bad(good: Path) -> dict[str, tuple[Path, list[str]]]:
     def runtime(key: str, value: float) -> Callable[[dict], str]:
         return lambda m: json.dumps({**m, "runtime": {**m["runtime"], key: value}})
 
+    def residual(key: str, value: object) -> Callable[[dict], str]:
+        def edit(m: dict) -> str:
+            oc = next(d for d in m["ocs"] if d["residual"] is not None)
+            oc["residual"][key] = value
+            return json.dumps(m)
+        return edit
+
     def digits(m: dict) -> str:
         m["ocs"][0]["n_runs"] = 0
         return json.dumps(m).replace('"n_runs": 0', '"n_runs": ' + "9" * 5000, 1)
@@ -157,12 +164,21 @@ def bad(good: Path) -> dict[str, tuple[Path, list[str]]]:
                               ["runtime.history_s", "1e+300", "(0, 600] s"]),
         "align_wait_s = 1e300": (_variant(good, "align", runtime("align_wait_s", 1e300)),
                                  ["runtime.align_wait_s", "1e+300", "[0, 10] s"]),
+        "sigma = 0": (_variant(good, "sigma", residual("sigma", 0.0)), ["residual.sigma", "positive"]),
+        "threshold = -3": (_variant(good, "threshold", residual("threshold", -3.0)),
+                           ["residual.threshold", "-3.0"]),
+        "ewma_alpha = 7": (_variant(good, "alpha", residual("ewma_alpha", 7)),
+                           ["residual.ewma_alpha", "(0, 1]"]),
+        "persist = 1e12": (_variant(good, "persist", residual("persist", 1e12)),
+                           ["residual.persist", "24000"]),
+        "cv_peaks of strings": (_variant(good, "peaks", residual("cv_peaks", ["x"])), ["residual.cv_peaks"]),
     }
 
 
 FINDINGS = ["5000-digit integer", "deep nesting", "truncated npz", "2**40 elements",
             "unknown 1 GiB member", "known name, 1 GiB", "integer array", "history_s = 1e300",
-            "align_wait_s = 1e300"]
+            "align_wait_s = 1e300", "sigma = 0", "threshold = -3", "ewma_alpha = 7", "persist = 1e12",
+            "cv_peaks of strings"]
 
 
 def _one_line(err: str, *words: str) -> str:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import os
 import re
 from collections.abc import Callable
@@ -304,9 +305,7 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
                                           d["model"]["repaired"])
             calib = None
             if d["residual"] is not None:
-                c = d["residual"]
-                calib = Calibration(c["sigma"], c["threshold"], c["ewma_alpha"], c["persist"],
-                                    tuple(float(x) for x in c.get("cv_peaks", [])))
+                calib = _calibration(d["name"], d["residual"])
             envelope, outside = None, None
             if d.get("envelope") is not None:  # (bundles before it had none: no envelope)
                 e = d["envelope"]
@@ -369,6 +368,36 @@ def _expected_arrays(manifest: dict) -> Callable[[str], bool]:
 
 NUMERIC_CHECKS = ("flatline_samples", "step_threshold", "run_scale_prior_ocs", "residual_cv_undercoverage",
                   "vector_step_threshold", "vector_drift_threshold")
+
+
+MAX_PERSIST = 600 * 40  # samples: an on-delay beyond 10 min never raises within a plateau
+MAX_PEAKS = 100_000  # CV segments' peaks a calibration keeps at most
+
+
+def _calibration(oc: str, c: object) -> Calibration:
+    """An OC's stored residual rule, each number within its range (a ``ValueError`` naming the
+    OC and the field): sigma a positive finite number (target unit), threshold positive
+    (sigma units; inf: never raised), ewma_alpha in (0, 1], persist a whole number of samples
+    in [1, ``MAX_PERSIST``], cv_peaks at most ``MAX_PEAKS`` finite non-negative numbers."""
+    if not isinstance(c, dict):
+        raise ValueError(f"{oc}: residual must be an object")
+
+    def number(key: str, ok: Callable[[float], bool], want: str) -> float:
+        v = c.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not ok(float(v)):
+            raise ValueError(f"{oc}: residual.{key} must be {want}, got {v!r}")
+        return float(v)
+
+    sigma = number("sigma", lambda v: 0 < v < math.inf, "a positive finite number")
+    threshold = number("threshold", lambda v: v > 0, "a positive number")
+    alpha = number("ewma_alpha", lambda v: 0 < v <= 1, "in (0, 1]")
+    persist = number("persist", lambda v: v == int(v) and 1 <= v <= MAX_PERSIST,
+                     f"a whole number in [1, {MAX_PERSIST}]")
+    peaks = c.get("cv_peaks", [])
+    if not isinstance(peaks, list) or len(peaks) > MAX_PEAKS or not all(
+            not isinstance(x, bool) and isinstance(x, (int, float)) and 0 <= x < math.inf for x in peaks):
+        raise ValueError(f"{oc}: residual.cv_peaks must be at most {MAX_PEAKS} finite non-negative numbers")
+    return Calibration(sigma, threshold, alpha, int(persist), tuple(float(x) for x in peaks))
 
 
 def _checks(d: object) -> dict:
