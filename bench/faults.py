@@ -39,6 +39,7 @@ import argparse
 import hashlib
 import json
 import math
+import shutil
 import tempfile
 import time
 from collections import Counter
@@ -65,10 +66,11 @@ class Setup:
     model uses the order phases the recordings always hold (``train --no-phase`` when not)."""
 
     def __init__(self, schedule: SimSchedule = BUILT_IN_SCHEDULE, noise_scale: float = 1.0,
-                 phase: bool = True) -> None:
+                 phase: bool = True, guard: bool = True) -> None:
         self.schedule = schedule
         self.noise_scale = float(noise_scale)
         self.phase = phase
+        self.guard = guard  # False: the replays run the model with its curve guard off
 
     def model_name(self, method: str) -> str:
         """The model's folder in an engine's work dir (with and without phase side by side)."""
@@ -180,6 +182,8 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
         make.train([train], work / "train.schedule.toml", model, method=method, target="yB",
                    phase=setup.phase)
         stamp.write_text(json.dumps(trained_on) + "\n")
+    if not setup.guard:
+        model = _unguarded_copy(model)
     s = make.replay(normal, model)
     hours = sum(b["samples"] for b in s.beds.values()) / FS / 3600.0
     bundle = load_bundle(model)
@@ -192,6 +196,18 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
             print(f"[engine {seed}] {fault} x{size:g}: done ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
     return rows, hours, s.alarm_episodes
+
+
+def _unguarded_copy(model: Path) -> Path:
+    """A copy of the model folder beside it (``-unguarded``) with the curve guard off
+    (``runtime.guard_wait_s`` 0; ``node.runtime.guard``), made afresh each time."""
+    out = model.with_name(model.name + "-unguarded")
+    shutil.rmtree(out, ignore_errors=True)
+    shutil.copytree(model, out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest["runtime"]["guard_wait_s"] = 0.0
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    return out
 
 
 def _sizes_of(fault: str, sizes: tuple[float, ...]) -> tuple[float, ...]:
@@ -218,12 +234,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-phase", dest="phase", action="store_false",
                     help="the model ignores the order phases (train --no-phase; same recordings, "
                          "its own model folder model-METHOD-nophase)")
+    ap.add_argument("--guard", choices=["on", "off"], default="on",
+                    help="replay with the curve guard on (the product's) or off (node.runtime.guard)")
     args = ap.parse_args(argv)
     if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
         ap.error(f"--noise-scale must be > 0 and finite, got {args.noise_scale!r}")
     try:
         setup = Setup(BUILT_IN_SCHEDULE if args.schedule is None else load_sim_schedule(args.schedule),
-                      args.noise_scale, args.phase)
+                      args.noise_scale, args.phase, args.guard == "on")
     except OrdervibError as e:
         ap.error(f"--schedule: {e}")
     faults = tuple(x.strip() for x in args.faults.split(",") if x.strip())
@@ -253,7 +271,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"schedule {setup.schedule.source} ({len(setup.schedule.ocs)} OCs: "
           f"{', '.join(f'{o.name} {o.speed:g}' for o in setup.schedule.ocs)} rpm); "
           f"noise scale {setup.noise_scale:g}; "
-          f"order phases {'used' if setup.phase else 'ignored (--no-phase)'}")
+          f"order phases {'used' if setup.phase else 'ignored (--no-phase)'}; "
+          f"curve guard {'on' if setup.guard else 'off'}")
     print()
     w = f"{DELAY_TARGET_S:.0f} s"
     print("| engine | fault | size | instance | onset OC | onset s into run | first alarm after onset, s "
