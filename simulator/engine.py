@@ -23,7 +23,7 @@ IP_SHAFT = Shaft(
     speed="nB",
     out="yB",
     modes=(
-        Mode(rpm=4500.0, zeta=0.10, phi=0.6, kappa=2.0e-4),
+        Mode(rpm=4500.0, zeta=0.07, phi=0.8, kappa=2.0e-4),
         Mode(rpm=8350.0, zeta=0.05, phi=-1.0, kappa=2.0e-4),
         Mode(rpm=9650.0, zeta=0.03, phi=0.5, kappa=2.0e-4),
     ),
