@@ -53,6 +53,7 @@ from node.contract import FS
 
 HALF_POWER = 1.0 / math.sqrt(2.0)
 NOISE_DROP = 6.0  # a peak's drop to half power must be this many noise sigmas
+BIC_MARGIN = 10.0  # how much lower a fit with one mode more must bring the BIC
 ZETA_RANGE = (0.005, 0.4)  # damping ratios a fitted mode may have (AF 1.25-100)
 
 
@@ -294,7 +295,7 @@ def bode(speed: np.ndarray, amplitude: np.ndarray, phase: np.ndarray | None = No
         re = np.bincount(idx, v.real, nb)[keep]
         im = np.bincount(idx, v.imag, nb)[keep]
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean_v = (re + 1j * im) / nv
+            mean_v: np.ndarray = (re + 1j * im) / nv
         mean_v[nv == 0] = np.nan
         if slow_roll is not None:
             mean_v = mean_v - slow_roll
@@ -385,11 +386,34 @@ def _peak_speed(x: np.ndarray, a: np.ndarray, i: int) -> float:
     return float(np.clip(-c1 / (2 * c2), x0, x2))
 
 
-def _fit_modes(x: np.ndarray, v: np.ndarray, start: list[tuple[float, float]]
-               ) -> tuple[list[tuple[float, float]], float] | None:
+@dataclass(frozen=True)
+class _ModalFit:
+    """A fit of modes to complex vectors: modes [(Nc, zeta)], its BIC, the complex
+    coefficients [c0, c1, A_1, B_1, ...] and the speed normalisation of the c1 term."""
+
+    modes: list[tuple[float, float]]
+    bic: float
+    coef: np.ndarray
+    mid: float
+    span: float
+
+    def mode(self, k: int, x: np.ndarray) -> np.ndarray:
+        """Mode k's own response (B,) at speeds x (B,)."""
+        nc, zeta = self.modes[k]
+        r = x / nc
+        d = 1 - r**2 + 2j * zeta * r
+        return np.asarray(self.coef[2 + 2 * k] * r**2 / d + self.coef[3 + 2 * k] * r / d)
+
+    def others(self, k: int, x: np.ndarray) -> np.ndarray:
+        """The other modes' response (B,) at speeds x (B,): all the fitted modes but mode k."""
+        return np.asarray(sum((self.mode(j, x) for j in range(len(self.modes)) if j != k),
+                              np.zeros(len(x), dtype=complex)))
+
+
+def _fit_modes(x: np.ndarray, v: np.ndarray, start: list[tuple[float, float]]) -> _ModalFit | None:
     """Critical speeds and damping ratios of sum_m (A_m r_m^2 + B_m r_m) / (1 - r_m^2 + 2j zeta_m
     r_m) + c0 + c1 N fitted to the complex vectors v (B,) at speeds x (B,) from ``start``
-    [(Nc, zeta)], and the fit's Bayesian information criterion (lower: better, over the
+    [(Nc, zeta)], with the fit's Bayesian information criterion (lower: better, over the
     bins fitted: compare fits of the same bins only); None if it fails.
 
     A_m: the imbalance's modal force; B_m with the other terms spans a force that does not
@@ -431,7 +455,15 @@ def _fit_modes(x: np.ndarray, v: np.ndarray, start: list[tuple[float, float]]
     k = 2 * len(x)  # real residuals
     rss = float(np.sum(fit.fun**2)) + 1e-300
     bic = k * math.log(rss / k) + (2 * m + 4 * m + 4) * math.log(k)  # 2m nonlinear, 4m + 4 linear
-    return [(float(fit.x[2 * j]), float(fit.x[2 * j + 1])) for j in range(m)], bic
+    coef, *_ = np.linalg.lstsq(basis(fit.x), v, rcond=None)
+    return _ModalFit([(float(fit.x[2 * j]), float(fit.x[2 * j + 1])) for j in range(m)], bic, coef,
+                     mid, span)
+
+
+def _max(a: np.ndarray) -> float:
+    """The largest finite value of a, -inf if none."""
+    f = a[np.isfinite(a)]
+    return float(f.max()) if len(f) else -math.inf
 
 
 def _amplitude_peaks(x: np.ndarray, a: np.ndarray, smooth: int, noise: float = 0.0
@@ -442,7 +474,7 @@ def _amplitude_peaks(x: np.ndarray, a: np.ndarray, smooth: int, noise: float = 0
     response's sigma) or more."""
     n = len(a)
     peaks = [i for i in range(1, n - 1) if np.isfinite(a[i])
-             and a[i] >= np.nanmax(a[max(0, i - smooth):i]) and a[i] > np.nanmax(a[i + 1:i + 1 + smooth])]
+             and a[i] >= _max(a[max(0, i - smooth):i]) and a[i] > _max(a[i + 1:i + 1 + smooth])]
     out: list[tuple[int, float, float, float]] = []
     for i in sorted(peaks, key=lambda k: -a[k]):
         if a[i] * (1 - HALF_POWER) < NOISE_DROP * noise:
@@ -502,6 +534,13 @@ def _phase_candidates(x: np.ndarray, vs: np.ndarray, smooth: int, min_af: float
     return out
 
 
+def _distinct(modes: list[tuple[float, float]]) -> bool:
+    """Whether fitted modes [(Nc, zeta)] lie apart by more than their mean half-power half-width
+    (two modes closer than that are one mode described twice)."""
+    s = sorted(modes)
+    return all(b[0] - a[0] > 0.5 * (a[0] * a[1] + b[0] * b[1]) for a, b in zip(s, s[1:]))
+
+
 def af_of_zeta(zeta: float, power: float = 2.0) -> float:
     """The half-power AF of the single-mode unbalance response r^power / |1 - r^2 + 2j zeta r|
     (the inverse of ``zeta_from_af``).
@@ -527,11 +566,12 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
     """The resonances of one ramp's Bode data, in ascending speed.
 
     With phase: where the phase lag turns as a mode's does (``_phase_candidates``, AF at least
-    ``min_af``); neighbouring ones are fitted together (a sum of modes and a constant vector
-    to the complex vectors over their bands): each mode's critical speed and damping. Its AF
-    is the half-power one where the amplitude has a clean peak at that mode (both half-power
-    points inside the ramp, no other critical between them), else the half-power AF of the
-    fitted mode's own response (``af_method``). Without phase: each clean amplitude peak
+    ``min_af``); neighbouring ones are fitted together (a sum of modes and a background to
+    the complex vectors over their bands; with one mode more where that fits better by the
+    BIC): each mode's critical speed and damping. Its AF is the half-power one of the
+    measured vectors less the other fitted modes, where that has a clean peak at the mode
+    (both half-power points inside the fitted band), else the half-power AF of the fitted
+    mode's own response (``af_method``). Without phase: each clean amplitude peak
     (half-power method, critical and damping read through the single-mode response).
     Resonances below ``min_amplitude`` (input units) at their peak are left out; power: the
     exponent of r in the single-mode response (2: an unbalance response in displacement,
@@ -542,8 +582,6 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
     found: list[Critical] = []
     if b.vector is not None and np.isfinite(b.vector).sum() >= len(x) // 2:
         vs = _moving_average(b.vector, smooth)
-        a = np.where(np.isfinite(vs), np.abs(vs), _moving_average(b.response, smooth))
-        peaks = _amplitude_peaks(x, a, smooth, _noise(np.abs(b.vector), smooth))
         for options in _phase_candidates(x, vs, smooth, min_af):
             best = None
             lo = min(g[0][0] - 3 * g[0][1] for g in options)
@@ -551,23 +589,25 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
             band = (x >= lo) & (x <= hi)  # the same bins for every option (their BICs compare)
             for group in options:
                 fitted = _fit_modes(x[band], b.vector[band], [(c, hw / c) for c, hw in group])
-                if fitted is not None and (best is None or fitted[1] < best[1]):
+                if fitted is None or not _distinct(fitted.modes):
+                    continue
+                if best is None or fitted.bic < best.bic - BIC_MARGIN:  # a mode more must pay
                     best = fitted
             if best is None:
                 continue
-            got = best[0]
-            for nc, zeta in got:
+            for k, (nc, zeta) in enumerate(best.modes):
                 if not (ZETA_RANGE[0] <= zeta <= ZETA_RANGE[1]
                         and x[0] <= nc * (1 - 1.5 * zeta) and nc * (1 + 1.5 * zeta) <= x[-1]):
                     continue  # damped past a critical, or its band not inside the ramp
-                others = [o for o, _ in got if o != nc]
-                near = [p for p in peaks if abs(p[3] - nc) <= zeta * nc
-                        and not any(p[1] <= o <= p[2] for o in others)]
-                amp = float(np.nanmax(np.where(np.abs(x - nc) <= max(zeta * nc, x[1] - x[0]), raw, np.nan)))
+                amp = _max(np.where(np.abs(x - nc) <= max(zeta * nc, x[1] - x[0]), raw, np.nan))
                 if not (amp >= min_amplitude and 1.0 / (2.0 * zeta) >= min_af):
                     continue
-                crit = _critical_with_phase(x, vs, nc, zeta, amp, near[0] if near else None, power)
-                found.append(crit)
+                # the mode isolated: the measured vectors of the fitted bins less the other modes
+                own = _moving_average(np.where(band, b.vector - best.others(k, x), np.nan), smooth)
+                own_a = np.abs(own)
+                peak = [p for p in _amplitude_peaks(x, own_a, smooth, _noise(own_a, smooth))
+                        if abs(p[3] - nc) <= zeta * nc]
+                found.append(_critical_with_phase(x, vs, nc, zeta, amp, peak[0] if peak else None, power))
         return sorted(found, key=lambda c: c.speed)
     a = _moving_average(b.response, smooth)
     for i, n1, n2, npk in _amplitude_peaks(x, a, smooth, _noise(b.response, smooth)):
