@@ -13,8 +13,10 @@ node's ``node.runtime.transient.analyse`` with the tracker's lag the truth JSON 
 amplitude and the phase as recorded (noise, dropouts, quantisation).
 
 The truth: every crossing of a critical the simulator made (``criticals`` of each run: the
-mode's critical at the metal temperature of that moment, its damping). Counted are the crossings
-inside a ramp whose half-power band (critical x (1 +- 1.5 zeta)) the ramp covers. Each is
+mode's critical at the metal temperature of that moment, its damping, the steady 1x amplitude
+there). Counted are the crossings inside a ramp whose half-power band (critical x (1 +- 1.5
+zeta)) the ramp covers and whose amplitude at the critical is 1 mm/s or more (a run whose
+imbalance happens to be small shows no resonance above the noise). Each is
 matched to the critical found nearest in speed (within 3 zeta of it); the critical's error
 in %, the half-power AF's (API 684) and the phase fit's against 1 / (2 zeta). Beside them, in
 the same run: the error of the raw amplitude peak without the tracker-lag correction, the
@@ -40,6 +42,7 @@ from node.training.runs import Run, read_runs
 log = logging.getLogger(__name__)
 
 CRITICAL_TARGET = 1.0  # %, |found - truth| / truth
+MIN_RESONANCE = 1.0  # mm/s: crossings whose steady 1x amplitude at the critical is lower are not counted
 AF_TARGET = 20.0  # %
 TARGETS = (("yA", "nA"), ("yB", "nB"), ("yC", "nC"))
 SCHEDULE = """# bench transients: ramps through the simulated engine's criticals
@@ -75,9 +78,11 @@ def _cell(x: float | None, fmt: str = "{:+.2f}") -> str:
 
 
 def _covered(crossing: dict, lo: float, hi: float) -> bool:
-    """Whether a ramp over shaft speeds lo..hi covers the crossing's half-power band."""
+    """Whether a ramp over shaft speeds lo..hi covers the crossing's half-power band (with
+    some margin) and the resonance stands out (MIN_RESONANCE at the critical)."""
     half = 1.5 * crossing["zeta"] * crossing["speed"]
-    return lo <= crossing["speed"] - half and crossing["speed"] + half <= hi
+    return (lo <= crossing["speed"] - half and crossing["speed"] + half <= hi
+            and crossing.get("amplitude", 0.0) >= MIN_RESONANCE)
 
 
 def engine_rows(seed: int, work: Path, runs: int, plateau_scale: float, noise_scale: float

@@ -274,14 +274,16 @@ def simulate_run(
         if fault == "stiffness" and shaft.out == "yB":
             ramp = np.clip((profile.t - onset) / STIFFNESS_RAMP, 0.0, 1.0)
             stiffness = {STIFFNESS_MODE: 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size * ramp}
-        vector = rotor.tracked(rotor.order(shaft, sig[shaft.speed], metal, unbalance, bow, stiffness))
+        steady = rotor.order(shaft, sig[shaft.speed], metal, unbalance, bow, stiffness)
+        vector = rotor.tracked(steady)
         sig[shaft.out] = rotor.tracked_amplitude(vector)
         sig[phase_channel(shaft.out)] = rotor.tracked_phase(vector)
         truth_run["imbalance"][shaft.out] = [
             [round(abs(u), 7), round(float(np.degrees(np.angle(u))), 2)] for u in u_run
         ]
         truth_run["bow_start_mm"][shaft.out] = round(abs(b0), 7)
-        truth_run["criticals"][shaft.out] = crossings(shaft, profile.t, sig[shaft.speed], metal, stiffness)
+        truth_run["criticals"][shaft.out] = crossings(shaft, profile.t, sig[shaft.speed], metal, stiffness,
+                                                      np.abs(steady))
     sig["metal"] = metal
     end_state = {
         "metal": float(metal[-1]),
@@ -303,13 +305,16 @@ def _right_angle(shaft: rotor.Shaft, speed: np.ndarray, metal: np.ndarray, unbal
 
 
 def crossings(shaft: rotor.Shaft, t: np.ndarray, speed: np.ndarray, metal: np.ndarray,
-              stiffness: dict[int, np.ndarray] | None = None) -> list[dict]:
+              stiffness: dict[int, np.ndarray] | None = None,
+              amplitude: np.ndarray | None = None) -> list[dict]:
     """Every crossing of a critical speed in a run (ground truth), in time order.
 
     t: (K,) s from the run's start; speed: (K,) shaft rpm (clean); metal: (K,) °C; stiffness:
-    per-mode fault factor (K,). One dict per crossing: ``mode`` (index), ``t_s`` (s from the
-    run's start), ``speed`` (the critical speed then, rpm), ``rate_rpm_s`` (the shaft's speed
-    rate then, + up, - down), ``zeta`` and ``af`` (1 / (2 zeta)) of the mode.
+    per-mode fault factor (K,); amplitude: (K,) the steady 1x amplitude (mm/s). One dict per
+    crossing: ``mode`` (index), ``t_s`` (s from the run's start), ``speed`` (the critical
+    speed then, rpm), ``rate_rpm_s`` (the shaft's speed rate then, + up, - down), ``zeta`` and
+    ``af`` (1 / (2 zeta)) of the mode, ``amplitude`` (the steady 1x amplitude then, mm/s;
+    with ``amplitude``).
     """
     out = []
     rate = np.gradient(speed, t)
@@ -319,14 +324,17 @@ def crossings(shaft: rotor.Shaft, t: np.ndarray, speed: np.ndarray, metal: np.nd
         d = speed - crit
         for j in np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) < 0):
             f = d[j] / (d[j] - d[j + 1])  # linear interpolation between samples j and j + 1
-            out.append({
+            c = {
                 "mode": i,
                 "t_s": round(float(t[j] + f * (t[j + 1] - t[j])), 4),
                 "speed": round(float(crit[j] + f * (crit[j + 1] - crit[j])), 3),
                 "rate_rpm_s": round(float(rate[j] + f * (rate[j + 1] - rate[j])), 3),
                 "zeta": round(mode.zeta, 6),
                 "af": round(1.0 / (2.0 * mode.zeta), 4),
-            })
+            }
+            if amplitude is not None:
+                c["amplitude"] = round(float(amplitude[j] + f * (amplitude[j + 1] - amplitude[j])), 4)
+            out.append(c)
     return sorted(out, key=lambda c: c["t_s"])
 
 

@@ -23,8 +23,8 @@ IP_SHAFT = Shaft(
     speed="nB",
     out="yB",
     modes=(
-        Mode(rpm=4500.0, zeta=0.07, phi=0.8, kappa=2.0e-4),
-        Mode(rpm=8350.0, zeta=0.05, phi=-1.0, kappa=2.0e-4),
+        Mode(rpm=4500.0, zeta=0.07, phi=0.6, kappa=2.0e-4),
+        Mode(rpm=8350.0, zeta=0.035, phi=-1.0, kappa=2.0e-4),
         Mode(rpm=9650.0, zeta=0.03, phi=0.5, kappa=2.0e-4),
     ),
     residual=-5.0e-7,
@@ -53,7 +53,7 @@ SHAFTS = (LP_SHAFT, IP_SHAFT, HP_SHAFT)
 
 # Imbalance scale per shaft (mm of modal displacement per unit participation).
 UNBALANCE_SCALE = {"yA": 2.4e-3, "yB": 1.3e-3, "yC": 3.0e-4}
-BOW_SCALE = {"yA": 3.0e-3, "yB": 6.0e-3, "yC": 8.0e-4}  # max bow after a hot shutdown, mm
+BOW_SCALE = {"yA": 3.0e-3, "yB": 3.0e-3, "yC": 8.0e-4}  # max bow after a hot shutdown, mm
 
 
 @dataclass(frozen=True)

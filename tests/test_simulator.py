@@ -366,8 +366,8 @@ def test_noise_scale_in_truth(tmp_path: Path) -> None:
 # response of one imbalance vector with the tracker's lag only (session 17: new physics, so new
 # numbers; the speeds, temperatures and every draw are as before).
 GOLDEN = {
-    ("drift", None): "22bfffffaee37f3644120a2b3d1ad2d7233cd10d3867a32a56ab4e2e60139240",
-    ("imbalance", 3): "7cc7ee7f21f52399de5eda77803e7c11859b4d01ea8a09fc034b2f3f875881b9",
+    ("drift", None): "b0c30fb85f4fdcb8701b203d6e543db461d85ecb7d6bfae4a4ef827ea6b59460",
+    ("imbalance", 3): "dc61826fa98f4dbcb1c8738ddb86c0423949caf18268643fdf50b3b249c17710",
 }
 
 

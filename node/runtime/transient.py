@@ -54,7 +54,7 @@ from node.contract import FS
 HALF_POWER = 1.0 / math.sqrt(2.0)
 NOISE_DROP = 6.0  # a peak's drop to half power must be this many noise sigmas
 BIC_MARGIN = 10.0  # how much lower a fit with one mode more must bring the BIC
-ZETA_RANGE = (0.005, 0.4)  # damping ratios a fitted mode may have (AF 1.25-100)
+ZETA_RANGE = (0.01, 0.4)  # damping ratios a fitted mode may have (AF 1.25-50)
 
 
 @dataclass(frozen=True)
