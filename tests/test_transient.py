@@ -235,3 +235,34 @@ def test_stiffness_fault_moves_its_critical_by_the_square_root() -> None:
     mode = SHAFTS[1].modes[campaign.STIFFNESS_MODE]
     assert rotor.critical_rpm(mode, 200.0, campaign.STIFFNESS_FAULT) == pytest.approx(
         np.sqrt(campaign.STIFFNESS_FAULT) * rotor.critical_rpm(mode, 200.0), rel=1e-12)
+
+
+def test_ramp_analyser_sample_by_sample_matches_the_offline_analysis() -> None:
+    """A simulated run (ramps through yB's criticals) fed one sample at a time: one result per
+    ramp, the same criticals as the offline analysis of the ramps found in the whole run,
+    and those near the simulator's crossings."""
+    from node.contract import PHASE_CHANNELS, SENSOR_CHANNELS
+    from node.runtime.transient import RampAnalyser
+    from simulator.campaign import simulate_campaign
+    from simulator.schedule import OC, SimSchedule
+
+    sched = SimSchedule((OC("R1", 6500.0, 20.0, 90.0), OC("R2", 9800.0, 20.0, 80.0)), source="test")
+    run = simulate_campaign(1, 4, schedule=sched, plateau_scale=1.0).runs[0]
+    assert run.phase is not None
+    speed = run.data[:, SENSOR_CHANNELS.index("nB")]
+    amp = run.data[:, SENSOR_CHANNELS.index("yB")]
+    phase = run.phase[:, PHASE_CHANNELS.index("yB_ph")]
+    ra = RampAnalyser(tracker_tau=1.0, min_amplitude=0.2)
+    streamed = [t for t in (ra.step(s, a, p) for s, a, p in zip(speed, amp, phase, strict=True))
+                if t is not None]
+    offline = [analyse(speed[r.start:r.stop], amp[r.start:r.stop], phase[r.start:r.stop],
+                       tracker_tau=1.0, min_amplitude=0.2) for r in find_transitions(speed)]
+    assert [t.direction for t in streamed] == [t.direction for t in offline]
+    assert len(streamed) >= 4  # start, idle -> R1, R1 -> R2, R2 -> idle (and the rundown)
+    for a, b in zip(streamed, offline, strict=True):
+        assert len(a.criticals) == len(b.criticals)
+        for x, y in zip(a.criticals, b.criticals, strict=True):
+            assert x.speed == pytest.approx(y.speed, rel=3e-3)
+    found = [c.speed for t in streamed for c in t.criticals]
+    truth = [c for c in run.truth["criticals"]["yB"] if abs(c["rate_rpm_s"]) > 20]
+    assert found and all(min(abs(f / c["speed"] - 1) for c in truth) < 0.01 for f in found)
