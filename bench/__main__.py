@@ -24,6 +24,7 @@ BENCHMARKS = {
     "stiffness-drift": "bench.stiffness_drift",
     "thresholds": "bench.thresholds",
     "plans": "bench.plans",
+    "transients": "bench.transients",
 }
 
 

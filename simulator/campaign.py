@@ -22,7 +22,7 @@ import numpy as np
 from node.contract import ORDER_CHANNELS, PHASE_CHANNELS, SENSOR_CHANNELS, phase_channel
 from node.contract.vector import wrap_degrees
 from simulator import gaspath, rotor, thermal
-from simulator.engine import SHAFTS, Engine, build_engine
+from simulator.engine import Engine, build_engine
 from simulator.schedule import (
     BUILT_IN_SCHEDULE,
     DEFAULT_OCS,
@@ -62,6 +62,7 @@ PHASE_DECIMALS = 1  # resolution 0.1 degree
 DROPOUT_RATE = 2e-4  # isolated dropouts per sample and channel
 BURSTS_PER_RUN = 0.5  # mean number of dropout bursts (5-60 samples) per channel and run
 STIFFNESS_FAULT = 0.90  # stiffness factor of the 0.95 mode after a stiffness fault
+STIFFNESS_MODE = 2  # index of that mode among yB's
 STIFFNESS_RAMP = 20.0  # s
 DRIFT_RATE = 0.5 / 60.0  # yB drift, mm/s per second
 IMBALANCE_FAULT = 0.9  # added imbalance, times the base imbalance of plane 1
@@ -89,6 +90,7 @@ class Campaign:
     channels: tuple[str, ...] = SENSOR_CHANNELS
     schedule: SimSchedule = BUILT_IN_SCHEDULE
     noise_scale: float = 1.0
+    modes: dict[str, list[dict]] = field(default_factory=dict)  # the engine's (Engine.modes_truth)
 
     @property
     def ocs(self) -> tuple[OC, ...]:
@@ -251,12 +253,13 @@ def simulate_run(
         }
     after = profile.t >= onset if onset is not None else np.zeros(k, dtype=bool)
 
-    for shaft in SHAFTS:
+    truth_run["criticals"] = {}
+    for shaft in engine.shafts:
         base = engine.unbalance[shaft.out]
         # Run-to-run: components re-seat, the imbalance of each plane shifts by ~25 %.
         spread = 0.25 * np.abs(base) * (rng.standard_normal(2) + 1j * rng.standard_normal(2))
         u_run = base + spread
-        unbalance = np.broadcast_to(u_run, (k, 2)).copy()
+        unbalance = np.full(k, u_run.sum(), dtype=complex)  # the planes' sum: every mode sees it
         b0 = thermal.bow_at_start(engine.bow_max[shaft.out], shutdown) * rng.uniform(0.7, 1.3)
         bow = b0 * np.exp(1j * rng.uniform(0, 2 * np.pi)) * heal
         stiffness = None
@@ -267,17 +270,20 @@ def simulate_run(
             if fault == "imbalance-90":
                 extra = _right_angle(shaft, sig[shaft.speed], metal, unbalance, bow, after, abs(extra))
                 truth_run["fault"]["angle_deg"] = 90.0
-            unbalance[after, 0] += extra
+            unbalance[after] += extra
         if fault == "stiffness" and shaft.out == "yB":
             ramp = np.clip((profile.t - onset) / STIFFNESS_RAMP, 0.0, 1.0)
-            stiffness = {2: 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size * ramp}
-        total = rotor.order(shaft, sig[shaft.speed], metal, unbalance, bow, stiffness)
-        sig[shaft.out] = rotor.tracked_amplitude(total)
-        sig[phase_channel(shaft.out)] = rotor.tracked_phase(total)
+            stiffness = {STIFFNESS_MODE: 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size * ramp}
+        steady = rotor.order(shaft, sig[shaft.speed], metal, unbalance, bow, stiffness)
+        vector = rotor.tracked(steady)
+        sig[shaft.out] = rotor.tracked_amplitude(vector)
+        sig[phase_channel(shaft.out)] = rotor.tracked_phase(vector)
         truth_run["imbalance"][shaft.out] = [
             [round(abs(u), 7), round(float(np.degrees(np.angle(u))), 2)] for u in u_run
         ]
         truth_run["bow_start_mm"][shaft.out] = round(abs(b0), 7)
+        truth_run["criticals"][shaft.out] = crossings(shaft, profile.t, sig[shaft.speed], metal, stiffness,
+                                                      np.abs(steady))
     sig["metal"] = metal
     end_state = {
         "metal": float(metal[-1]),
@@ -288,15 +294,48 @@ def simulate_run(
 
 def _right_angle(shaft: rotor.Shaft, speed: np.ndarray, metal: np.ndarray, unbalance: np.ndarray,
                  bow: np.ndarray, after: np.ndarray, size: float) -> complex:
-    """The added plane-1 imbalance (complex mm, modulus ``size``) whose steady order vector at the
+    """The added imbalance (complex mm, modulus ``size``) whose steady order vector at the
     onset (first sample of ``after``) leads the order vector there by 90 degrees."""
     i = int(np.argmax(after))
     one = slice(i, i + 1)
-    unit = np.zeros((1, 2), dtype=complex)
-    unit[0, 0] = 1.0
-    total = rotor.order(shaft, speed[one], metal[one], unbalance[one], bow[one], steady=True)[0]
-    gain = rotor.order(shaft, speed[one], metal[one], unit, np.zeros(1, dtype=complex), steady=True)[0]
+    total = rotor.order(shaft, speed[one], metal[one], unbalance[one], bow[one])[0]
+    gain = rotor.order(shaft, speed[one], metal[one], np.ones(1, dtype=complex),
+                       np.zeros(1, dtype=complex))[0]
     return complex(size * np.exp(1j * (np.angle(total) - np.angle(gain) + np.pi / 2)))
+
+
+def crossings(shaft: rotor.Shaft, t: np.ndarray, speed: np.ndarray, metal: np.ndarray,
+              stiffness: dict[int, np.ndarray] | None = None,
+              amplitude: np.ndarray | None = None) -> list[dict]:
+    """Every crossing of a critical speed in a run (ground truth), in time order.
+
+    t: (K,) s from the run's start; speed: (K,) shaft rpm (clean); metal: (K,) °C; stiffness:
+    per-mode fault factor (K,); amplitude: (K,) the steady 1x amplitude (mm/s). One dict per
+    crossing: ``mode`` (index), ``t_s`` (s from the run's start), ``speed`` (the critical
+    speed then, rpm), ``rate_rpm_s`` (the shaft's speed rate then, + up, - down), ``zeta`` and
+    ``af`` (1 / (2 zeta)) of the mode, ``amplitude`` (the steady 1x amplitude then, mm/s;
+    with ``amplitude``).
+    """
+    out = []
+    rate = np.gradient(speed, t)
+    for i, mode in enumerate(shaft.modes):
+        k = 1.0 if stiffness is None or i not in stiffness else stiffness[i]
+        crit = np.broadcast_to(rotor.critical_rpm(mode, metal, k), speed.shape)
+        d = speed - crit
+        for j in np.flatnonzero(np.sign(d[:-1]) * np.sign(d[1:]) < 0):
+            f = d[j] / (d[j] - d[j + 1])  # linear interpolation between samples j and j + 1
+            c = {
+                "mode": i,
+                "t_s": round(float(t[j] + f * (t[j + 1] - t[j])), 4),
+                "speed": round(float(crit[j] + f * (crit[j + 1] - crit[j])), 3),
+                "rate_rpm_s": round(float(rate[j] + f * (rate[j + 1] - rate[j])), 3),
+                "zeta": round(mode.zeta, 6),
+                "af": round(1.0 / (2.0 * mode.zeta), 4),
+            }
+            if amplitude is not None:
+                c["amplitude"] = round(float(amplitude[j] + f * (amplitude[j + 1] - amplitude[j])), 4)
+            out.append(c)
+    return sorted(out, key=lambda c: c["t_s"])
 
 
 def _sensor_fault(
@@ -362,7 +401,7 @@ def simulate_campaign(
     seq = np.random.SeedSequence(seed)
     engine_ss, fault_ss, *run_ss = seq.spawn(2 + runs)
     engine_rng = np.random.default_rng(engine_ss)
-    engine = build_engine(engine_rng)
+    engine = build_engine(engine_rng, np.random.default_rng(engine_ss.spawn(1)[0]))
     clock = CAMPAIGN_START + float(engine_rng.integers(0, 4 * 3600))
     history: dict = {}
     last_stop: float | None = None
@@ -418,6 +457,10 @@ def simulate_campaign(
         )
         if "fault" in truth_run:
             truth_run["fault"]["onset"] = float(start + truth_run["fault"]["onset_s"])
+        for crossed in truth_run["criticals"].values():
+            for c in crossed:
+                c["t"] = float(start + c["t_s"])
         out.append(SimRun(t=t, data=data, truth=truth_run, phase=phases))
         last_stop = float(t[on_last] + DT)
-    return Campaign(runs=out, schedule=schedule, noise_scale=float(noise_scale))
+    return Campaign(runs=out, schedule=schedule, noise_scale=float(noise_scale),
+                    modes=engine.modes_truth())

@@ -150,7 +150,9 @@ def truth_document(
 ) -> dict:
     """The ground truth of the written runs, as a JSON-ready dict.
 
-    ``phase``: how the order phases were measured, null when none is written.
+    ``phase``: how the order phases were measured, null when none is written; ``rotor``: the
+    engine's modes and the order tracker's lag; each run's ``criticals``: the critical speeds
+    crossed.
     """
     channels = campaign.published if channels is None else channels
     return {
@@ -162,6 +164,17 @@ def truth_document(
         "sample_rate_hz": FS,
         "noise_scale": campaign.noise_scale,
         "schedule": campaign.schedule.truth(),
+        "rotor": {
+            "model": "modal unbalance response (simulator/rotor.py)",
+            "tracker_s": TAU_TRACKER,
+            "modes": campaign.modes,
+            "notes": (
+                "per amplitude channel its modes: rpm_cold is the critical speed (shaft rpm) at "
+                "15 C metal; it falls as sqrt(1 - kappa_per_K (metal - 15)) and with a stiffness "
+                "fault as sqrt(factor); af = 1 / (2 zeta). Each run's criticals list every "
+                "crossing of a critical: t (epoch s), speed (the critical then, rpm), rate_rpm_s."
+            ),
+        },
         "notes": (
             "times are seconds since the Unix epoch; shutdown_before_s is the time from the "
             "previous run's engine stop (every shaft speed below 5 % of its maximum) to this "

@@ -361,11 +361,13 @@ def test_noise_scale_in_truth(tmp_path: Path) -> None:
     assert truth["noise_scale"] == 2.5 and truth["schedule"]["source"] == "built-in"
 
 
-# sha256 of simulate_campaign's numbers (t, data, run truth) as the simulator made them before
-# --schedule and --noise-scale existed: the defaults must keep every number.
+# sha256 of simulate_campaign's numbers (t, data, run truth): the defaults of --schedule and
+# --noise-scale must keep every number. Taken again when the rotor became the modal unbalance
+# response of one imbalance vector with the tracker's lag only (session 17: new physics, so new
+# numbers; the speeds, temperatures and every draw are as before).
 GOLDEN = {
-    ("drift", None): "d2c30f6ce7796a69febf2d38cb0115b7e9977bba0e7d37a5f6787fd97fd71660",
-    ("imbalance", 3): "816c6267a60e83380e85054497528f21c0194de8a4b19f17cb194a9e97d10ec4",
+    ("drift", None): "b0c30fb85f4fdcb8701b203d6e543db461d85ecb7d6bfae4a4ef827ea6b59460",
+    ("imbalance", 3): "dc61826fa98f4dbcb1c8738ddb86c0423949caf18268643fdf50b3b249c17710",
 }
 
 
@@ -475,7 +477,9 @@ def test_phase_channels_are_wrapped_degrees_and_noisier_at_small_amplitude(rec3:
         for amp_ch, ph_ch in zip(ORDER_CHANNELS, PHASE_CHANNELS, strict=True):
             a, p = run.column(amp_ch), run.column(ph_ch)
             ok = np.isfinite(p)
-            assert ok.mean() > 0.5  # most of a run has a phase
+            # most of a run has a phase: about half for yA on these short-plateau runs, whose
+            # LP shaft idles far below its first critical (1x under the unit's 0.1 mm/s)
+            assert ok.mean() > (0.45 if amp_ch == "yA" else 0.5)
             assert np.all((p[ok] >= -180.0) & (p[ok] < 180.0))
             np.testing.assert_array_equal(p[ok], np.round(p[ok], 1))  # 0.1 degree resolution
             # the engine at rest (amplitude rounded to 0.00): no phase
@@ -522,22 +526,24 @@ def test_measured_phase_noise_threshold_and_wrap() -> None:
 def test_tracked_phase_is_the_phase_lag_through_a_resonance() -> None:
     """One mode at a steady speed: the tracked phase is the lag of the analytic response,
     -angle(U) + atan2(2 zeta w W, w^2 - W^2), which grows by 180 degrees through the
-    resonance; its magnitude is the tracked amplitude."""
+    resonance; the tracked amplitude is the modulus of the same tracked vector."""
     from simulator import rotor
 
-    mode = rotor.Mode(rpm=6000.0, zeta=0.05, g=(1.0, 0.0), h=0.0, kappa=0.0, tau=1.0)
+    mode = rotor.Mode(rpm=6000.0, zeta=0.05, phi=1.0, kappa=0.0)
     shaft = rotor.Shaft(speed="nB", out="yB", modes=(mode,), residual=0.0)
     u = 1e-3 * np.exp(1j * np.radians(40.0))
     k = 1200  # 30 s: settled
     got = []
     for rpm in (3000.0, 5700.0, 6000.0, 6300.0, 9000.0):
         total = rotor.order(shaft, np.full(k, rpm), np.full(k, rotor.T_REF),
-                            np.full((k, 2), [u, 0.0]), np.zeros(k, dtype=complex))
+                            np.full(k, u), np.zeros(k, dtype=complex))
+        vector = rotor.tracked(total)
         big, w = rotor.rad_s(rpm), rotor.rad_s(mode.rpm)
         want = -40.0 + np.degrees(np.arctan2(2 * mode.zeta * w * big, w**2 - big**2))
-        phase = rotor.tracked_phase(total)
+        phase = rotor.tracked_phase(vector)
         assert phase[-1] == pytest.approx(want, abs=1e-6)
-        assert rotor.tracked_amplitude(total)[-1] == pytest.approx(abs(total[-1]), rel=1e-9)
+        amp = abs(u) * big**3 / abs(w**2 - big**2 + 2j * mode.zeta * w * big)
+        assert rotor.tracked_amplitude(vector)[-1] == pytest.approx(amp, rel=1e-9)
         got.append(phase[-1])
     assert got == sorted(got) and got[2] == pytest.approx(50.0) and got[-1] - got[0] > 165.0
 
@@ -548,7 +554,7 @@ def _first_run_clean(seed: int, plateau_scale: float) -> dict[str, np.ndarray]:
     from simulator.engine import build_engine
 
     engine_ss, _fault_ss, run_ss = np.random.SeedSequence(seed).spawn(3)
-    engine = build_engine(np.random.default_rng(engine_ss))
+    engine = build_engine(np.random.default_rng(engine_ss), np.random.default_rng(engine_ss.spawn(1)[0]))
     rng = np.random.default_rng(run_ss)
     rng.uniform()  # the shutdown time, unused for the first run
     return simulate_run(engine, rng, np.inf, {}, plateau_scale=plateau_scale)[0]
