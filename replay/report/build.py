@@ -20,6 +20,7 @@ from replay.offline import NodeAlarms, node_alarms
 from replay.report.document import Block, Heading, Panel, render_document
 from replay.report.panels import (
     RunSet,
+    Scores,
     context_panel,
     parameters_panel,
     prediction_panel,
@@ -49,6 +50,21 @@ GISTS = {  # each folded panel's line under its title
 }
 
 
+def summary_panel(model: Model, runs: RunSet, targets: Sequence[str], alarms: NodeAlarms,
+                  step: Callable[[], None] | None = None) -> tuple[Panel, dict[str, Scores]]:
+    """The summary (open, ``SUMMARY``): per target its verdict and its table of the OCs; and the
+    targets' ``Scores`` (panel III shows the same). step: called after each target."""
+    scores: dict[str, Scores] = {}
+    blocks: list[Block] = []
+    for t in targets:
+        scores[t] = score_runs(model[t], runs, model.schedule, t)
+        episodes = target_episodes(alarms, runs, model.schedule, t)
+        blocks += summary_blocks(model[t], runs, model.schedule, t, scores[t], episodes)
+        if step is not None:
+            step()
+    return Panel(SUMMARY[0], SUMMARY[1], blocks, fold=False), scores
+
+
 def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets: Sequence[str],
                  model_name: str = "", alarms: NodeAlarms | None = None,
                  progress: Callable[[float], None] | None = None) -> str:
@@ -75,20 +91,14 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
     step()
     schedule = model.schedule
     log.info("report: the summary")
-    scores, episodes = {}, {}
-    summary: list[Block] = []
-    for t in targets:
-        scores[t] = score_runs(model[t], runs, schedule, t)
-        episodes[t] = target_episodes(alarms, runs, schedule, t)
-        summary += summary_blocks(model[t], runs, schedule, t, scores[t], episodes[t])
-        step()
+    summary, scores = summary_panel(model, runs, targets, alarms, step)
     makers: list[Callable[[str], list[Block]]] = [
         lambda t: context_panel(model[t], runs, schedule, t),
         lambda t: parameters_panel(model[t], runs, schedule, t),
         lambda t: validation_panel(model[t], runs, schedule, t, alarms, scores[t]),
         lambda t: prediction_panel(model[t], runs, schedule, t, scores[t].kinds),
     ]
-    panels = [Panel(SUMMARY[0], SUMMARY[1], summary, fold=False)]
+    panels = [summary]
     for (pid, title), make in zip(PANELS, makers):
         log.info("report: %s", title)
         blocks: list[Block] = []

@@ -1,6 +1,7 @@
 """The report as a document: panels of blocks, rendered to one self-contained HTML page.
 
-Every text goes through ``escape``; figures are embedded as base64 PNG (``figure_html``);
+Every text goes through ``escape``; figures are embedded as base64 PNG with an 8-bit palette
+(``figure_html``, ``paletted``), their smallest text checked against ``MIN_TEXT_PX``;
 the page holds its own CSS and no script, and names no external URL, so it opens from a
 file with no server and no network.
 
@@ -122,15 +123,15 @@ MIN_TEXT_PX = 11.0  # the smallest text a figure should show on the page, CSS px
 
 
 def text_sizes(fig: Any) -> list[float]:
-    """The font sizes (pt) of the texts a drawn figure shows: visible, not empty, not on an axes
-    turned off (its tick labels are never drawn).
+    """The font sizes (pt) of the texts a drawn (saved) figure shows: visible, not empty, not on
+    an axes turned off (its tick labels are never drawn).
 
     >>> from matplotlib.figure import Figure
     >>> fig = Figure(figsize=(2, 2))
     >>> ax = fig.subplots()
     >>> ax.set_title("t", fontsize=12); ax.tick_params(labelsize=7)
     Text(0.5, 1.0, 't')
-    >>> fig.canvas.draw()
+    >>> fig.savefig(io.BytesIO(), format="png")  # drawn: the tick labels have their text
     >>> min(text_sizes(fig)), max(text_sizes(fig))
     (7.0, 12.0)
     """
@@ -157,6 +158,28 @@ def shown_text_px(fig: Any, png: bytes, dpi: float) -> float:
     return min(sizes) * dpi / 72.0 * min(1.0, PAGE_WIDTH_PX / width)
 
 
+def paletted(png: bytes, colours: int = 256) -> bytes:
+    """``png`` with at most ``colours`` colours (an 8-bit palette, no dithering): a plot's lines
+    and text keep their colours and the file is about a third; the original when that is no
+    smaller.
+
+    >>> from matplotlib.figure import Figure
+    >>> fig = Figure(figsize=(3, 2)); _ = fig.subplots().plot([0, 1, 0.5])
+    >>> buf = io.BytesIO(); fig.savefig(buf, format="png", dpi=90)
+    >>> small = paletted(buf.getvalue())
+    >>> len(small) < len(buf.getvalue()) and small[:8] == b"\\x89PNG\\r\\n\\x1a\\n"
+    True
+    """
+    from PIL import Image
+
+    with Image.open(io.BytesIO(png)) as im:
+        rgb = im.convert("RGB")
+    out = io.BytesIO()
+    rgb.quantize(colors=colours, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+        out, format="PNG", optimize=True)
+    return out.getvalue() if out.tell() < len(png) else png
+
+
 def figure_html(fig: Any, alt: str = "", dpi: int = 90) -> str:
     """A matplotlib Figure as ``<img src="data:image/png;base64,...">``; the figure is closed
     (released by pyplot when pyplot made it; a ``matplotlib.figure.Figure`` needs nothing).
@@ -179,8 +202,8 @@ def figure_html(fig: Any, alt: str = "", dpi: int = 90) -> str:
     if px < MIN_TEXT_PX:
         log.warning("report figure %r: its smallest text shows at %.1f px (under %g)", alt[:60], px,
                     MIN_TEXT_PX)
-    data = base64.b64encode(png).decode("ascii")
-    return f'<img alt="{escape(alt)}" data-text-px="{px:.1f}" src="data:image/png;base64,{data}">'
+    data = base64.b64encode(paletted(png)).decode("ascii")
+    return f'<img alt="{escape(alt)}" data-text-px="{px:.2f}" src="data:image/png;base64,{data}">'
 
 
 @dataclass
@@ -237,6 +260,8 @@ span.gist { color: #555; margin-left: .6em; }
 #summary p { margin: .2em 0 .3em; }
 #summary table { font-size: .8em; margin: .2em 0 .6em; }
 #summary th, #summary td { padding: .1em .5em; }
+#summary caption { font-weight: normal; color: #444; }
+#summary td:nth-child(2), #summary thead tr:last-child th:nth-child(2) { text-align: left; }
 td.better { background: #e1f3e1; }
 td.worse { background: #fbe1dd; }
 td.alarm { background: #ffe9a8; font-weight: 600; }

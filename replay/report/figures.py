@@ -8,6 +8,7 @@ Runs keep one colour across a report's figures (``run_colours``).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -24,8 +25,8 @@ def run_colours(n: int) -> list[tuple[float, float, float, float]]:
     return [cmap(x) for x in np.linspace(0.0, 0.9, max(n, 1))][:n]
 
 
-def _grid(n: int, cols: int, width: float, height: float, layout: str | None = None
-          ) -> tuple[Figure, np.ndarray]:
+def _grid(n: int, cols: int, width: float, height: float,
+          layout: Literal["constrained", "tight"] | None = None) -> tuple[Figure, np.ndarray]:
     """A figure of n panels in rows of ``cols``, each width x height inches; unused panels hidden;
     layout: matplotlib's layout engine (None: none, the caller lays it out)."""
     cols = max(1, min(cols, n))

@@ -54,8 +54,11 @@ def verdict(target: str, sets: Sequence[tuple[str, list[str], Sequence[OCScore]]
     >>> head, line = verdict("yB", [("held-out", ["t #1"], s)], s, [])
     >>> head
     'yB: better than the characteristic curve on the held-out runs; no alarm'
-    >>> line.split("; ")[0]
-    'Held-out runs (t #1): mean eps_td 0.100 over 1 OCs against the curve 0.200, better in 1 of 1'
+    >>> line.split(". ")[0]
+    "Held-out runs (t #1): mean eps_td 0.100 over 1 OCs against the curve's 0.200, better in 1 of 1"
+    >>> head, line = verdict("yB", [("held-out", ["t #1"], s)], s, [Episode("t #1", "OC1", 3.0, 1.0, "step")])
+    >>> head.split("; ")[1], line.split(". ")[-1]
+    ('1 alarm episode(s)', '1 alarm episode(s), by reason step 1; by OC OC1 1.')
     >>> verdict("yB", [("in-sample", ["a #1"], s)], s, [])[0]
     'yB: no held-out run, the errors below are in-sample (CV eps_td estimates new runs); no alarm'
     """
@@ -66,8 +69,8 @@ def verdict(target: str, sets: Sequence[tuple[str, list[str], Sequence[OCScore]]
     for kind, labels, scores in sets:
         m, c, n, better = _means(scores)
         shown = ", ".join(labels[:4]) + (f" and {len(labels) - 4} more" if len(labels) > 4 else "")
-        text = (f"{TABLE_WORDS[kind].capitalize()} runs ({shown}): mean eps_td {_f(m)} over {n} OCs "
-                f"against the curve {_f(c)}, better in {better} of {n}")
+        text = (f"{TABLE_WORDS[kind]} runs ({shown}): mean eps_td {_f(m)} over {n} OCs "
+                f"against the curve's {_f(c)}, better in {better} of {n}")
         if kind == IN_SAMPLE:
             text += " (how the model fits its training data)"
         parts.append(text)
@@ -83,9 +86,10 @@ def verdict(target: str, sets: Sequence[tuple[str, list[str], Sequence[OCScore]]
     if episodes:
         reasons = Counter(e.reason for e in episodes)
         where = Counter(e.oc for e in episodes)
-        parts.append(f"{len(episodes)} alarm episode(s): "
-                     + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())) + " in "
-                     + ", ".join(f"{oc} ({v})" for oc, v in where.most_common(5)))
+        parts.append(f"{len(episodes)} alarm episode(s), by reason "
+                     + ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())) + "; by OC "
+                     + ", ".join(f"{oc} {v}" for oc, v in where.most_common(5))
+                     + (" ..." if len(where) > 5 else ""))
     if held is None:
         head = "no held-out run, the errors below are in-sample (CV eps_td estimates new runs)"
     elif np.isfinite(held[0]) and np.isfinite(held[1]):
@@ -94,7 +98,7 @@ def verdict(target: str, sets: Sequence[tuple[str, list[str], Sequence[OCScore]]
     else:
         head = "no OC of the held-out runs scored"
     head += f"; {len(episodes)} alarm episode(s)" if episodes else "; no alarm"
-    return f"{target}: {head}", "; ".join(parts) + "."
+    return f"{target}: {head}", " ".join(p[0].upper() + p[1:] + "." for p in parts)
 
 
 def summary_blocks(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str, scores: Scores,
@@ -125,5 +129,7 @@ def summary_blocks(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str
     header = ["OC", "model", *(h for _ in sets for h in ("model eps_td", "curve eps_td")),
               "CV eps_td", "outside the envelope", "alarm episodes"]
     groups = [("", 2), *((f"{TABLE_WORDS[k]} runs ({len(labels)})", 2) for k, labels, _ in sets), ("", 3)]
-    return [Heading(head), Paragraph(line),
-            Table(header, rows, groups=groups, marks=marks)]
+    caption = (f"{target} per OC: eps_td of the model and of the characteristic curve on the same samples "
+               "per run set (green: the model's lower, red: not); outside the envelope and alarm episodes: "
+               "all runs")
+    return [Heading(head), Paragraph(line), Table(header, rows, caption, groups=groups, marks=marks)]

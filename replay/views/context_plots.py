@@ -63,10 +63,10 @@ def fig_context_clusters(ctxs: Sequence[OCContext], unit: str = "mm/s") -> Figur
             b.scatter(e, s, s=9, c=[_color(k) for k in lab.tolist()], lw=0)
         b.set_xlabel("s since the plateau start", fontsize=SMALL)
         b.set_ylabel("speed (rpm)", fontsize=SMALL)
-        b.set_title("(b) carried onto the speed profile, each run", fontsize=LABEL, loc="left")
+        b.set_title("(b) on the speed profile, each run", fontsize=LABEL, loc="left")
         cc.set_xlabel("speed (rpm)", fontsize=SMALL)
         cc.set_ylabel(f"{target} ({unit})", fontsize=SMALL)
-        cc.set_title("(c) onto the characteristic curve (dashed: posterior mean)", fontsize=LABEL, loc="left")
+        cc.set_title("(c) on the curve (dashed: posterior mean)", fontsize=LABEL, loc="left")
         for ax in row:
             ax.tick_params(labelsize=SMALL)
     return fig
