@@ -114,6 +114,7 @@ def test_report_has_a_summary_then_four_folded_panels_each_with_a_figure_and_not
     pred = html[html.index('id="panel-prediction"'):]
     assert "A planned pass-off" in pred and pred.count("<img") >= 3  # a run, the plan, figure A.5
     assert "<td>engine1_fault #1</td><td>held-out</td>" in pred and "<td>held-out runs</td>" in pred
+    assert "<td>curve, held-out runs</td>" in pred
     assert "in-sample" not in pred.replace("held-out or in-sample", "")
 
 

@@ -443,9 +443,10 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     eps = recorded_eps(recs)[0]
     cc = CharacteristicCurve()
     cc.centres_, cc.means_ = fleet_curve(bundle, runs.runs, schedule.switch, target)
-    base = recorded_eps([RecordedPrediction(  # the characteristic curve on the very samples
+    curve_recs = [RecordedPrediction(  # the characteristic curve on the very samples
         dataclasses.replace(r.prediction, predicted=cc.predict(np.nan_to_num(r.prediction.speed))[:, None]),
-        r.measured, r.segments) for r in recs])[0]
+        r.measured, r.segments) for r in recs]
+    base = recorded_eps(curve_recs)[0]
     present = [j for j in range(len(schedule.names)) if np.isfinite(eps[j])]
     if kinds is None:
         kinds = run_provenance(bundle, runs.runs, runs.sha256)
@@ -453,10 +454,12 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     for label, kind, rec in zip(runs.labels, kinds, recs):
         rows.append([label, TABLE_WORDS[kind], *(_f(float(rec.eps[0, j])) for j in present)])
     for kind in (k for k in PROVENANCES if k in kinds):
-        pooled = recorded_eps([r for r, k in zip(recs, kinds) if k == kind])[0]
-        rows.append([f"{TABLE_WORDS[kind]} runs", "pooled", *(_f(float(pooled[j])) for j in present)])
+        for name, of in (("", recs), ("curve, ", curve_recs)):
+            pooled = recorded_eps([r for r, k in zip(of, kinds) if k == kind])[0]
+            rows.append([f"{name}{TABLE_WORDS[kind]} runs", "pooled",
+                         *(_f(float(pooled[j])) for j in present)])
     rows.append(["all runs", "pooled", *(_f(float(eps[j])) for j in present)])
-    rows.append(["curve", "all runs", *(_f(float(base[j])) for j in present)])
+    rows.append(["curve, all runs", "pooled", *(_f(float(base[j])) for j in present)])
     blocks += [
         Paragraph(f"{target} predicted from each run's own speed profile, inputs and engine history, "
                   "without its measured order (each OC's model seeded from the prediction of the OC "
@@ -467,7 +470,7 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
         Figure.of(fig_prediction(recs[0]), f"{runs.labels[0]}: predicted against measured"),
         Table(["run", "run set", *(schedule.names[j] for j in present)], rows,
               f"{target}: eps_td of the prediction per OC, each run held-out or in-sample (among the "
-              "model's training runs); pooled per run set and over all runs; curve: the characteristic "
+              "model's training runs); pooled per run set and over all runs, each beside the characteristic "
               "curve on the same samples"),
     ]
     plan = schedule_profile(schedule)
