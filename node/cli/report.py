@@ -1,9 +1,12 @@
 """``ordervib report``: the engineer's report of pass-off runs as one self-contained HTML file.
 
-Four panels (``replay.report``): I the characteristic curve in context, II the per-OC
-parameters of every run, III validation (measured against predicted, eps_td and R^2 beside the
-characteristic curve's, the node's alarms), IV prediction. Plots are embedded PNGs: the file
-opens in any browser, with no server and no network.
+A summary first (per target a verdict and a table of the OCs: kind, eps_td of the model and
+the curve per run set, held-out or in-sample by ``node.training.provenance``, outside the
+envelope, alarm episodes), then four panels folded in ``<details>`` (``replay.report``): I the
+characteristic curve in context, II the per-OC parameters of every run, III validation
+(measured against predicted, eps_td and R^2 beside the characteristic curve's, the node's
+alarms), IV prediction. Plots are embedded PNGs: the file opens in any browser, with no
+server and no network.
 """
 
 from __future__ import annotations
@@ -17,8 +20,8 @@ from node.contract import OrdervibError
 log = logging.getLogger(__name__)
 
 NAME = "report"
-HELP = ("the engineer's report of pass-off runs (curves in context, parameters, validation, prediction) "
-        "as one HTML file")
+HELP = ("the engineer's report of pass-off runs (a summary, then curves in context, parameters, validation, "
+        "prediction) as one HTML file")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -1,8 +1,11 @@
-"""The engineer's report of pass-off runs: the four panels, per target, as one HTML page.
+"""The engineer's report of pass-off runs: a summary, then the four panels, per target, as one
+HTML page.
 
 ``build_report`` returns the page (``replay.report.document``); ``ordervib report`` checks the
-files and writes it. Each panel has a stable id (``PANELS``) and a heading numbered I-IV;
-with several targets, each panel holds one part per target.
+files and writes it. The summary (``SUMMARY``, ``replay.report.summary``) comes first, open:
+per target a verdict and a table of the OCs. Each panel then has a stable id (``PANELS``), a
+heading numbered I-IV and a line of what it holds (``GISTS``), folded in a ``<details>``;
+with several targets, each holds one part per target.
 """
 
 from __future__ import annotations
@@ -15,7 +18,17 @@ from node import __version__
 from node.models.bundle import Model
 from replay.offline import NodeAlarms, node_alarms
 from replay.report.document import Block, Heading, Panel, render_document
-from replay.report.panels import RunSet, context_panel, parameters_panel, prediction_panel, validation_panel
+from replay.report.panels import (
+    RunSet,
+    Scores,
+    context_panel,
+    parameters_panel,
+    prediction_panel,
+    score_runs,
+    target_episodes,
+    validation_panel,
+)
+from replay.report.summary import summary_blocks
 
 log = logging.getLogger(__name__)
 
@@ -25,6 +38,31 @@ PANELS: tuple[tuple[str, str], ...] = (
     ("panel-validation", "III. Validation"),
     ("panel-prediction", "IV. Prediction"),
 )
+SUMMARY = ("summary", "Summary")
+GISTS = {  # each folded panel's line under its title
+    "panel-context": "the characteristic curve with every run, each OC's plateau levels, the thermal "
+                     "contexts (Dirichlet-process clusters) and their posteriors",
+    "panel-parameters": "per OC, the model's inputs and the engine history of every run (parallel "
+                        "coordinates, tables)",
+    "panel-validation": "per OC and run set, eps_td and R\u00b2 against the curve; measured against "
+                        "predicted; the node's alarm episodes",
+    "panel-prediction": "each run predicted without its measured order; the schedule as a planned pass-off",
+}
+
+
+def summary_panel(model: Model, runs: RunSet, targets: Sequence[str], alarms: NodeAlarms,
+                  step: Callable[[], None] | None = None) -> tuple[Panel, dict[str, Scores]]:
+    """The summary (open, ``SUMMARY``): per target its verdict and its table of the OCs; and the
+    targets' ``Scores`` (panel III shows the same). step: called after each target."""
+    scores: dict[str, Scores] = {}
+    blocks: list[Block] = []
+    for t in targets:
+        scores[t] = score_runs(model[t], runs, model.schedule, t)
+        episodes = target_episodes(alarms, runs, model.schedule, t)
+        blocks += summary_blocks(model[t], runs, model.schedule, t, scores[t], episodes)
+        if step is not None:
+            step()
+    return Panel(SUMMARY[0], SUMMARY[1], blocks, fold=False), scores
 
 
 def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets: Sequence[str],
@@ -38,7 +76,7 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
     of each target).
     """
     t0 = time.perf_counter()
-    steps = 1 + len(PANELS) * len(targets)
+    steps = 1 + (len(PANELS) + 1) * len(targets)
     done = 0
 
     def step() -> None:
@@ -52,13 +90,15 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
         alarms = node_alarms(list(recordings), model, carry=True)
     step()
     schedule = model.schedule
+    log.info("report: the summary")
+    summary, scores = summary_panel(model, runs, targets, alarms, step)
     makers: list[Callable[[str], list[Block]]] = [
         lambda t: context_panel(model[t], runs, schedule, t),
         lambda t: parameters_panel(model[t], runs, schedule, t),
-        lambda t: validation_panel(model[t], runs, schedule, t, alarms),
-        lambda t: prediction_panel(model[t], runs, schedule, t),
+        lambda t: validation_panel(model[t], runs, schedule, t, alarms, scores[t]),
+        lambda t: prediction_panel(model[t], runs, schedule, t, scores[t].kinds),
     ]
-    panels = []
+    panels = [summary]
     for (pid, title), make in zip(PANELS, makers):
         log.info("report: %s", title)
         blocks: list[Block] = []
@@ -67,7 +107,7 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
                 blocks.append(Heading(f"target {t}"))
             blocks += make(t)
             step()
-        panels.append(Panel(pid, title, blocks))
+        panels.append(Panel(pid, title, blocks, GISTS[pid]))
     meta = [
         ("model", f"{model_name} ({model.bundles[0].method}; targets {', '.join(model.targets)})"),
         ("recordings", ", ".join(recordings)),

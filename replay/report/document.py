@@ -1,6 +1,7 @@
 """The report as a document: panels of blocks, rendered to one self-contained HTML page.
 
-Every text goes through ``escape``; figures are embedded as base64 PNG (``figure_html``);
+Every text goes through ``escape``; figures are embedded as base64 PNG with an 8-bit palette
+(``figure_html``, ``paletted``), their smallest text checked against ``MIN_TEXT_PX``;
 the page holds its own CSS and no script, and names no external URL, so it opens from a
 file with no server and no network.
 
@@ -18,10 +19,13 @@ from __future__ import annotations
 import base64
 import html
 import io
+import logging
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+log = logging.getLogger(__name__)
 
 
 def escape(text: object) -> str:
@@ -59,22 +63,39 @@ class Paragraph:
 
 @dataclass(frozen=True)
 class Table:
-    """A table of text cells: header (n,), rows (each n cells), an optional caption.
+    """A table of text cells: header (n,), rows (each n cells), an optional caption; groups:
+    an optional first header row of (text, columns spanned); marks: per row, a CSS class per
+    cell ("" none; e.g. ``better``, ``worse``).
 
     >>> Table(["a"], [["1"]], "c").html()
     '<table><caption>c</caption><thead><tr><th>a</th></tr></thead><tbody><tr><td>1</td></tr></tbody></table>'
+    >>> t = Table(["a", "b"], [["1", "2"]], groups=[("", 1), ("g", 1)], marks=[["", "worse"]]).html()
+    >>> t[:t.index("<tbody>")]
+    '<table><thead><tr><th></th><th colspan="1">g</th></tr><tr><th>a</th><th>b</th></tr></thead>'
+    >>> t[t.index("<tbody>"):]
+    '<tbody><tr><td>1</td><td class="worse">2</td></tr></tbody></table>'
     """
 
     header: Sequence[str]
     rows: Sequence[Sequence[str]]
     caption: str = ""
+    groups: Sequence[tuple[str, int]] = ()
+    marks: Sequence[Sequence[str]] = ()
 
     def html(self) -> str:
         cap = f"<caption>{escape(self.caption)}</caption>" if self.caption else ""
+        top = ""
+        if self.groups:
+            top = "<tr>" + "".join(f'<th colspan="{n}">{escape(g)}</th>' if g else "<th></th>" * n
+                                   for g, n in self.groups) + "</tr>"
         head = "".join(f"<th>{escape(h)}</th>" for h in self.header)
-        body = "".join("<tr>" + "".join(f"<td>{escape(c)}</td>" for c in row) + "</tr>"
-                       for row in self.rows)
-        return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+        body = []
+        for i, row in enumerate(self.rows):
+            marks = self.marks[i] if i < len(self.marks) else ()
+            cells = [f'<td class="{escape(marks[k])}">' if k < len(marks) and marks[k] else "<td>"
+                     for k in range(len(row))]
+            body.append("<tr>" + "".join(f"{td}{escape(c)}</td>" for td, c in zip(cells, row)) + "</tr>")
+        return f"<table>{cap}<thead>{top}<tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
 @dataclass(frozen=True)
@@ -97,36 +118,118 @@ class Figure:
 Block = Heading | Paragraph | Table | Figure  # what a panel holds, in order
 
 
+PAGE_WIDTH_PX = 1080  # a figure's width on the page (CSS px): a wider PNG is shown scaled down to it
+MIN_TEXT_PX = 11.0  # the smallest text a figure should show on the page, CSS px
+
+
+def text_sizes(fig: Any) -> list[float]:
+    """The font sizes (pt) of the texts a drawn (saved) figure shows: visible, not empty, not on
+    an axes turned off (its tick labels are never drawn).
+
+    >>> from matplotlib.figure import Figure
+    >>> fig = Figure(figsize=(2, 2))
+    >>> ax = fig.subplots()
+    >>> ax.set_title("t", fontsize=12); ax.tick_params(labelsize=7)
+    Text(0.5, 1.0, 't')
+    >>> fig.savefig(io.BytesIO(), format="png")  # drawn: the tick labels have their text
+    >>> min(text_sizes(fig)), max(text_sizes(fig))
+    (7.0, 12.0)
+    """
+    from matplotlib.text import Text
+
+    out = []
+    for t in fig.findobj(Text):
+        ax = t.axes
+        if not t.get_visible() or not t.get_text().strip() or (ax is not None and not ax.axison
+                                                                 and t not in ax.texts and t is not ax.title):
+            continue
+        out.append(float(t.get_fontsize()))
+    return out
+
+
+def shown_text_px(fig: Any, png: bytes, dpi: float) -> float:
+    """The smallest text of ``fig`` (drawn into ``png`` at ``dpi``) as the page shows it, CSS px:
+    its size in pixels, scaled down as the page scales a PNG wider than ``PAGE_WIDTH_PX``
+    (inf: no text)."""
+    width = int.from_bytes(png[16:20], "big")  # the PNG's IHDR width
+    sizes = text_sizes(fig)
+    if not sizes or width <= 0:
+        return float("inf")
+    return min(sizes) * dpi / 72.0 * min(1.0, PAGE_WIDTH_PX / width)
+
+
+def paletted(png: bytes, colours: int = 256) -> bytes:
+    """``png`` with at most ``colours`` colours (an 8-bit palette, no dithering): a plot's lines
+    and text keep their colours and the file is about a third; the original when that is no
+    smaller.
+
+    >>> from matplotlib.figure import Figure
+    >>> fig = Figure(figsize=(3, 2)); _ = fig.subplots().plot([0, 1, 0.5])
+    >>> buf = io.BytesIO(); fig.savefig(buf, format="png", dpi=90)
+    >>> small = paletted(buf.getvalue())
+    >>> len(small) < len(buf.getvalue()) and small[:8] == b"\\x89PNG\\r\\n\\x1a\\n"
+    True
+    """
+    from PIL import Image
+
+    with Image.open(io.BytesIO(png)) as im:
+        rgb = im.convert("RGB")
+    out = io.BytesIO()
+    rgb.quantize(colors=colours, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
+        out, format="PNG", optimize=True)
+    return out.getvalue() if out.tell() < len(png) else png
+
+
 def figure_html(fig: Any, alt: str = "", dpi: int = 90) -> str:
     """A matplotlib Figure as ``<img src="data:image/png;base64,...">``; the figure is closed
     (released by pyplot when pyplot made it; a ``matplotlib.figure.Figure`` needs nothing).
+    ``data-text-px`` holds its smallest text as the page shows it (``shown_text_px``); below
+    ``MIN_TEXT_PX`` a warning is logged.
 
     >>> from matplotlib.figure import Figure
-    >>> figure_html(Figure(figsize=(1, 1)), "x").startswith('<img alt="x" src="data:image/png;base64,iVBOR')
-    True
+    >>> figure_html(Figure(figsize=(1, 1)), "x")[:70]
+    '<img alt="x" data-text-px="inf" src="data:image/png;base64,iVBORw0KGgo'
     """
     buf = io.BytesIO()
     try:
         fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+        png = buf.getvalue()
+        px = shown_text_px(fig, png, dpi)
     finally:
         pyplot = sys.modules.get("matplotlib.pyplot")  # never imported here: it would pick a backend
         if pyplot is not None:
             pyplot.close(fig)
-    data = base64.b64encode(buf.getvalue()).decode("ascii")
-    return f'<img alt="{escape(alt)}" src="data:image/png;base64,{data}">'
+    if px < MIN_TEXT_PX:
+        log.warning("report figure %r: its smallest text shows at %.1f px (under %g)", alt[:60], px,
+                    MIN_TEXT_PX)
+    data = base64.b64encode(paletted(png)).decode("ascii")
+    return f'<img alt="{escape(alt)}" data-text-px="{px:.2f}" src="data:image/png;base64,{data}">'
 
 
 @dataclass
 class Panel:
-    """One numbered part of the report: a stable ``id`` (``panel-...``), a title, its blocks."""
+    """One part of the report: a stable ``id`` (``panel-...``), a title, its blocks; folded
+    (``fold``): its blocks in a closed ``<details>`` whose ``<summary>`` shows the title and
+    ``gist``, a line of what it holds.
+
+    >>> Panel("p", "T", [Paragraph("x")], gist="g").html().splitlines()[1:3]
+    ['<details>', '<summary><h2>T</h2> <span class="gist">g</span></summary>']
+    """
 
     id: str
     title: str
     blocks: list[Block] = field(default_factory=list)
+    gist: str = ""
+    fold: bool = True
 
     def html(self) -> str:
         inner = "\n".join(b.html() for b in self.blocks)
-        return f'<section id="{escape(self.id)}">\n<h2>{escape(self.title)}</h2>\n{inner}\n</section>'
+        head = f"<h2>{escape(self.title)}</h2>"
+        if not self.fold:
+            return f'<section id="{escape(self.id)}">\n{head}\n{inner}\n</section>'
+        gist = f' <span class="gist">{escape(self.gist)}</span>' if self.gist else ""
+        return (f'<section id="{escape(self.id)}">\n<details>\n<summary>{head}{gist}</summary>\n'
+                f"{inner}\n</details>\n</section>")
 
 
 CSS = """
@@ -135,7 +238,7 @@ body { font-family: system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; ma
 h1 { font-size: 1.6em; border-bottom: 2px solid #335; padding-bottom: .2em; }
 h2 { font-size: 1.3em; margin-top: 0; color: #224; }
 h3 { font-size: 1.1em; margin: 1.2em 0 .4em; }
-section { border: 1px solid #ccd; border-radius: 6px; padding: 1em 1.5em; margin: 1.5em 0; }
+section { border: 1px solid #ccd; border-radius: 6px; padding: .8em 1.5em; margin: 1em 0; }
 nav a { margin-right: 1.2em; }
 dl.meta { display: grid; grid-template-columns: max-content auto; gap: .2em 1em; font-size: .9em; }
 dl.meta dt { font-weight: 600; }
@@ -149,6 +252,19 @@ figure { margin: .5em 0 1em; }
 figure img { max-width: 100%; height: auto; }
 figcaption { font-size: .85em; color: #444; }
 p.note { background: #fff6d5; border-left: 4px solid #e0b000; padding: .4em .8em; }
+details > summary { cursor: pointer; }
+details > summary h2 { display: inline; }
+details[open] > summary { margin-bottom: .8em; }
+span.gist { color: #555; margin-left: .6em; }
+#summary h3 { margin: .8em 0 .2em; }
+#summary p { margin: .2em 0 .3em; }
+#summary table { font-size: .8em; margin: .2em 0 .6em; }
+#summary th, #summary td { padding: .1em .5em; }
+#summary caption { font-weight: normal; color: #444; }
+#summary td:nth-child(2), #summary thead tr:last-child th:nth-child(2) { text-align: left; }
+td.better { background: #e1f3e1; }
+td.worse { background: #fbe1dd; }
+td.alarm { background: #ffe9a8; font-weight: 600; }
 """
 
 

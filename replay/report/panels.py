@@ -1,10 +1,10 @@
 """The four panels of the engineer's report, each as the blocks of one target.
 
-``context_panel`` (I) and ``prediction_panel`` (IV) show what exists today (the speed-binned
-characteristic curve; the model's prediction of each recorded run against what it measured)
-and are meant to be replaced by the mixture clusters and the prediction for a planned profile;
-``parameters_panel`` (II) and ``validation_panel`` (III) are complete. Every panel function
-takes the target's bundle, the runs, the schedule and the target, and returns its blocks.
+``context_panel`` (I), ``parameters_panel`` (II), ``validation_panel`` (III) and
+``prediction_panel`` (IV) take the target's bundle, the runs, the schedule and the target,
+and return their blocks. ``score_runs`` (the free-run predictions, the curve's, each run's
+provenance), ``oc_scores`` and ``target_episodes`` are shared with the summary
+(``replay.report.summary``), so that it shows the very numbers of panel III.
 """
 
 from __future__ import annotations
@@ -221,12 +221,39 @@ def _locate(runs: Sequence[Run], segs: list[Segment], names: Sequence[str], bed:
     return None, float("nan"), "-"
 
 
+@dataclass(frozen=True)
+class Episode:
+    """One alarm episode of the node on a target: its run (its label; the bed when no run holds
+    it), the OC there ("-": none), seconds into the run, its duration (s) and its reason."""
+
+    run: str
+    oc: str
+    into: float
+    duration: float
+    reason: str
+
+
+def target_episodes(alarms: NodeAlarms, runs: RunSet, schedule: Schedule, target: str) -> list[Episode]:
+    """The node's alarm episodes on ``target``, each placed in its run and OC, in order."""
+    mine = [e for e in alarms.episodes if (parse_monitor_key(e["key"]) or ("", ""))[1] == target]
+    if not mine:
+        return []
+    segs = segment_runs(runs.runs, schedule)
+    out = []
+    for e in mine:
+        bed = (parse_monitor_key(e["key"]) or ("", ""))[0]
+        i, into, oc = _locate(runs.runs, segs, schedule.names, bed, float(e["start"]))
+        out.append(Episode(runs.labels[i] if i is not None else bed, oc, into,
+                           float(e["end"]) - float(e["start"]), str(e["reason"])))
+    return out
+
+
 def _alarm_blocks(alarms: NodeAlarms, runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
     """The node's alarm episodes on ``target``: a summary line, by reason, one by one."""
-    mine = [e for e in alarms.episodes if (parse_monitor_key(e["key"]) or ("", ""))[1] == target]
+    mine = target_episodes(alarms, runs, schedule, target)
     hours = alarms.hours
     rate = len(mine) / hours if hours else 0.0
-    reasons = Counter(str(e["reason"]) for e in mine)
+    reasons = Counter(e.reason for e in mine)
     blocks: list[Block] = [
         Heading("Alarms of the node", 4),
         Paragraph("The node replayed offline over the recordings "
@@ -238,13 +265,7 @@ def _alarm_blocks(alarms: NodeAlarms, runs: RunSet, schedule: Schedule, target: 
                   + (", ".join(f"{k} {v}" for k, v in sorted(reasons.items())) or "none") + "."),
     ]
     if mine:
-        segs = segment_runs(runs.runs, schedule)
-        rows = []
-        for e in mine[:MAX_EPISODES]:
-            bed = (parse_monitor_key(e["key"]) or ("", ""))[0]
-            i, into, oc = _locate(runs.runs, segs, schedule.names, bed, float(e["start"]))
-            rows.append([runs.labels[i] if i is not None else bed, oc, _f(into, 1),
-                         _f(float(e["end"]) - float(e["start"]), 1), str(e["reason"])])
+        rows = [[e.run, e.oc, _f(e.into, 1), _f(e.duration, 1), e.reason] for e in mine[:MAX_EPISODES]]
         more = f" (the first {MAX_EPISODES} of {len(mine)})" if len(mine) > MAX_EPISODES else ""
         blocks.append(Table(["run", "OC", "start (s into the run)", "duration (s)", "reason"], rows,
                             f"alarm episodes on {target}{more}"))
@@ -268,30 +289,86 @@ def _provenance_text(labels: Sequence[str], kinds: Sequence[str]) -> str:
     return " ".join(parts)
 
 
+@dataclass(frozen=True)
+class Scores:
+    """One target's free-run predictions of every OC segment of the runs (``predict_segments``),
+    the characteristic curve's on the very samples (one array per prediction), and each run's
+    provenance (``node.training.provenance``: in-sample, held-out or unknown)."""
+
+    preds: list[SegmentPrediction]
+    base: list[np.ndarray]
+    kinds: list[str]
+
+    def of(self, kind: str) -> tuple[list[SegmentPrediction], list[np.ndarray]]:
+        """The predictions and the curve's of the runs of provenance ``kind``."""
+        mine = [i for i, p in enumerate(self.preds) if self.kinds[p.run] == kind]
+        return [self.preds[i] for i in mine], [self.base[i] for i in mine]
+
+
+def score_runs(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str) -> Scores:
+    """The ``Scores`` of ``target``'s bundle over ``runs`` (the summary's and panel III's)."""
+    from node.training.provenance import run_provenance
+
+    preds = predict_segments(bundle.ocs, runs.runs, schedule, target, bundle.curve, bundle.config)
+    curve = fleet_curve(bundle, runs.runs, schedule.switch, target)
+    base = curve_predictions(curve, runs.runs, preds, schedule.switch, target)
+    return Scores(preds, base, run_provenance(bundle, runs.runs, runs.sha256))
+
+
+@dataclass(frozen=True)
+class OCScore:
+    """One OC over some runs: the model's kind ("-": none), segments, eps_td and R^2 of the
+    model and of the characteristic curve on the same samples, the CV eps_td, the samples the
+    evaluation's alarm rule flags, and the samples modelled and outside the envelope."""
+
+    name: str
+    kind: str
+    segments: int
+    eps: float
+    r2: float
+    curve_eps: float
+    curve_r2: float
+    cv_eps: float
+    alarm_samples: int
+    samples: int
+    outside: int
+
+    @property
+    def outside_share(self) -> str:
+        """The share of samples outside the envelope, e.g. ``'4.1 %'`` (``'-'``: no sample)."""
+        return f"{100.0 * self.outside / self.samples:.1f} %" if self.samples else "-"
+
+
+def oc_scores(bundle: Bundle, schedule: Schedule, preds: list[SegmentPrediction], base: list[np.ndarray]
+              ) -> list[OCScore]:
+    """Per OC of the schedule, the ``OCScore`` of ``preds`` (the model's) and ``base`` (the
+    characteristic curve's on the same samples), pooled over their segments."""
+    out = []
+    for j, e in enumerate(score_segments(bundle.ocs, schedule, preds)):
+        res = bundle.oc(e.name)
+        pairs = [(p.measured, p.predicted) for p in preds if p.oc == j]
+        curve_pairs = [(p.measured, b) for p, b in zip(preds, base) if p.oc == j]
+        out.append(OCScore(
+            e.name, res.kind if res else "-", e.n_segments, e.eps,
+            pooled_r2(pairs) if pairs else float("nan"),
+            pooled_eps(curve_pairs) if curve_pairs else float("nan"),
+            pooled_r2(curve_pairs) if curve_pairs else float("nan"),
+            res.cv_eps if res else float("nan"), e.alarm_samples, e.samples, e.outside))
+    return out
+
+
 def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[SegmentPrediction],
                   base: list[np.ndarray], word: str) -> list[Block]:
     """The bar charts and the table of eps_td and R^2 per OC over ``preds`` (the model's) and
     ``base`` (the characteristic curve's on the same samples), their runs named ``word``."""
-    evals = score_segments(bundle.ocs, schedule, preds)
-    rows = []
-    m_eps, c_eps, m_r2, c_r2 = [], [], [], []
-    for j, e in enumerate(evals):
-        res = bundle.oc(e.name)
-        pairs = [(p.measured, p.predicted) for p in preds if p.oc == j]
-        curve_pairs = [(p.measured, b) for p, b in zip(preds, base) if p.oc == j]
-        r2 = pooled_r2(pairs) if pairs else float("nan")
-        ce = pooled_eps(curve_pairs) if curve_pairs else float("nan")
-        cr2 = pooled_r2(curve_pairs) if curve_pairs else float("nan")
-        m_eps.append(e.eps)
-        c_eps.append(ce)
-        m_r2.append(r2)
-        c_r2.append(cr2)
-        rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps), _f(r2), _f(ce), _f(cr2),
-                     _f(res.cv_eps if res else float("nan")), str(e.alarm_samples),
-                     f"{100.0 * e.outside / e.samples:.1f} %" if e.samples else "-"])
+    scores = oc_scores(bundle, schedule, preds, base)
+    rows = [[s.name, s.kind, str(s.segments), _f(s.eps), _f(s.r2), _f(s.curve_eps), _f(s.curve_r2),
+             _f(s.cv_eps), str(s.alarm_samples), s.outside_share] for s in scores]
     return [
-        Figure.of(score_figure(schedule.names, [(f"{word} eps_td", m_eps, c_eps, None),
-                                                (f"{word} R\u00b2", m_r2, c_r2, R2_FLOOR)]),
+        Figure.of(score_figure(schedule.names, [(f"{word} eps_td", [s.eps for s in scores],
+                                                 [s.curve_eps for s in scores], None),
+                                                (f"{word} R\u00b2", [s.r2 for s in scores],
+                                                 [s.curve_r2 for s in scores], R2_FLOOR)]),
                   f"{target}, {word} runs: per OC, the model (blue) and the characteristic curve (grey) "
                   "over the same samples: relative error eps_td (lower is better) and R\u00b2 (1 is a "
                   f"perfect fit; below {R2_FLOOR:g} cut, its value written)"),
@@ -305,22 +382,21 @@ def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[S
 
 
 def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str,
-                     alarms: NodeAlarms) -> list[Block]:
+                     alarms: NodeAlarms, scores: Scores | None = None) -> list[Block]:
     """III: per OC, eps_td and R^2 of the model beside the characteristic curve's, for the
     held-out runs and the in-sample ones apart (``node.training.provenance``), the measured and
-    predicted segments of every run, and the node's alarms with their reasons."""
-    from node.training.provenance import PROVENANCES, TABLE_WORDS, run_provenance
+    predicted segments of every run, and the node's alarms with their reasons.
 
-    preds = predict_segments(bundle.ocs, runs.runs, schedule, target, bundle.curve, bundle.config)
-    curve = fleet_curve(bundle, runs.runs, schedule.switch, target)
-    base = curve_predictions(curve, runs.runs, preds, schedule.switch, target)
-    kinds = run_provenance(bundle, runs.runs, runs.sha256)
+    scores: ``score_runs`` of these (default: computed here)."""
+    from node.training.provenance import PROVENANCES, TABLE_WORDS
+
+    if scores is None:
+        scores = score_runs(bundle, runs, schedule, target)
+    kinds = scores.kinds
     blocks: list[Block] = [Paragraph(_provenance_text(runs.labels, kinds))]
     for kind in (k for k in PROVENANCES if k in kinds):
-        mine = [i for i, p in enumerate(preds) if kinds[p.run] == kind]
-        blocks += _score_blocks(bundle, schedule, target, [preds[i] for i in mine], [base[i] for i in mine],
-                                TABLE_WORDS[kind])
-    seg_fig = segments_figure(schedule.names, preds, target, run_colours(len(runs.runs)))
+        blocks += _score_blocks(bundle, schedule, target, *scores.of(kind), TABLE_WORDS[kind])
+    seg_fig = segments_figure(schedule.names, scores.preds, target, run_colours(len(runs.runs)))
     if seg_fig is not None:
         blocks.append(Figure.of(seg_fig, f"{target} measured (solid) and predicted (dashed) per OC, "
                                 "from each OC switch; a colour per run, as in panels I and II"))
@@ -329,11 +405,15 @@ def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     return blocks + _alarm_blocks(alarms, runs, schedule, target)
 
 
-def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
+def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str,
+                     kinds: Sequence[str] | None = None) -> list[Block]:
     """IV: the prediction from the profile and the engine history alone (no measured order: the
     node's models chained through the OCs, ``node.training.prediction``): each recorded run's
-    against what it measured, eps_td per OC; then the schedule as a planned profile after these
-    runs and after a cold start, with the history parameters of appendix A.2.5 (figure A.5)."""
+    against what it measured, eps_td per OC, each run named held-out or in-sample and each set
+    pooled apart; then the schedule as a planned profile after these runs and after a cold
+    start, with the history parameters of appendix A.2.5 (figure A.5).
+
+    kinds: each run's provenance (default: ``run_provenance`` of the bundle)."""
     from node.contract import OrdervibError
     from node.training.prediction import (
         AmplitudeBound,
@@ -349,6 +429,7 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
         stated_history,
         with_interval,
     )
+    from node.training.provenance import PROVENANCES, TABLE_WORDS, run_provenance
     from replay.views.prediction_plots import fig_history, fig_prediction
 
     blocks: list[Block] = []
@@ -362,15 +443,23 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     eps = recorded_eps(recs)[0]
     cc = CharacteristicCurve()
     cc.centres_, cc.means_ = fleet_curve(bundle, runs.runs, schedule.switch, target)
-    base = recorded_eps([RecordedPrediction(  # the characteristic curve on the very samples
+    curve_recs = [RecordedPrediction(  # the characteristic curve on the very samples
         dataclasses.replace(r.prediction, predicted=cc.predict(np.nan_to_num(r.prediction.speed))[:, None]),
-        r.measured, r.segments) for r in recs])[0]
+        r.measured, r.segments) for r in recs]
+    base = recorded_eps(curve_recs)[0]
     present = [j for j in range(len(schedule.names)) if np.isfinite(eps[j])]
+    if kinds is None:
+        kinds = run_provenance(bundle, runs.runs, runs.sha256)
     rows = []
-    for label, rec in zip(runs.labels, recs):
-        rows.append([label, *(_f(float(rec.eps[0, j])) for j in present)])
-    rows.append(["all runs", *(_f(float(eps[j])) for j in present)])
-    rows.append(["curve", *(_f(float(base[j])) for j in present)])
+    for label, kind, rec in zip(runs.labels, kinds, recs):
+        rows.append([label, TABLE_WORDS[kind], *(_f(float(rec.eps[0, j])) for j in present)])
+    for kind in (k for k in PROVENANCES if k in kinds):
+        for name, of in (("", recs), ("curve, ", curve_recs)):
+            pooled = recorded_eps([r for r, k in zip(of, kinds) if k == kind])[0]
+            rows.append([f"{name}{TABLE_WORDS[kind]} runs", "pooled",
+                         *(_f(float(pooled[j])) for j in present)])
+    rows.append(["all runs", "pooled", *(_f(float(eps[j])) for j in present)])
+    rows.append(["curve, all runs", "pooled", *(_f(float(base[j])) for j in present)])
     blocks += [
         Paragraph(f"{target} predicted from each run's own speed profile, inputs and engine history, "
                   "without its measured order (each OC's model seeded from the prediction of the OC "
@@ -379,9 +468,10 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
                   f"{bound.window:g} rpm, with the {100 * widths.level:g} % interval of a new run from "
                   "these runs' residuals."),
         Figure.of(fig_prediction(recs[0]), f"{runs.labels[0]}: predicted against measured"),
-        Table(["run", *(schedule.names[j] for j in present)], rows,
-              f"{target}: eps_td of the prediction per OC (all runs: pooled; curve: the characteristic "
-              "curve on the same samples)"),
+        Table(["run", "run set", *(schedule.names[j] for j in present)], rows,
+              f"{target}: eps_td of the prediction per OC, each run held-out or in-sample (among the "
+              "model's training runs); pooled per run set and over all runs, each beside the characteristic "
+              "curve on the same samples"),
     ]
     plan = schedule_profile(schedule)
     start = float(plan.t[0])

@@ -19,6 +19,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from node.training.context import OCContext
+from replay.views.style import LABEL, SMALL, WIDTH
 
 COLORS = ("tab:blue", "tab:orange", "tab:purple", "tab:green", "tab:red", "tab:brown", "tab:pink",
           "tab:olive")
@@ -33,7 +34,7 @@ def fig_context_clusters(ctxs: Sequence[OCContext], unit: str = "mm/s") -> Figur
     if not ctxs:
         raise ValueError("no OC to draw")
     target = ctxs[0].target
-    fig = Figure(figsize=(13, 3.0 * len(ctxs)), layout="constrained")
+    fig = Figure(figsize=(WIDTH, 3.0 * len(ctxs)), layout="constrained")
     axes = fig.subplots(len(ctxs), 3, squeeze=False)
     for row, c in zip(axes, ctxs):
         a, b, cc = row
@@ -50,24 +51,24 @@ def fig_context_clusters(ctxs: Sequence[OCContext], unit: str = "mm/s") -> Figur
             cc.scatter(c.speed[mine], c.y[mine], s=8, color=_color(k), alpha=0.7, lw=0)
             mu = float(np.mean(c.posteriors[k].mu))
             cc.axhline(mu, color=_color(k), lw=1.0, ls="--")
-        a.set_xlabel(f"{ch[0]} (°C)", fontsize=8)
-        a.set_ylabel(f"{ch[1]} (°C)" if len(ch) > 1 else f"{target} ({unit})", fontsize=8)
+        a.set_xlabel(f"{ch[0]} (°C)", fontsize=SMALL)
+        a.set_ylabel(f"{ch[1]} (°C)" if len(ch) > 1 else f"{target} ({unit})", fontsize=SMALL)
         a.set_title(f"{c.name}: (a) clusters on the temperatures" + (f" (size: {ch[2]})" if size is not None
-                                                                     else ""), fontsize=9, loc="left")
-        a.legend(fontsize=7, markerscale=1.5)
+                                                                     else ""), fontsize=LABEL, loc="left")
+        a.legend(fontsize=SMALL, markerscale=1.5)
         for r in np.unique(c.run).tolist():
             mine = c.run == r
             e, s, lab = c.elapsed[mine], c.speed[mine], c.labels[mine]
             b.plot(e, s, color="0.75", lw=0.8, zorder=0)
             b.scatter(e, s, s=9, c=[_color(k) for k in lab.tolist()], lw=0)
-        b.set_xlabel("s since the plateau start", fontsize=8)
-        b.set_ylabel("speed (rpm)", fontsize=8)
-        b.set_title("(b) carried onto the speed profile, each run", fontsize=9, loc="left")
-        cc.set_xlabel("speed (rpm)", fontsize=8)
-        cc.set_ylabel(f"{target} ({unit})", fontsize=8)
-        cc.set_title("(c) onto the characteristic curve (dashed: posterior mean)", fontsize=9, loc="left")
+        b.set_xlabel("s since the plateau start", fontsize=SMALL)
+        b.set_ylabel("speed (rpm)", fontsize=SMALL)
+        b.set_title("(b) on the speed profile, each run", fontsize=LABEL, loc="left")
+        cc.set_xlabel("speed (rpm)", fontsize=SMALL)
+        cc.set_ylabel(f"{target} ({unit})", fontsize=SMALL)
+        cc.set_title("(c) on the curve (dashed: posterior mean)", fontsize=LABEL, loc="left")
         for ax in row:
-            ax.tick_params(labelsize=7)
+            ax.tick_params(labelsize=SMALL)
     return fig
 
 
@@ -90,11 +91,11 @@ def fig_context_timeline(ctxs: Sequence[OCContext]) -> Figure:
             for lo, hi in zip(np.r_[0, cut], np.r_[cut, lab.size]):  # one bar per stretch of a cluster
                 ax.broken_barh([(tau[lo], ends[hi - 1] - tau[lo])], (i - 0.4 + j * h, 0.9 * h),
                                color=_color(int(lab[lo])), lw=0)
-    ax.set_yticks(range(len(ctxs)), [c.name for c in ctxs], fontsize=8)
+    ax.set_yticks(range(len(ctxs)), [c.name for c in ctxs], fontsize=SMALL)
     ax.invert_yaxis()
     ax.set_xlim(0, 1)
-    ax.set_xlabel("time within the plateau (fraction of its length); a row per run", fontsize=8)
-    ax.set_title("clusters over time, per OC (colours: cluster 1, 2, ... in time order)", fontsize=9,
+    ax.set_xlabel("time within the plateau (fraction of its length); a row per run", fontsize=SMALL)
+    ax.set_title("clusters over time, per OC (colours: cluster 1, 2, ... in time order)", fontsize=LABEL,
                  loc="left")
     return fig
 
@@ -107,7 +108,7 @@ def fig_context_violins(ctxs: Sequence[OCContext], unit: str = "mm/s", cols: int
     target = ctxs[0].target
     cols = min(cols, len(ctxs))
     rows = -(-len(ctxs) // cols)
-    fig = Figure(figsize=(3.2 * cols, 4.2 * rows), layout="constrained")
+    fig = Figure(figsize=(WIDTH / 4 * cols, 4.2 * rows), layout="constrained")
     axes = fig.subplots(2 * rows, cols, squeeze=False)
     for i, c in enumerate(ctxs):
         top, bottom = axes[2 * (i // cols), i % cols], axes[2 * (i // cols) + 1, i % cols]
@@ -118,15 +119,15 @@ def fig_context_violins(ctxs: Sequence[OCContext], unit: str = "mm/s", cols: int
                     body.set_facecolor(_color(k))
                     body.set_alpha(0.6)
                 parts["cmeans"].set_color(_color(k))
-        top.set_title(c.name, fontsize=9)
-        top.set_ylabel(f"mu ({unit})", fontsize=8)
-        bottom.set_ylabel(f"sigma ({unit})", fontsize=8)
+        top.set_title(c.name, fontsize=LABEL)
+        top.set_ylabel(f"mu ({unit})", fontsize=SMALL)
+        bottom.set_ylabel(f"sigma ({unit})", fontsize=SMALL)
         ticks = list(range(1, c.n_clusters + 1))
         top.set_xticks(ticks, [""] * len(ticks))
         bottom.set_xticks(ticks, [str(k) for k in ticks])
-        bottom.set_xlabel("cluster (time order)", fontsize=8)
+        bottom.set_xlabel("cluster (time order)", fontsize=SMALL)
         for ax in (top, bottom):
-            ax.tick_params(labelsize=7)
+            ax.tick_params(labelsize=SMALL)
             ax.set_xlim(0.4, max(c.n_clusters, 1) + 0.6)
     for j in range(len(ctxs), rows * cols):
         axes[2 * (j // cols), j % cols].axis("off")

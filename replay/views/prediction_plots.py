@@ -21,6 +21,7 @@ from matplotlib.figure import Figure
 
 from node.runtime.history import HISTORY_CHANNELS
 from node.training.prediction import CAPPED, MODULUS, RAISED, Prediction, RecordedPrediction
+from replay.views.style import LABEL, SMALL
 
 MEASURED = "0.35"  # grey: what a recorded run measured
 
@@ -41,7 +42,7 @@ def _shade_ocs(ax: Axes, p: Prediction, label: bool) -> None:
         ax.axvspan(x[lo], x[hi - 1], color="0.9" if n % 2 else "0.82", lw=0, zorder=0)
         if label:
             ax.text((x[lo] + x[hi - 1]) / 2, 1.01, p.oc_names[oc], transform=ax.get_xaxis_transform(),
-                    ha="center", va="bottom", fontsize=6, rotation=90)
+                    ha="center", va="bottom", fontsize=SMALL, rotation=90)
 
 
 def _label(p: Prediction, i: int) -> str:
@@ -67,7 +68,7 @@ def fig_prediction(preds: Sequence[Prediction] | RecordedPrediction, unit: str =
     ax.set_ylabel(f"{first.switch} (rpm)")
     if first.filled:
         ax.set_title(f"filled from training runs at the planned {first.switch} in each OC: "
-                     f"{', '.join(first.filled)}", fontsize=8, loc="left", pad=24)
+                     f"{', '.join(first.filled)}", fontsize=SMALL, loc="left", pad=32)
     for j, (ax, tg) in enumerate(zip(axes[1:], first.targets)):
         _shade_ocs(ax, first, label=False)
         if recorded is not None:
@@ -76,7 +77,7 @@ def fig_prediction(preds: Sequence[Prediction] | RecordedPrediction, unit: str =
             ok = np.isfinite(eps)
             if ok.any():
                 ax.set_title(f"{tg}: eps_td per OC, mean {np.mean(eps[ok]):.3f} over {int(ok.sum())} OCs",
-                             fontsize=9, loc="left")
+                             fontsize=LABEL, loc="left")
         for i, p in enumerate(ps):
             x = _minutes(p)
             line, = ax.plot(x, p.predicted[:, j], lw=1.1, label=f"predicted ({_label(p, i)})"
@@ -89,9 +90,9 @@ def fig_prediction(preds: Sequence[Prediction] | RecordedPrediction, unit: str =
         if recorded is None:
             acted = _acted(ps, j)
             if acted:
-                ax.set_title(f"{tg}: {acted}", fontsize=8, loc="left")
+                ax.set_title(f"{tg}: {acted}", fontsize=SMALL, loc="left")
         ax.set_ylabel(f"{tg} ({unit})")
-        ax.legend(fontsize=7, loc="upper left")
+        ax.legend(fontsize=SMALL, loc="upper left")
     axes[-1].set_xlabel("time since the profile's start (min)")
     return fig
 
@@ -120,12 +121,12 @@ def fig_history(preds: Sequence[Prediction]) -> Figure:
         axes[1].plot(x, p.history[:, energy], lw=1.2, color=line.get_color())
         axes[2].plot(x, p.history[:, rate], lw=1.2, color=line.get_color())
     axes[0].set_ylabel(f"{preds[0].switch} (rpm)")
-    axes[0].set_title("(a) speed profile", fontsize=9, loc="left")
-    axes[0].legend(fontsize=7)
+    axes[0].set_title("(a) speed profile", fontsize=LABEL, loc="left")
+    axes[0].legend(fontsize=SMALL)
     axes[1].set_ylabel("ς (rpm min)")
-    axes[1].set_title("(b) cumulative energy parameter ς, corrected for the shutdown time", fontsize=9,
+    axes[1].set_title("(b) cumulative energy parameter ς, corrected for the shutdown time", fontsize=LABEL,
                       loc="left")
     axes[2].set_ylabel("ξ (rpm)")
-    axes[2].set_title("(c) cumulative rate of change of speed ξ", fontsize=9, loc="left")
+    axes[2].set_title("(c) cumulative rate of change of speed ξ", fontsize=LABEL, loc="left")
     axes[2].set_xlabel("time since the profile's start (min)")
     return fig
