@@ -113,6 +113,10 @@ def test_the_node_and_the_evaluation_guard_alike_where_the_curve_knows_better(ca
     guarded = [m for m in msgs if m["model"] and m["model"].endswith(CURVE)]
     assert len(guarded) > 200  # of 5,881 predicted here
     assert not any(m["model"] and m["model"].endswith(CURVE) for m in plain)
+    # the run scale (how unusual the run is, from the earlier OCs) measures the models' own
+    # residuals, as training calibrated it: the same with the guard as without
+    assert [m["run_scale"] for m in msgs] == [m["run_scale"] for m in plain]
+    assert len({m["run_scale"] for m in msgs if m["run_scale"] is not None}) > 1
     fleet = FleetCurve(own.centres_, own.means_)
     speeds = {float(t): float(x) for t, x in zip(run.t, run.column(sw))}
     for m in guarded:

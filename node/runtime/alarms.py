@@ -71,7 +71,8 @@ class ResidualCheck:
     z = residual / sigma (from e = 0); raised once |e| has stayed beyond ``threshold`` for
     ``persist`` samples (on-delay), lowered once it has stayed under for ``clear``
     samples (off-delay against chatter). A NaN residual (no measurement or no
-    prediction) changes nothing. ``mean_sq``: mean z^2 of the segment so far, for ``RunScale``.
+    prediction) changes nothing. ``mean_sq``: mean z^2 of the segment so far (of the OC model's
+    own residuals), for ``RunScale``.
 
     Args:
         sigma: the OC's residual sd (target unit).
@@ -112,11 +113,15 @@ class ResidualCheck:
         """Mean squared standardized residual of the samples stepped so far (NaN before any)."""
         return self._zsum / self.count if self.count else math.nan
 
-    def step(self, residual: float) -> tuple[float, bool]:
+    def step(self, residual: float, model_residual: float | None = None) -> tuple[float, bool]:
+        """One sample's residual (NaN: nothing changes); ``model_residual``: the OC model's own
+        where the node predicted with something else (the curve guard's curve), which is what
+        ``mean_sq`` measures for ``RunScale`` (training calibrates on the models' residuals)."""
         if residual != residual:
             return self.score, self.raised
         z = residual / self.sigma
-        self._zsum += z * z
+        zm = z if model_residual is None else model_residual / self.sigma
+        self._zsum += zm * zm
         self.count += 1
         self.score = (1.0 - self.alpha) * self.score + self.alpha * z / self.run_scale
         if abs(self.score) > self.threshold:

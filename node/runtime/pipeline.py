@@ -176,13 +176,16 @@ class MonitorPipeline:
             if e > OUTSIDE:
                 model_id, widen = model_id + HELD, env.band_factor
         pred = a.runtime.step(u)
-        on = False
+        on, own = False, pred
         if self._guard is not None:
             pred, on = self._guard.step(measured, pred, vals[self.switch])
             if on:
                 model_id += CURVE
         r = measured - pred if math.isfinite(measured) and math.isfinite(pred) else _NAN
-        score, raised = a.check.step(r / widen if widen != 1.0 else r)
+        if on:  # the run scale measures the model's own residuals, as training calibrated it
+            score, raised = a.check.step(r / widen, (measured - own) / widen)
+        else:
+            score, raised = a.check.step(r / widen if widen != 1.0 else r)
         msg.update(predicted=_num(pred), residual=None if r != r else r, score=score,
                    band=a.check.band * widen if widen != 1.0 else a.check.band,
                    model=model_id, run_scale=a.check.run_scale, envelope=e)
