@@ -332,11 +332,17 @@ class OCScore:
     alarm_samples: int
     samples: int
     outside: int
+    guarded: int = 0  # samples the curve guard predicted with the characteristic curve
 
     @property
     def outside_share(self) -> str:
         """The share of samples outside the envelope, e.g. ``'4.1 %'`` (``'-'``: no sample)."""
         return f"{100.0 * self.outside / self.samples:.1f} %" if self.samples else "-"
+
+    @property
+    def guarded_share(self) -> str:
+        """The share of samples predicted with the curve (the guard), e.g. ``'2.0 %'``."""
+        return f"{100.0 * self.guarded / self.samples:.1f} %" if self.samples else "-"
 
 
 def oc_scores(bundle: Bundle, schedule: Schedule, preds: list[SegmentPrediction], base: list[np.ndarray]
@@ -353,7 +359,7 @@ def oc_scores(bundle: Bundle, schedule: Schedule, preds: list[SegmentPrediction]
             pooled_r2(pairs) if pairs else float("nan"),
             pooled_eps(curve_pairs) if curve_pairs else float("nan"),
             pooled_r2(curve_pairs) if curve_pairs else float("nan"),
-            res.cv_eps if res else float("nan"), e.alarm_samples, e.samples, e.outside))
+            res.cv_eps if res else float("nan"), e.alarm_samples, e.samples, e.outside, e.guarded))
     return out
 
 
@@ -363,7 +369,7 @@ def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[S
     ``base`` (the characteristic curve's on the same samples), their runs named ``word``."""
     scores = oc_scores(bundle, schedule, preds, base)
     rows = [[s.name, s.kind, str(s.segments), _f(s.eps), _f(s.r2), _f(s.curve_eps), _f(s.curve_r2),
-             _f(s.cv_eps), str(s.alarm_samples), s.outside_share] for s in scores]
+             _f(s.cv_eps), str(s.alarm_samples), s.outside_share, s.guarded_share] for s in scores]
     return [
         Figure.of(score_figure(schedule.names, [(f"{word} eps_td", [s.eps for s in scores],
                                                  [s.curve_eps for s in scores], None),
@@ -373,11 +379,12 @@ def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[S
                   "over the same samples: relative error eps_td (lower is better) and R\u00b2 (1 is a "
                   f"perfect fit; below {R2_FLOOR:g} cut, its value written)"),
         Table(["OC", "model", "segments", f"{word} eps_td", f"{word} R\u00b2", "curve eps_td",
-               "curve R\u00b2", "CV eps_td", "alarm samples", "outside the envelope"], rows,
+               "curve R\u00b2", "CV eps_td", "alarm samples", "outside the envelope", "on the curve"], rows,
               f"{target}: the {word} runs' OC segments, pooled (free run from the OC switch, seeded "
               "from the measured past, as the node runs it); outside the envelope: the share of samples "
               "beyond the region the training runs covered (predicted with the inputs held at its "
-              "edge, the band widened)"),
+              "edge, the band widened); on the curve: the share the curve guard predicted with the "
+              "characteristic curve (where, so far in the OC visit, the model erred more)"),
     ]
 
 

@@ -83,6 +83,9 @@ def verdict(target: str, sets: Sequence[tuple[str, list[str], Sequence[OCScore]]
     if samples:
         parts.append(f"{100.0 * outside / samples:.1f} % of the modelled samples outside the training "
                      "runs' envelope")
+        guarded = sum(s.guarded for s in everything)
+        parts.append(f"{100.0 * guarded / samples:.1f} % predicted with the characteristic curve (the "
+                     "curve guard: where the model erred more so far in the OC)")
     if episodes:
         reasons = Counter(e.reason for e in episodes)
         where = Counter(e.oc for e in episodes)
