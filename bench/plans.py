@@ -21,7 +21,11 @@ code, as ``ordervib predict`` runs it):
 2. The held-out runs, each given its own profile (its recorded nB and channels, its targets
    left out; the engine history the training runs and the held-out runs before it leave): per
    target the share of measured samples inside the 90 % interval (target 85-95 %), beside the
-   share inside the interval of the CV sigma alone (``IntervalWidths.from_cv``).
+   share inside the interval of the CV sigma alone (``IntervalWidths.from_cv``) and inside
+   the rule before the run levels (symmetric, t sqrt(1 + 1/n) x the RMS chained residual);
+   per OC the share inside and the training runs' run levels (shift, between, within).
+3. The training runs' chained eps_td per OC with the mean modulus for 1x-vector models
+   against the node's own modulus of the mean vector (``mean_modulus=False``).
 
 ``--workdir`` keeps the recordings and the model: a later run with the same settings reuses
 them. The default run takes about 2 minutes on 2 cores (most of it the training).
@@ -30,6 +34,7 @@ them. The default run takes about 2 minutes on 2 cores (most of it the training)
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import tempfile
@@ -56,6 +61,7 @@ from node.training.prediction import (
     needed_channels,
     predict_profile,
     predict_recorded_runs,
+    recorded_eps,
     with_interval,
 )
 from node.training.runs import Run
@@ -172,6 +178,17 @@ def _steps(speed: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(speed, float) / BOUND_STEP_RPM) * BOUND_STEP_RPM
 
 
+def _rms_rule(w: IntervalWidths) -> IntervalWidths:
+    """The interval rule before the run levels (for comparison): symmetric about the prediction,
+    t(n-1) sqrt(1 + 1/n) x the larger of the RMS chained residual and the CV sigma."""
+    from scipy.stats import t as student
+
+    n_runs = np.maximum(w.runs, 2)
+    factor = student.ppf(0.5 + w.level / 2.0, n_runs - 1) * np.sqrt(1.0 + 1.0 / n_runs)
+    half = np.where(w.runs >= 2, factor * np.fmax(w.chain_rms, w.cv_sigma), w.half)
+    return dataclasses.replace(w, half=half, shift=np.zeros_like(half))
+
+
 def _verdict(ok: bool) -> str:
     return "PASS" if ok else "FAIL"
 
@@ -201,7 +218,11 @@ def main(argv: list[str] | None = None) -> int:
     train, held = load_runs([str(train_rec)], True), load_runs([str(held_rec)], True)
     t1 = time.perf_counter()
     bound = AmplitudeBound.fit(train, sched, model.targets)
-    widths = IntervalWidths.fit(model, train, bound)
+    chained = predict_recorded_runs(model, train, bound=bound)
+    widths = IntervalWidths.from_recorded(model, chained)
+    node_own = predict_recorded_runs(model, train, bound=bound, mean_modulus=False)
+    eps_mean, eps_node = recorded_eps(chained), recorded_eps(node_own)
+    rms_rule = _rms_rule(widths)
     want = sorted({*needed_channels(model), *SLOW_TEMPERATURES} - {sched.switch})
     fill = InputFill.fit(train, sched, want, "training runs")
     engine = history_after(train, model)
@@ -237,17 +258,22 @@ def main(argv: list[str] | None = None) -> int:
     t1 = time.perf_counter()
     recs = predict_recorded_runs(model, held, engine, bound=bound, widths=widths)
     cv = IntervalWidths.from_cv(model)
-    inside, inside_cv, measured = np.zeros(n), np.zeros(n), np.zeros(n)
+    O = len(sched.names)
+    inside, inside_cv, inside_rms, measured = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    oc_in, oc_n = np.zeros((n, O)), np.zeros((n, O))
     per_run: list[list[float]] = [[] for _ in range(n)]
     for rec in recs:
         p = rec.prediction
-        p_cv = with_interval(p, cv)
+        p_cv, p_rms = with_interval(p, cv), with_interval(p, rms_rule)
         for j in range(n):
             y = rec.measured[:, j]
             ok = np.isfinite(y) & np.isfinite(p.predicted[:, j]) & (p.oc >= 0)
             hit = (y >= p.lo[:, j]) & (y <= p.hi[:, j])
             inside[j] += np.sum(hit[ok])
+            np.add.at(oc_in[j], p.oc[ok], hit[ok])
+            np.add.at(oc_n[j], p.oc[ok], 1)
             inside_cv[j] += np.sum(((y >= p_cv.lo[:, j]) & (y <= p_cv.hi[:, j]))[ok])
+            inside_rms[j] += np.sum(((y >= p_rms.lo[:, j]) & (y <= p_rms.hi[:, j]))[ok])
             measured[j] += ok.sum()
             per_run[j].append(float(np.mean(hit[ok])) if ok.any() else np.nan)
     log.info("%d held-out runs predicted (%.0f s)", len(held), time.perf_counter() - t1)
@@ -272,6 +298,23 @@ def main(argv: list[str] | None = None) -> int:
         runs = ", ".join(f"{c:.0%}" for c in per_run[j])
         print(f"{_verdict(ok)}  {tg} held-out: {cover:.1%} of {int(measured[j])} measured samples inside the "
               f"90 % interval (target {COVERAGE[0]:.0%}-{COVERAGE[1]:.0%}); per run {runs}; the CV sigma's "
-              f"interval alone {inside_cv[j] / max(measured[j], 1):.1%}")
+              f"interval alone {inside_cv[j] / max(measured[j], 1):.1%}; the RMS rule before (symmetric, "
+              f"t sqrt(1+1/n) x the RMS residual) {inside_rms[j] / max(measured[j], 1):.1%}")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per_oc = oc_in[j] / oc_n[j]
+        print(f"      {tg} per OC inside: " + ", ".join(
+            f"{name} {c:.0%}" for name, c in zip(sched.names, per_oc) if np.isfinite(c)))
+        print(f"      {tg} per OC run levels of the training runs' chained residual: mean (shift) / SD "
+              "between / SD within, mm/s: " + ", ".join(
+                  f"{name} {widths.offsets()[j, o]:+.3g}/{widths.between[j, o]:.3g}/{widths.within[j, o]:.3g}"
+                  for o, name in enumerate(sched.names) if np.isfinite(widths.between[j, o])))
+    for j, tg in enumerate(model.targets):
+        both = np.isfinite(eps_mean[j]) & np.isfinite(eps_node[j])
+        changed = both & (np.abs(eps_mean[j] - eps_node[j]) > 1e-12)
+        print(f"      {tg} training runs' chained eps_td per OC, the mean modulus for 1x-vector models / the "
+              f"node's own (modulus of the mean vector): mean {np.mean(eps_mean[j][both]):.3f} / "
+              f"{np.mean(eps_node[j][both]):.3f}; " + (", ".join(
+                  f"{sched.names[o]} {eps_mean[j, o]:.3f}/{eps_node[j, o]:.3f}"
+                  for o in np.flatnonzero(changed)) or "no OC changed (no 1x-vector model)"))
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 1 if failed else 0

@@ -108,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
         for line in preds[-1].bound_notes():
             stood = f" ({h:g} h stood)" if h is not None else ""
             (log.warning if "capped" in line else log.info)("bounds%s: %s", stood, line)
+        for line in preds[-1].envelope_notes():
+            stood = f" ({h:g} h stood)" if h is not None else ""
+            (log.warning if "OUTSIDE" in line else log.info)("envelope%s: %s", stood, line)
         if not args.quiet:
             log.info("predicted %d samples%s", preds[-1].t.size,
                      f" for {h:g} h stood" if h is not None else "")
