@@ -24,8 +24,9 @@ code, as ``ordervib predict`` runs it):
    share inside the interval of the CV sigma alone (``IntervalWidths.from_cv``) and inside
    the rule before the run levels (symmetric, t sqrt(1 + 1/n) x the RMS chained residual);
    per OC the share inside and the training runs' run levels (shift, between, within).
-3. The training runs' chained eps_td per OC with the mean modulus for 1x-vector models
-   against the node's own modulus of the mean vector (``mean_modulus=False``).
+3. The training runs' chained eps_td per OC with the mean modulus for 1x-vector models (the
+   training runs' mean amplitude in the OC at the speed, ``levels``) against the node's own
+   modulus of the mean vector (``mean_modulus=False``).
 
 ``--workdir`` keeps the recordings and the model: a later run with the same settings reuses
 them. The default run takes about 2 minutes on 2 cores (most of it the training).
@@ -53,6 +54,7 @@ from node.training.prediction import (
     BOUND_FACTOR,
     BOUND_STEP_RPM,
     BOUND_WINDOW_RPM,
+    MEAN_MODULUS,
     AmplitudeBound,
     InputFill,
     IntervalWidths,
@@ -218,7 +220,8 @@ def main(argv: list[str] | None = None) -> int:
     train, held = load_runs([str(train_rec)], True), load_runs([str(held_rec)], True)
     t1 = time.perf_counter()
     bound = AmplitudeBound.fit(train, sched, model.targets)
-    chained = predict_recorded_runs(model, train, bound=bound)
+    levels = InputFill.fit(train, sched, model.targets, "training runs")
+    chained = predict_recorded_runs(model, train, bound=bound, levels=levels)
     widths = IntervalWidths.from_recorded(model, chained)
     node_own = predict_recorded_runs(model, train, bound=bound, mean_modulus=False)
     eps_mean, eps_node = recorded_eps(chained), recorded_eps(node_own)
@@ -236,10 +239,12 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     n = len(model.targets)
     within, raw_within, total, acted = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    mean_mod = np.zeros(n)
     t1 = time.perf_counter()
     samples = 0
     for _ in range(args.plans):
-        p = predict_profile(model, random_plan(rng, sched, lo, hi), engine, fill, bound=bound, widths=widths)
+        p = predict_profile(model, random_plan(rng, sched, lo, hi), engine, fill, bound=bound, widths=widths,
+                            levels=levels)
         samples += p.t.size
         for j, tg in enumerate(model.targets):
             y, raw = p.predicted[:, j], p.raw[:, j]
@@ -251,16 +256,18 @@ def main(argv: list[str] | None = None) -> int:
             within[j] += np.sum((y[ok] >= 0) & (y[ok] <= cap[ok] + 1e-9))
             raw_within[j] += np.sum((raw[ok] >= 0) & (raw[ok] <= cap[ok] + 1e-9))
             total[j] += ok.sum()
-            acted[j] += np.sum(p.bounded[ok, j] != 0)
+            acted[j] += np.sum((p.bounded[ok, j] != 0) & (p.bounded[ok, j] != MEAN_MODULUS))
+            mean_mod[j] += np.sum(p.bounded[ok, j] == MEAN_MODULUS)
     log.info("%d plans, %d samples predicted (%.0f s)", args.plans, samples, time.perf_counter() - t1)
 
     # 2. held-out runs from their own profiles: inside the 90 % interval
     t1 = time.perf_counter()
-    recs = predict_recorded_runs(model, held, engine, bound=bound, widths=widths)
+    recs = predict_recorded_runs(model, held, engine, bound=bound, widths=widths, levels=levels)
     cv = IntervalWidths.from_cv(model)
     O = len(sched.names)
     inside, inside_cv, inside_rms, measured = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
     oc_in, oc_n = np.zeros((n, O)), np.zeros((n, O))
+    out_in, out_n = np.zeros(n), np.zeros(n)  # samples outside the model's envelope
     per_run: list[list[float]] = [[] for _ in range(n)]
     for rec in recs:
         p = rec.prediction
@@ -271,6 +278,9 @@ def main(argv: list[str] | None = None) -> int:
             hit = (y >= p.lo[:, j]) & (y <= p.hi[:, j])
             inside[j] += np.sum(hit[ok])
             np.add.at(oc_in[j], p.oc[ok], hit[ok])
+            beyond = ok & p.outside()[:, j]
+            out_in[j] += np.sum(hit[beyond])
+            out_n[j] += beyond.sum()
             np.add.at(oc_n[j], p.oc[ok], 1)
             inside_cv[j] += np.sum(((y >= p_cv.lo[:, j]) & (y <= p_cv.hi[:, j]))[ok])
             inside_rms[j] += np.sum(((y >= p_rms.lo[:, j]) & (y <= p_rms.hi[:, j]))[ok])
@@ -290,7 +300,8 @@ def main(argv: list[str] | None = None) -> int:
         failed |= not ok
         print(f"{_verdict(ok)}  {tg} plans: {int(within[j])} of {int(total[j])} predicted samples "
               f"({share:.2%}) within the bound over {args.plans} plans (target: all); the node's own "
-              f"before the bounds {raw_within[j] / max(total[j], 1):.2%}, bounds acted on {int(acted[j])}")
+              f"before the bounds {raw_within[j] / max(total[j], 1):.2%}, bounds acted on {int(acted[j])}; "
+              f"{int(mean_mod[j])} from 1x-vector models took the mean modulus")
     for j, tg in enumerate(model.targets):
         cover = inside[j] / max(measured[j], 1)
         ok = measured[j] > 0 and COVERAGE[0] <= cover <= COVERAGE[1]
@@ -304,6 +315,11 @@ def main(argv: list[str] | None = None) -> int:
             per_oc = oc_in[j] / oc_n[j]
         print(f"      {tg} per OC inside: " + ", ".join(
             f"{name} {c:.0%}" for name, c in zip(sched.names, per_oc) if np.isfinite(c)))
+        rest = measured[j] - out_n[j]
+        print(f"      {tg} outside the model's envelope (> 1): {int(out_n[j])} of {int(measured[j])} "
+              "samples, "
+              f"{out_in[j] / max(out_n[j], 1):.1%} of them inside the interval; within it "
+              f"{(inside[j] - out_in[j]) / max(rest, 1):.1%}")
         print(f"      {tg} per OC run levels of the training runs' chained residual: mean (shift) / SD "
               "between / SD within, mm/s: " + ", ".join(
                   f"{name} {widths.offsets()[j, o]:+.3g}/{widths.between[j, o]:.3g}/{widths.within[j, o]:.3g}"

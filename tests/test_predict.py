@@ -455,7 +455,7 @@ def test_a_history_far_outside_the_training_runs_is_flagged_by_the_envelope(mode
 def test_a_vector_model_without_a_level_predicts_the_mean_modulus(phased):
     """The phased model's vector curves, chained (no measured level, no phase): the node alone
     predicts the runs' mean vector, whose modulus is below their mean amplitude; the chain
-    takes the fleet curve's mean amplitude at the speed instead, so that on the training runs
+    takes the runs' mean amplitude in the OC at the speed instead, so that on the training runs
     the measured / predicted ratio in those OCs is near 1, nearer than the node's own."""
     from node.training.fit import load_runs
 
@@ -465,7 +465,7 @@ def test_a_vector_model_without_a_level_predicts_the_mean_modulus(phased):
               if (r := bundle.bundles[0].oc(n)) is not None and r.model is not None
               and r.kind == "curve:vector"]
     assert vector
-    recs = predict_recorded_runs(bundle, runs)
+    recs = predict_recorded_runs(bundle, runs, levels=InputFill.fit(runs, bundle.schedule, ["yB"]))
     got, own = [], []
     for o in vector:
         y = np.concatenate([rec.measured[rec.prediction.oc == o, 0] for rec in recs])

@@ -26,8 +26,10 @@ Design:
   prediction of the OC before it, the first from the fleet level. A model of the 1x vector
   has no phase to anchor on (none is measured, and a predicted one would only be the runs'
   mean vector again): it predicts the runs' mean vector, whose modulus is well below their
-  mean amplitude where their phases differ, so chained, its amplitude is the fleet curve's
-  at the speed (the mean modulus; ``Prediction.bounded`` says ``MEAN_MODULUS``).
+  mean amplitude where their phases differ, so chained, its amplitude is the training runs'
+  mean amplitude in that OC at the speed (the mean modulus, ``levels``: ``InputFill`` of the
+  targets, with its plateau drift; without training runs, the fleet curve ``Bundle.curve``);
+  ``Prediction.bounded`` says ``MEAN_MODULUS``.
   ``seed="absent"`` is the node with the target missing, exactly.
 * The engine history (appendix A.2.5): the ``hist_*`` inputs are derived by the node's own
   ``HistoryTracker`` from the profile's speed and slow temperatures, starting from a stated
@@ -547,10 +549,11 @@ class IntervalWidths:
 
     @classmethod
     def fit(cls, model: Bundle | Model, runs: list[Run], bound: AmplitudeBound | None = None,
-            level: float = INTERVAL_LEVEL) -> IntervalWidths:
+            level: float = INTERVAL_LEVEL, levels: InputFill | None = None) -> IntervalWidths:
         """From the chained prediction of each training run (one engine's, each with the history
-        the runs before it leave) against what it measured (see the class)."""
-        return cls.from_recorded(model, predict_recorded_runs(model, runs, bound=bound), level)
+        the runs before it leave) against what it measured (see the class); ``levels`` as
+        ``predict_runs`` takes them."""
+        return cls.from_recorded(model, predict_recorded_runs(model, runs, bound=bound, levels=levels), level)
 
     @classmethod
     def from_recorded(cls, model: Bundle | Model, recs: Sequence[RecordedPrediction],
@@ -749,7 +752,7 @@ def needed_channels(model: Bundle | Model) -> list[str]:
 def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | None = None,
                  fill: InputFill | None = None, seed: Seed = "chain", label: str = "",
                  bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None,
-                 mean_modulus: bool = True) -> Prediction:
+                 mean_modulus: bool = True, levels: InputFill | None = None) -> Prediction:
     """The node's prediction over ``runs`` (on the 40 Hz grid, in time order, one engine) with
     the targets unmeasured (see the module's design); ``engine``: the history before the
     first run. A channel the node needs that the runs lack and ``fill`` cannot give is a
@@ -759,7 +762,10 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
     and above by ``bound`` (None: not above), and the bounded value is what the chain feeds
     on; its interval comes from ``widths`` (None: ``IntervalWidths.from_cv``). ``mean_modulus``
     false: a model of the 1x vector keeps the node's own modulus, its predicted phase fed back
-    (as before the mean modulus, for comparison)."""
+    (as before the mean modulus, for comparison). ``levels``: the targets' mean amplitude in
+    each OC at the speed, from training runs (``InputFill.fit`` of the targets), taken for
+    the mean modulus and where no model predicted; None, or a target it lacks: the fleet
+    curve (``Bundle.curve``, over every OC's samples)."""
     m = as_model(model)
     sched = m.schedule
     need = needed_channels(m)
@@ -796,8 +802,14 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
                 cols.append(np.full(len(run.t), _NAN))
         X = np.column_stack(cols)
         t = np.asarray(run.t, float)
+        means: np.ndarray | None = None
+        if levels is not None and any(tg in levels.channels for tg in targets):
+            if segs is None:
+                segs = segment_runs([run], sched, min_samples=1)
+            means = np.column_stack([levels.fill_parts(run, sched, tg, segs)[0] if tg in levels.channels
+                                   else np.full(t.size, _NAN) for tg in targets])
         step = _step_node(core, keys, t, X, need, targets, uses_phase, fleet, seed, sched, bound,
-                          mean_modulus)
+                          mean_modulus, means)
         speed = hold_last(X[:, need.index(sched.switch)])
         slow_cols = np.column_stack([hold_last(X[:, [*need, *slow].index(c)]) for c in SLOW_TEMPERATURES])
         parts["hist"].append(history_columns(t, speed, slow_cols, history))
@@ -844,7 +856,8 @@ def with_interval(p: Prediction, widths: IntervalWidths) -> Prediction:
 def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarray, need: list[str],
                targets: tuple[str, ...], uses_phase: list[bool],
                fleet: list[tuple[np.ndarray, np.ndarray] | None], seed: Seed,
-               sched: Schedule, bound: AmplitudeBound | None, mean_modulus: bool = True
+               sched: Schedule, bound: AmplitudeBound | None, mean_modulus: bool = True,
+               own: np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Feed one run through the node sample by sample: (predicted within the bounds (K, n), the
     node's own (K, n), how each was bounded (K, n), the bound (K, n), oc index (K,), the node's
@@ -853,8 +866,9 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
     Chained, a model of the 1x vector never has a measured level to anchor on (the target is
     never measured), so it predicts the runs' mean vector, whose modulus is below the mean
     modulus (the runs' phases differ): its amplitude is taken from the fleet curve at the
-    speed instead (the mean amplitude, ``MEAN_MODULUS``), and no phase is fed back
-    (``mean_modulus`` false: the node's own, its predicted phase fed back)."""
+    speed instead (the mean amplitude, ``MEAN_MODULUS``; ``own`` (K, n): the training runs' mean
+    in the OC at the speed, where finite), and no phase is fed back (``mean_modulus`` false:
+    the node's own, its predicted phase fed back)."""
     K, n = t.size, len(targets)
     O = len(sched.names)
     pred = np.full((K, n), _NAN)
@@ -867,6 +881,8 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
     speed = X[:, need.index(sched.switch)]
     level = np.column_stack([np.interp(np.nan_to_num(speed), *f) if f is not None else np.full(K, _NAN)
                              for f in fleet])
+    if own is not None:
+        level = np.where(np.isfinite(own), own, level)
     # the bound of each target in each OC (row O: outside every OC) at each sample's speed
     caps = [np.vstack([bound.limits(tg, o, hold_last(speed)) for o in range(-1, O)])
             if bound is not None and tg in bound.targets else None for tg in targets]
@@ -914,12 +930,13 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
 
 def predict_profile(model: Bundle | Model, profile: Profile, engine: EngineState | None = None,
                     fill: InputFill | None = None, seed: Seed = "chain", label: str = "",
-                    bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None) -> Prediction:
+                    bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None,
+                    levels: InputFill | None = None) -> Prediction:
     """The expected orders over a planned profile (``read_profile``, ``schedule_profile``);
     the bounds and the interval as ``predict_runs`` sets them."""
     m = as_model(model)
     runs = profile.runs(OCDetector(m.schedule, m.config).off_level)
-    return predict_runs(m, runs, engine, fill, seed, label, bound, widths)
+    return predict_runs(m, runs, engine, fill, seed, label, bound, widths, levels=levels)
 
 
 @dataclass
@@ -966,15 +983,15 @@ def recorded_eps(recs: Sequence[RecordedPrediction]) -> np.ndarray:
 
 def predict_recorded_run(model: Bundle | Model, run: Run, engine: EngineState | None = None,
                          seed: Seed = "chain", label: str = "", bound: AmplitudeBound | None = None,
-                         widths: IntervalWidths | None = None, mean_modulus: bool = True
-                         ) -> RecordedPrediction:
+                         widths: IntervalWidths | None = None, mean_modulus: bool = True,
+                         levels: InputFill | None = None) -> RecordedPrediction:
     """The prediction for a held-out ``run`` from its own profile (its switch speed and every
     other input as recorded, the targets left out) and a stated history ``engine`` (e.g.
     ``history_after(training_runs, model)``, or ``stated_history``), compared per OC with the
     targets it measured (eps_td, ``node.sysid.metrics``); bounds and interval as
     ``predict_runs``."""
     m = as_model(model)
-    pred = predict_runs(m, [run], engine, None, seed, label, bound, widths, mean_modulus)
+    pred = predict_runs(m, [run], engine, None, seed, label, bound, widths, mean_modulus, levels)
     measured = np.column_stack([run.column(tg) if tg in run.channels else np.full(len(run.t), _NAN)
                                 for tg in pred.targets])
     return RecordedPrediction(pred, measured, segment_runs([run], m.schedule))
@@ -982,8 +999,8 @@ def predict_recorded_run(model: Bundle | Model, run: Run, engine: EngineState | 
 
 def predict_recorded_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | None = None,
                           seed: Seed = "chain", bound: AmplitudeBound | None = None,
-                          widths: IntervalWidths | None = None, mean_modulus: bool = True
-                          ) -> list[RecordedPrediction]:
+                          widths: IntervalWidths | None = None, mean_modulus: bool = True,
+                          levels: InputFill | None = None) -> list[RecordedPrediction]:
     """``predict_recorded_run`` of each of one engine's ``runs`` (returned in the order given),
     each with the history the runs before it (in time order) leave, from ``engine`` (the
     history before the first: default unknown, a cold engine); ``recorded_eps`` pools them."""
@@ -991,7 +1008,8 @@ def predict_recorded_runs(model: Bundle | Model, runs: list[Run], engine: Engine
     out: dict[int, RecordedPrediction] = {}
     state = engine
     for i in time_order(runs):
-        out[i] = predict_recorded_run(m, runs[i], state, seed, f"run {i + 1}", bound, widths, mean_modulus)
+        out[i] = predict_recorded_run(m, runs[i], state, seed, f"run {i + 1}", bound, widths, mean_modulus,
+                                      levels)
         state = history_after([runs[i]], m, state)
     return [out[i] for i in range(len(runs))]
 
