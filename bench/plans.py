@@ -21,7 +21,12 @@ code, as ``ordervib predict`` runs it):
 2. The held-out runs, each given its own profile (its recorded nB and channels, its targets
    left out; the engine history the training runs and the held-out runs before it leave): per
    target the share of measured samples inside the 90 % interval (target 85-95 %), beside the
-   share inside the interval of the CV sigma alone (``IntervalWidths.from_cv``).
+   share inside the interval of the CV sigma alone (``IntervalWidths.from_cv``) and inside
+   the rule before the run levels (symmetric, t sqrt(1 + 1/n) x the RMS chained residual);
+   per OC the share inside and the training runs' run levels (shift, between, within).
+3. The training runs' chained eps_td per OC with the mean modulus for 1x-vector models (the
+   training runs' mean amplitude in the OC at the speed, ``levels``) against the node's own
+   modulus of the mean vector (``mean_modulus=False``).
 
 ``--workdir`` keeps the recordings and the model: a later run with the same settings reuses
 them. The default run takes about 2 minutes on 2 cores (most of it the training).
@@ -30,6 +35,7 @@ them. The default run takes about 2 minutes on 2 cores (most of it the training)
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import tempfile
@@ -48,6 +54,7 @@ from node.training.prediction import (
     BOUND_FACTOR,
     BOUND_STEP_RPM,
     BOUND_WINDOW_RPM,
+    MEAN_MODULUS,
     AmplitudeBound,
     InputFill,
     IntervalWidths,
@@ -56,6 +63,7 @@ from node.training.prediction import (
     needed_channels,
     predict_profile,
     predict_recorded_runs,
+    recorded_eps,
     with_interval,
 )
 from node.training.runs import Run
@@ -172,6 +180,17 @@ def _steps(speed: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(speed, float) / BOUND_STEP_RPM) * BOUND_STEP_RPM
 
 
+def _rms_rule(w: IntervalWidths) -> IntervalWidths:
+    """The interval rule before the run levels (for comparison): symmetric about the prediction,
+    t(n-1) sqrt(1 + 1/n) x the larger of the RMS chained residual and the CV sigma."""
+    from scipy.stats import t as student
+
+    n_runs = np.maximum(w.runs, 2)
+    factor = student.ppf(0.5 + w.level / 2.0, n_runs - 1) * np.sqrt(1.0 + 1.0 / n_runs)
+    half = np.where(w.runs >= 2, factor * np.fmax(w.chain_rms, w.cv_sigma), w.half)
+    return dataclasses.replace(w, half=half, shift=np.zeros_like(half))
+
+
 def _verdict(ok: bool) -> str:
     return "PASS" if ok else "FAIL"
 
@@ -201,7 +220,12 @@ def main(argv: list[str] | None = None) -> int:
     train, held = load_runs([str(train_rec)], True), load_runs([str(held_rec)], True)
     t1 = time.perf_counter()
     bound = AmplitudeBound.fit(train, sched, model.targets)
-    widths = IntervalWidths.fit(model, train, bound)
+    levels = InputFill.fit(train, sched, model.targets, "training runs")
+    chained = predict_recorded_runs(model, train, bound=bound, levels=levels)
+    widths = IntervalWidths.from_recorded(model, chained)
+    node_own = predict_recorded_runs(model, train, bound=bound, mean_modulus=False)
+    eps_mean, eps_node = recorded_eps(chained), recorded_eps(node_own)
+    rms_rule = _rms_rule(widths)
     want = sorted({*needed_channels(model), *SLOW_TEMPERATURES} - {sched.switch})
     fill = InputFill.fit(train, sched, want, "training runs")
     engine = history_after(train, model)
@@ -215,10 +239,12 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(args.seed)
     n = len(model.targets)
     within, raw_within, total, acted = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    mean_mod = np.zeros(n)
     t1 = time.perf_counter()
     samples = 0
     for _ in range(args.plans):
-        p = predict_profile(model, random_plan(rng, sched, lo, hi), engine, fill, bound=bound, widths=widths)
+        p = predict_profile(model, random_plan(rng, sched, lo, hi), engine, fill, bound=bound, widths=widths,
+                            levels=levels)
         samples += p.t.size
         for j, tg in enumerate(model.targets):
             y, raw = p.predicted[:, j], p.raw[:, j]
@@ -230,24 +256,34 @@ def main(argv: list[str] | None = None) -> int:
             within[j] += np.sum((y[ok] >= 0) & (y[ok] <= cap[ok] + 1e-9))
             raw_within[j] += np.sum((raw[ok] >= 0) & (raw[ok] <= cap[ok] + 1e-9))
             total[j] += ok.sum()
-            acted[j] += np.sum(p.bounded[ok, j] != 0)
+            acted[j] += np.sum((p.bounded[ok, j] != 0) & (p.bounded[ok, j] != MEAN_MODULUS))
+            mean_mod[j] += np.sum(p.bounded[ok, j] == MEAN_MODULUS)
     log.info("%d plans, %d samples predicted (%.0f s)", args.plans, samples, time.perf_counter() - t1)
 
     # 2. held-out runs from their own profiles: inside the 90 % interval
     t1 = time.perf_counter()
-    recs = predict_recorded_runs(model, held, engine, bound=bound, widths=widths)
+    recs = predict_recorded_runs(model, held, engine, bound=bound, widths=widths, levels=levels)
     cv = IntervalWidths.from_cv(model)
-    inside, inside_cv, measured = np.zeros(n), np.zeros(n), np.zeros(n)
+    O = len(sched.names)
+    inside, inside_cv, inside_rms, measured = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    oc_in, oc_n = np.zeros((n, O)), np.zeros((n, O))
+    out_in, out_n = np.zeros(n), np.zeros(n)  # samples outside the model's envelope
     per_run: list[list[float]] = [[] for _ in range(n)]
     for rec in recs:
         p = rec.prediction
-        p_cv = with_interval(p, cv)
+        p_cv, p_rms = with_interval(p, cv), with_interval(p, rms_rule)
         for j in range(n):
             y = rec.measured[:, j]
             ok = np.isfinite(y) & np.isfinite(p.predicted[:, j]) & (p.oc >= 0)
             hit = (y >= p.lo[:, j]) & (y <= p.hi[:, j])
             inside[j] += np.sum(hit[ok])
+            np.add.at(oc_in[j], p.oc[ok], hit[ok])
+            beyond = ok & p.outside()[:, j]
+            out_in[j] += np.sum(hit[beyond])
+            out_n[j] += beyond.sum()
+            np.add.at(oc_n[j], p.oc[ok], 1)
             inside_cv[j] += np.sum(((y >= p_cv.lo[:, j]) & (y <= p_cv.hi[:, j]))[ok])
+            inside_rms[j] += np.sum(((y >= p_rms.lo[:, j]) & (y <= p_rms.hi[:, j]))[ok])
             measured[j] += ok.sum()
             per_run[j].append(float(np.mean(hit[ok])) if ok.any() else np.nan)
     log.info("%d held-out runs predicted (%.0f s)", len(held), time.perf_counter() - t1)
@@ -264,7 +300,8 @@ def main(argv: list[str] | None = None) -> int:
         failed |= not ok
         print(f"{_verdict(ok)}  {tg} plans: {int(within[j])} of {int(total[j])} predicted samples "
               f"({share:.2%}) within the bound over {args.plans} plans (target: all); the node's own "
-              f"before the bounds {raw_within[j] / max(total[j], 1):.2%}, bounds acted on {int(acted[j])}")
+              f"before the bounds {raw_within[j] / max(total[j], 1):.2%}, bounds acted on {int(acted[j])}; "
+              f"{int(mean_mod[j])} from 1x-vector models took the mean modulus")
     for j, tg in enumerate(model.targets):
         cover = inside[j] / max(measured[j], 1)
         ok = measured[j] > 0 and COVERAGE[0] <= cover <= COVERAGE[1]
@@ -272,6 +309,28 @@ def main(argv: list[str] | None = None) -> int:
         runs = ", ".join(f"{c:.0%}" for c in per_run[j])
         print(f"{_verdict(ok)}  {tg} held-out: {cover:.1%} of {int(measured[j])} measured samples inside the "
               f"90 % interval (target {COVERAGE[0]:.0%}-{COVERAGE[1]:.0%}); per run {runs}; the CV sigma's "
-              f"interval alone {inside_cv[j] / max(measured[j], 1):.1%}")
+              f"interval alone {inside_cv[j] / max(measured[j], 1):.1%}; the RMS rule before (symmetric, "
+              f"t sqrt(1+1/n) x the RMS residual) {inside_rms[j] / max(measured[j], 1):.1%}")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per_oc = oc_in[j] / oc_n[j]
+        print(f"      {tg} per OC inside: " + ", ".join(
+            f"{name} {c:.0%}" for name, c in zip(sched.names, per_oc) if np.isfinite(c)))
+        rest = measured[j] - out_n[j]
+        print(f"      {tg} outside the model's envelope (> 1): {int(out_n[j])} of {int(measured[j])} "
+              "samples, "
+              f"{out_in[j] / max(out_n[j], 1):.1%} of them inside the interval; within it "
+              f"{(inside[j] - out_in[j]) / max(rest, 1):.1%}")
+        print(f"      {tg} per OC run levels of the training runs' chained residual: mean (shift) / SD "
+              "between / SD within, mm/s: " + ", ".join(
+                  f"{name} {widths.offsets()[j, o]:+.3g}/{widths.between[j, o]:.3g}/{widths.within[j, o]:.3g}"
+                  for o, name in enumerate(sched.names) if np.isfinite(widths.between[j, o])))
+    for j, tg in enumerate(model.targets):
+        both = np.isfinite(eps_mean[j]) & np.isfinite(eps_node[j])
+        changed = both & (np.abs(eps_mean[j] - eps_node[j]) > 1e-12)
+        print(f"      {tg} training runs' chained eps_td per OC, the mean modulus for 1x-vector models / the "
+              f"node's own (modulus of the mean vector): mean {np.mean(eps_mean[j][both]):.3f} / "
+              f"{np.mean(eps_node[j][both]):.3f}; " + (", ".join(
+                  f"{sched.names[o]} {eps_mean[j, o]:.3f}/{eps_node[j, o]:.3f}"
+                  for o in np.flatnonzero(changed)) or "no OC changed (no 1x-vector model)"))
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 1 if failed else 0

@@ -94,20 +94,23 @@ def run(args: argparse.Namespace) -> int:
                     "same numbers", ", ".join(HISTORY_CHANNELS))
     training, source = _training_runs(args, model)
     fill = _fill(args, model, profile, training, source)
-    bound, widths = _limits(model, training, source)
+    bound, widths, levels = _limits(model, training, source)
     runs = profile.runs(OCDetector(model.schedule, model.config).off_level)
     start = _first_on(runs, model)
     preds = []
     for h in hours:
         state = stated_history(start, h, args.energy, engine)
         label = "" if h is None else f"{h:g}"
-        preds.append(predict_profile(model, profile, state, fill, args.seed, label, bound, widths))
+        preds.append(predict_profile(model, profile, state, fill, args.seed, label, bound, widths, levels))
         if not preds[-1].per_oc():
             log.warning("the node found no OC of the schedule in the profile: nothing is predicted "
                         "(does it hold each plateau for some seconds, within the schedule's tolerance?)")
         for line in preds[-1].bound_notes():
             stood = f" ({h:g} h stood)" if h is not None else ""
             (log.warning if "capped" in line else log.info)("bounds%s: %s", stood, line)
+        for line in preds[-1].envelope_notes():
+            stood = f" ({h:g} h stood)" if h is not None else ""
+            (log.warning if "OUTSIDE" in line else log.info)("envelope%s: %s", stood, line)
         if not args.quiet:
             log.info("predicted %d samples%s", preds[-1].t.size,
                      f" for {h:g} h stood" if h is not None else "")
@@ -196,18 +199,20 @@ def _fill(args: argparse.Namespace, model: Model, profile: Profile, runs: list[R
 
 
 def _limits(model: Model, runs: list[Run], source: str
-            ) -> tuple[AmplitudeBound | None, IntervalWidths | None]:
-    """The upper bound and the interval's widths from the training ``runs`` (none: no bound
-    above, the interval from the CV residuals alone, said once)."""
-    from node.training.prediction import AmplitudeBound, IntervalWidths
+            ) -> tuple[AmplitudeBound | None, IntervalWidths | None, InputFill | None]:
+    """The upper bound, the interval's widths and the targets' mean amplitude per OC (for the
+    1x-vector models' mean modulus) from the training ``runs`` (none: no bound above, the
+    interval from the CV residuals alone, the fleet curve; said once)."""
+    from node.training.prediction import AmplitudeBound, InputFill, IntervalWidths
 
     if not runs:
         log.warning("%s: the prediction is bounded at 0 only, not above, and its interval is the CV "
                     "residuals' alone (narrower than a plan's error); give --train REC.mcap", source)
-        return None, None
+        return None, None, None
     bound = AmplitudeBound.fit(runs, model.schedule, model.targets)
+    levels = InputFill.fit(runs, model.schedule, model.targets, source)
     log.info("interval: the chained prediction of %d %s", len(runs), source)
-    return bound, IntervalWidths.fit(model, runs, bound)
+    return bound, IntervalWidths.fit(model, runs, bound, levels=levels), levels
 
 
 def _training_recordings(model: Model) -> list[str]:

@@ -23,9 +23,14 @@ Design:
   default): the target the node is fed at each sample is the prediction of the sample before,
   or the fleet characteristic curve at the speed (``Bundle.curve``) where no model predicted
   (before the first OC, an OC without a model); so each OC's model is seeded from the
-  prediction of the OC before it, the first from the fleet level. The predicted phase is fed
-  back likewise to models of the 1x vector. ``seed="absent"`` is the node with the target
-  missing, exactly.
+  prediction of the OC before it, the first from the fleet level. A model of the 1x vector
+  has no phase to anchor on (none is measured, and a predicted one would only be the runs'
+  mean vector again): it predicts the runs' mean vector, whose modulus is well below their
+  mean amplitude where their phases differ, so chained, its amplitude is the training runs'
+  mean amplitude in that OC at the speed (the mean modulus, ``levels``: ``InputFill`` of the
+  targets, with its plateau drift; without training runs, the fleet curve ``Bundle.curve``);
+  ``Prediction.bounded`` says ``MEAN_MODULUS``.
+  ``seed="absent"`` is the node with the target missing, exactly.
 * The engine history (appendix A.2.5): the ``hist_*`` inputs are derived by the node's own
   ``HistoryTracker`` from the profile's speed and slow temperatures, starting from a stated
   ``EngineState`` (:func:`stated_history`: the hours the engine stood before the profile and
@@ -36,8 +41,10 @@ Design:
   measured in that OC within 100 rpm of the speed; the chain feeds on the bounded value, and
   ``Prediction.bounded`` says where a bound acted (``bound_notes``).
 * Every predicted sample carries a 90 % interval for a new run (:class:`IntervalWidths`):
-  from the OC model's CV residual sigma and the chained prediction's residual on the
-  training runs, with the Student-t factor of a new run over their number.
+  from the chained prediction's residual on the training runs, split into each run's level
+  and a within-run part (a new run is a new level: the Student-t prediction interval of a
+  new group over their number, centred on the chain's mean bias there), at least the OC
+  model's CV residual sigma's.
 
 No files are written here: ``read_profile`` reads and validates a profile CSV, ``write_csv``
 writes rows to an open text stream; the command is ``node.cli.predict``.
@@ -61,6 +68,7 @@ from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.models.baseline import bin_sums
 from node.models.bundle import Bundle, Model, as_model
+from node.models.envelope import OUTSIDE
 from node.runtime.align import AlignedSample
 from node.runtime.core import NodeCore
 from node.runtime.guard import unguarded
@@ -401,6 +409,7 @@ BOUND_WINDOW_RPM = 100.0  # ... in the same OC within this many rpm of the speed
 BOUND_STEP_RPM = 5.0  # rpm: the resolution of the bound's speed window
 INTERVAL_LEVEL = 0.90  # the interval's coverage for a new run
 RAISED, MODULUS, CAPPED = 1, 2, 3  # how a sample was bounded (``Prediction.bounded``; 0: as predicted)
+MEAN_MODULUS = 4  # a model of the 1x vector without a measured level: the fleet's mean amplitude instead
 
 
 @dataclass(frozen=True)
@@ -482,20 +491,27 @@ class AmplitudeBound:
 
 @dataclass(frozen=True)
 class IntervalWidths:
-    """The half-width of each target's interval in each OC, mm/s: a prediction's interval is
-    [max(0, pred - half), min(pred + half, the bound)].
+    """The interval of each target in each OC, mm/s: a prediction's interval is
+    [max(0, pred + shift - half), min(pred + shift + half, the bound)], widened to hold pred.
 
     A plan's prediction starts each OC's model from the prediction before it, never from a
     measured level, so its error is mostly the run's own level (its imbalance, its bow), which
     a model seeded with the measured past (its cross-validation, ``Calibration.sigma``) never
-    shows. ``fit`` measures it: the chained prediction of each training run from its own
-    profile, the RMS of its residual in each OC (``chain_rms``), at least the CV sigma, times
-    the Student-t quantile of a new run's prediction interval over the n runs that reached the
-    OC (t_{(1+level)/2, n-1} sqrt(1 + 1/n)). ``from_cv``: the CV sigma times the normal quantile
-    alone (no training runs at hand; narrower than a plan's error).
+    shows. ``fit`` measures it on the chained prediction of each training run from its own
+    profile, as a one-way random-effects model with the run as the unit: each run's residual in
+    the OC is its level m_r (its mean residual there) plus a within-run part. Over the n runs
+    that reached the OC (a second or more each): ``shift`` the mean of the m_r (the chain's
+    bias there), ``between`` their SD (n - 1 degrees of freedom), ``within`` the pooled SD about
+    each run's own level. A new run's residual is then shift + its level + its within part,
+    and the half-width is t_{(1+level)/2, n-1} sqrt(between^2 (1 + 1/n) + within^2) (the
+    Student-t prediction interval of a new group; before: the RMS residual about the
+    prediction, which counts a bias as spread and the runs' own mean as known), at least
+    the same factor times the CV sigma. ``from_cv``: the CV sigma times the normal quantile
+    alone, no shift (no training runs at hand; narrower than a plan's error).
 
-    half, cv_sigma, chain_rms (n targets, O): mm/s (NaN: none); runs (n, O): the training runs
-    that reached each OC (0 with ``from_cv``).
+    half, shift, cv_sigma, chain_rms, between, within (n targets, O): mm/s (NaN: none;
+    chain_rms: the RMS residual, for the record); runs (n, O): the training runs that reached
+    each OC (0 with ``from_cv``).
     """
 
     targets: tuple[str, ...]
@@ -504,6 +520,9 @@ class IntervalWidths:
     chain_rms: np.ndarray
     runs: np.ndarray
     level: float = INTERVAL_LEVEL
+    shift: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
+    between: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
+    within: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
 
     @staticmethod
     def _sigmas(model: Model) -> np.ndarray:
@@ -524,15 +543,17 @@ class IntervalWidths:
         m = as_model(model)
         sig = cls._sigmas(m)
         z = float(norm.ppf(0.5 + level / 2.0))
-        return cls(tuple(m.targets), z * sig, sig, np.full_like(sig, np.nan), np.zeros(sig.shape, np.int64),
-                   level)
+        nan = np.full_like(sig, np.nan)
+        return cls(tuple(m.targets), z * sig, sig, nan, np.zeros(sig.shape, np.int64), level,
+                   np.zeros_like(sig), nan, nan)
 
     @classmethod
     def fit(cls, model: Bundle | Model, runs: list[Run], bound: AmplitudeBound | None = None,
-            level: float = INTERVAL_LEVEL) -> IntervalWidths:
+            level: float = INTERVAL_LEVEL, levels: InputFill | None = None) -> IntervalWidths:
         """From the chained prediction of each training run (one engine's, each with the history
-        the runs before it leave) against what it measured (see the class)."""
-        return cls.from_recorded(model, predict_recorded_runs(model, runs, bound=bound), level)
+        the runs before it leave) against what it measured (see the class); ``levels`` as
+        ``predict_runs`` takes them."""
+        return cls.from_recorded(model, predict_recorded_runs(model, runs, bound=bound, levels=levels), level)
 
     @classmethod
     def from_recorded(cls, model: Bundle | Model, recs: Sequence[RecordedPrediction],
@@ -545,7 +566,9 @@ class IntervalWidths:
         m = as_model(model)
         sig = cls._sigmas(m)
         n, O = sig.shape
-        sq, count, reached = np.zeros((n, O)), np.zeros((n, O)), np.zeros((n, O), np.int64)
+        levels: list[list[list[float]]] = [[[] for _ in range(O)] for _ in range(n)]
+        ss_within, dof_within = np.zeros((n, O)), np.zeros((n, O))
+        sq, count = np.zeros((n, O)), np.zeros((n, O))
         for rec in recs:
             p = rec.prediction
             for j in range(n):
@@ -553,17 +576,37 @@ class IntervalWidths:
                 ok = np.isfinite(res) & (p.oc >= 0)
                 np.add.at(sq[j], p.oc[ok], res[ok] ** 2)
                 np.add.at(count[j], p.oc[ok], 1)
-                reached[j] += np.bincount(p.oc[ok], minlength=O) >= FS  # a second or more
+                for o in np.unique(p.oc[ok]).tolist():
+                    r = res[ok & (p.oc == o)]
+                    if r.size < FS:  # a second or more
+                        continue
+                    levels[j][o].append(float(r.mean()))
+                    ss_within[j, o] += float(np.sum((r - r.mean()) ** 2))
+                    dof_within[j, o] += r.size - 1
         with np.errstate(invalid="ignore", divide="ignore"):
             rms = np.sqrt(sq / count)
-        scale = np.fmax(rms, sig)
-        half = np.full((n, O), np.nan)
+            within = np.sqrt(ss_within / dof_within)
+        reached = np.array([[len(levels[j][o]) for o in range(O)] for j in range(n)], np.int64).reshape(n, O)
+        shift, between = np.zeros((n, O)), np.full((n, O), np.nan)
+        for j in range(n):
+            for o in range(O):
+                if reached[j, o] >= 2:
+                    shift[j, o] = float(np.mean(levels[j][o]))
+                    between[j, o] = float(np.std(levels[j][o], ddof=1))
         few = reached < 2
         n_runs = np.maximum(reached, 2)
-        factor = student.ppf(0.5 + level / 2.0, n_runs - 1) * np.sqrt(1.0 + 1.0 / n_runs)
-        half[~few] = (factor * scale)[~few]
+        factor = student.ppf(0.5 + level / 2.0, n_runs - 1)
+        new_run = np.sqrt(between ** 2 * (1.0 + 1.0 / n_runs) + within ** 2)
+        half = np.full((n, O), np.nan)
+        half[~few] = (factor * np.fmax(new_run, sig))[~few]
         half[few] = float(norm.ppf(0.5 + level / 2.0)) * sig[few]
-        return cls(tuple(m.targets), np.where(np.isfinite(sig), half, np.nan), sig, rms, reached, level)
+        shift[few] = 0.0
+        return cls(tuple(m.targets), np.where(np.isfinite(sig), half, np.nan), sig, rms, reached, level,
+                   np.where(np.isfinite(sig), shift, 0.0), between, within)
+
+    def offsets(self) -> np.ndarray:
+        """``shift`` (n, O), zeros where none was measured (a bundle of widths from before)."""
+        return self.shift if self.shift.shape == self.half.shape else np.zeros(self.half.shape)
 
     def describe(self) -> str:
         """The rule in a line (for the CSV's notes and the plot)."""
@@ -571,9 +614,11 @@ class IntervalWidths:
         if not self.runs.any():
             return (f"{pct} interval: prediction -/+ the normal quantile x the OC model's CV residual sigma "
                     "(no training runs at hand: narrower than a plan's error), at least 0")
-        return (f"{pct} interval for a new run: prediction -/+ t_(n-1) sqrt(1 + 1/n) x the larger of the OC "
-                "model's CV residual sigma and the RMS residual of the chained prediction of the n training "
-                "runs in that OC, at least 0, at most the bound")
+        return (f"{pct} interval for a new run: the residuals of the chained prediction of the n training "
+                "runs in that OC as run levels (each run's mean residual) plus a within-run part; centred on "
+                "the prediction plus the runs' mean level, -/+ t_(n-1) x sqrt(SD of the run levels^2 "
+                "(1 + 1/n) + within-run SD^2) (at least t_(n-1) x the OC model's CV residual sigma), widened "
+                "to hold the prediction, at least 0, at most the bound")
 
 
 # -- the prediction ---------------------------------------------------------------------------------
@@ -590,7 +635,10 @@ class Prediction:
     (0: as predicted, RAISED to 0, MODULUS of the 1x vector, CAPPED at the bound); upper (K, n)
     the bound, mm/s (NaN: none); lo, hi (K, n) the interval of ``level``, mm/s; history (K, 4) the
     engine-history channels (``HISTORY_CHANNELS``); engine: the stated history before;
-    bound_rule, interval_rule: the rules in words; label: what it is.
+    bound_rule, interval_rule: the rules in words; label: what it is; envelope (K, n) the node's
+    ``envelope`` of each target's model at each sample (how far its inputs, the engine history
+    among them, are from its training region: at most 1 inside, above 1 outside; NaN: no model
+    or none known), as in the node's monitor messages.
     """
 
     t: np.ndarray
@@ -616,6 +664,7 @@ class Prediction:
     interval_rule: str = ""
     label: str = ""
     level: float = INTERVAL_LEVEL
+    envelope: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
 
     @property
     def speed(self) -> np.ndarray:
@@ -639,6 +688,8 @@ class Prediction:
         for j, tg in enumerate(self.targets):
             parts = []
             for code, what in ((RAISED, "raised to 0"), (MODULUS, "taken as the 1x vector's modulus"),
+                               (MEAN_MODULUS, "a model of the 1x vector without a measured level: the "
+                                              "fleet curve's mean amplitude at the speed"),
                                (CAPPED, "capped at the bound")):
                 hit = self.bounded[:, j] == code
                 if not hit.any():
@@ -652,6 +703,35 @@ class Prediction:
                              f"against {self.upper[k, j]:.3g}")
                 parts.append(text)
             out.append(f"{tg}: " + ("; ".join(parts) if parts else "within the bounds as predicted"))
+        return out
+
+
+    def outside(self) -> np.ndarray:
+        """(K, n) bool: samples where a target's model was outside its training region
+        (``envelope`` above 1: its inputs, the engine history among them, held at the edge)."""
+        if self.envelope.shape != self.predicted.shape:
+            return np.zeros(self.predicted.shape, dtype=bool)
+        return np.nan_to_num(self.envelope, nan=0.0) > OUTSIDE
+
+    def envelope_notes(self) -> list[str]:
+        """Per target, where its model's inputs left the training region, in a line: the samples
+        with ``envelope`` above 1 per OC, the largest and its time, and whether the history
+        inputs were among the inputs outside."""
+        out = []
+        beyond = self.outside()
+        for j, tg in enumerate(self.targets):
+            hit = beyond[:, j]
+            if not hit.any():
+                known = self.envelope.shape == self.predicted.shape and np.isfinite(self.envelope[:, j]).any()
+                out.append(f"{tg}: " + ("inside the training region (envelope <= 1)" if known else
+                                        "no envelope known (a bundle from before, or no model)"))
+                continue
+            ocs = np.bincount(self.oc[hit][self.oc[hit] >= 0], minlength=len(self.oc_names))
+            where = ", ".join(f"{self.oc_names[o]} {int(c)}" for o, c in enumerate(ocs) if c)
+            k = int(np.flatnonzero(hit)[np.argmax(self.envelope[hit, j])])
+            out.append(f"{tg}: OUTSIDE the training region (envelope > 1: the model held its inputs at the "
+                       f"region's edge) on {int(hit.sum())} samples ({where}), the largest "
+                       f"{self.envelope[k, j]:.3g} at t {self.t[k] - self.t[0]:.1f} s")
         return out
 
 
@@ -671,7 +751,8 @@ def needed_channels(model: Bundle | Model) -> list[str]:
 
 def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | None = None,
                  fill: InputFill | None = None, seed: Seed = "chain", label: str = "",
-                 bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None) -> Prediction:
+                 bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None,
+                 mean_modulus: bool = True, levels: InputFill | None = None) -> Prediction:
     """The node's prediction over ``runs`` (on the 40 Hz grid, in time order, one engine) with
     the targets unmeasured (see the module's design); ``engine``: the history before the
     first run. A channel the node needs that the runs lack and ``fill`` cannot give is a
@@ -679,7 +760,12 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
 
     Every predicted amplitude is bounded below by 0 (a model of the 1x vector: its modulus)
     and above by ``bound`` (None: not above), and the bounded value is what the chain feeds
-    on; its interval comes from ``widths`` (None: ``IntervalWidths.from_cv``)."""
+    on; its interval comes from ``widths`` (None: ``IntervalWidths.from_cv``). ``mean_modulus``
+    false: a model of the 1x vector keeps the node's own modulus, its predicted phase fed back
+    (as before the mean modulus, for comparison). ``levels``: the targets' mean amplitude in
+    each OC at the speed, from training runs (``InputFill.fit`` of the targets), taken for
+    the mean modulus and where no model predicted; None, or a target it lacks: the fleet
+    curve (``Bundle.curve``, over every OC's samples)."""
     m = as_model(model)
     sched = m.schedule
     need = needed_channels(m)
@@ -692,7 +778,7 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
     keys = {monitor_key(_BED, tg): j for j, tg in enumerate(targets)}
     history = HistoryTracker(OCDetector(sched, m.config).off_level, m.config.history_cooling, engine)
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "run", "inputs", "oc", "pred", "raw", "code",
-                                                          "upper", "hist")}
+                                                          "upper", "hist", "env")}
     filled: dict[str, list[int]] = {}  # samples filled, of them from the OC's own curve
     for r, run in enumerate(runs):
         cols = []
@@ -716,14 +802,21 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
                 cols.append(np.full(len(run.t), _NAN))
         X = np.column_stack(cols)
         t = np.asarray(run.t, float)
-        step = _step_node(core, keys, t, X, need, targets, uses_phase, fleet, seed, sched, bound)
+        means: np.ndarray | None = None
+        if levels is not None and any(tg in levels.channels for tg in targets):
+            if segs is None:
+                segs = segment_runs([run], sched, min_samples=1)
+            means = np.column_stack([levels.fill_parts(run, sched, tg, segs)[0] if tg in levels.channels
+                                   else np.full(t.size, _NAN) for tg in targets])
+        step = _step_node(core, keys, t, X, need, targets, uses_phase, fleet, seed, sched, bound,
+                          mean_modulus, means)
         speed = hold_last(X[:, need.index(sched.switch)])
         slow_cols = np.column_stack([hold_last(X[:, [*need, *slow].index(c)]) for c in SLOW_TEMPERATURES])
         parts["hist"].append(history_columns(t, speed, slow_cols, history))
         parts["t"].append(t)
         parts["run"].append(np.full(t.size, r))
         parts["inputs"].append(X)
-        for key, arr in zip(("pred", "raw", "code", "upper", "oc"), step):
+        for key, arr in zip(("pred", "raw", "code", "upper", "oc", "env"), step):
             parts[key].append(arr)
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     pred, oc, upper = cat["pred"], cat["oc"], cat["upper"]
@@ -735,20 +828,23 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
     return Prediction(cat["t"], cat["run"], sched.switch, (*need, *slow), cat["inputs"],
                       tuple(sorted(filled)), oc, sched.names, targets, pred, cat["hist"],
                       engine or EngineState(), cat["raw"], cat["code"], upper, lo, hi,
-                      how, own_share, rule, widths.describe(), label, widths.level)
+                      how, own_share, rule, widths.describe(), label, widths.level, cat["env"])
 
 
 def _interval(pred: np.ndarray, oc: np.ndarray, upper: np.ndarray,
               widths: IntervalWidths) -> tuple[np.ndarray, np.ndarray]:
     """The interval (lo, hi) (K, n) mm/s of predictions ``pred`` (K, n) in OCs ``oc`` (K,) under
-    the bound ``upper`` (K, n; NaN: none): pred -/+ the OC's half-width, lo at least 0, hi at most
-    the bound (never below pred)."""
+    the bound ``upper`` (K, n; NaN: none): pred + the OC's shift -/+ its half-width, lo at least 0
+    and never above pred, hi at most the bound and never below pred."""
     half = np.full(pred.shape, _NAN)
+    shift = np.zeros(pred.shape)
     inside = oc >= 0
     half[inside] = widths.half[:, oc[inside]].T
-    lo = np.maximum(pred - half, 0.0)
-    hi = np.where(np.isfinite(upper), np.fmax(np.minimum(pred + half, upper), pred), pred + half)
-    return lo, hi
+    shift[inside] = widths.offsets()[:, oc[inside]].T
+    centre = pred + shift
+    lo = np.minimum(np.maximum(centre - half, 0.0), pred)
+    hi = np.where(np.isfinite(upper), np.minimum(centre + half, upper), centre + half)
+    return lo, np.fmax(hi, pred)
 
 
 def with_interval(p: Prediction, widths: IntervalWidths) -> Prediction:
@@ -760,21 +856,33 @@ def with_interval(p: Prediction, widths: IntervalWidths) -> Prediction:
 def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarray, need: list[str],
                targets: tuple[str, ...], uses_phase: list[bool],
                fleet: list[tuple[np.ndarray, np.ndarray] | None], seed: Seed,
-               sched: Schedule, bound: AmplitudeBound | None
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+               sched: Schedule, bound: AmplitudeBound | None, mean_modulus: bool = True,
+               own: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Feed one run through the node sample by sample: (predicted within the bounds (K, n), the
-    node's own (K, n), how each was bounded (K, n), the bound (K, n), oc index (K,))."""
+    node's own (K, n), how each was bounded (K, n), the bound (K, n), oc index (K,), the node's
+    envelope (K, n)).
+
+    Chained, a model of the 1x vector never has a measured level to anchor on (the target is
+    never measured), so it predicts the runs' mean vector, whose modulus is below the mean
+    modulus (the runs' phases differ): its amplitude is taken from the fleet curve at the
+    speed instead (the mean amplitude, ``MEAN_MODULUS``; ``own`` (K, n): the training runs' mean
+    in the OC at the speed, where finite), and no phase is fed back (``mean_modulus`` false:
+    the node's own, its predicted phase fed back)."""
     K, n = t.size, len(targets)
     O = len(sched.names)
     pred = np.full((K, n), _NAN)
     raw = np.full((K, n), _NAN)
     code = np.zeros((K, n), dtype=np.int8)
     upper = np.full((K, n), _NAN)
+    env = np.full((K, n), _NAN)
     oc = np.full(K, -1, dtype=np.int64)
     index = {name: j for j, name in enumerate(sched.names)}
     speed = X[:, need.index(sched.switch)]
     level = np.column_stack([np.interp(np.nan_to_num(speed), *f) if f is not None else np.full(K, _NAN)
                              for f in fleet])
+    if own is not None:
+        level = np.where(np.isfinite(own), own, level)
     # the bound of each target in each OC (row O: outside every OC) at each sample's speed
     caps = [np.vstack([bound.limits(tg, o, hold_last(speed)) for o in range(-1, O)])
             if bound is not None and tg in bound.targets else None for tg in targets]
@@ -788,7 +896,7 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
         for j in range(n):
             vals[targets[j]] = fed[j]
             if uses_phase[j]:
-                vals[phases[j]] = fed_ph[j]
+                vals[phases[j]] = fed_ph[j]  # NaN with the mean modulus: never known (see above)
         for key, msg in core.handle_aligned(_BED, [AlignedSample(times[k], vals, new_run=k == 0)]):
             if key not in keys:
                 continue
@@ -797,10 +905,15 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
             if msg["oc"] is not None:
                 oc[k] = index[msg["oc"]]
             ph = msg.get("predicted_phase")
+            e = msg.get("envelope")
+            if e is not None:
+                env[k, j] = e
             v = _NAN
             if p is not None:
                 raw[k, j] = v = p
-                if v < 0.0:  # a model of the 1x vector: the amplitude is its modulus
+                if ph is not None and mean_modulus and seed == "chain" and level[k, j] == level[k, j]:
+                    v, code[k, j] = float(level[k, j]), MEAN_MODULUS  # no level: the mean modulus
+                elif v < 0.0:  # a model of the 1x vector: the amplitude is its modulus
                     v, code[k, j] = (-v, MODULUS) if ph is not None else (0.0, RAISED)
                 cap = caps[j]
                 if cap is not None:
@@ -810,18 +923,20 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
                 pred[k, j] = v
             if seed == "chain":
                 fed[j] = v if p is not None else float(level[k, j])
-                fed_ph[j] = _NAN if ph is None or p is None else ph
-    return pred, raw, code, upper, oc
+                if not mean_modulus:
+                    fed_ph[j] = _NAN if ph is None or p is None else ph
+    return pred, raw, code, upper, oc, env
 
 
 def predict_profile(model: Bundle | Model, profile: Profile, engine: EngineState | None = None,
                     fill: InputFill | None = None, seed: Seed = "chain", label: str = "",
-                    bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None) -> Prediction:
+                    bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None,
+                    levels: InputFill | None = None) -> Prediction:
     """The expected orders over a planned profile (``read_profile``, ``schedule_profile``);
     the bounds and the interval as ``predict_runs`` sets them."""
     m = as_model(model)
     runs = profile.runs(OCDetector(m.schedule, m.config).off_level)
-    return predict_runs(m, runs, engine, fill, seed, label, bound, widths)
+    return predict_runs(m, runs, engine, fill, seed, label, bound, widths, levels=levels)
 
 
 @dataclass
@@ -868,14 +983,15 @@ def recorded_eps(recs: Sequence[RecordedPrediction]) -> np.ndarray:
 
 def predict_recorded_run(model: Bundle | Model, run: Run, engine: EngineState | None = None,
                          seed: Seed = "chain", label: str = "", bound: AmplitudeBound | None = None,
-                         widths: IntervalWidths | None = None) -> RecordedPrediction:
+                         widths: IntervalWidths | None = None, mean_modulus: bool = True,
+                         levels: InputFill | None = None) -> RecordedPrediction:
     """The prediction for a held-out ``run`` from its own profile (its switch speed and every
     other input as recorded, the targets left out) and a stated history ``engine`` (e.g.
     ``history_after(training_runs, model)``, or ``stated_history``), compared per OC with the
     targets it measured (eps_td, ``node.sysid.metrics``); bounds and interval as
     ``predict_runs``."""
     m = as_model(model)
-    pred = predict_runs(m, [run], engine, None, seed, label, bound, widths)
+    pred = predict_runs(m, [run], engine, None, seed, label, bound, widths, mean_modulus, levels)
     measured = np.column_stack([run.column(tg) if tg in run.channels else np.full(len(run.t), _NAN)
                                 for tg in pred.targets])
     return RecordedPrediction(pred, measured, segment_runs([run], m.schedule))
@@ -883,7 +999,8 @@ def predict_recorded_run(model: Bundle | Model, run: Run, engine: EngineState | 
 
 def predict_recorded_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | None = None,
                           seed: Seed = "chain", bound: AmplitudeBound | None = None,
-                          widths: IntervalWidths | None = None) -> list[RecordedPrediction]:
+                          widths: IntervalWidths | None = None, mean_modulus: bool = True,
+                          levels: InputFill | None = None) -> list[RecordedPrediction]:
     """``predict_recorded_run`` of each of one engine's ``runs`` (returned in the order given),
     each with the history the runs before it (in time order) leave, from ``engine`` (the
     history before the first: default unknown, a cold engine); ``recorded_eps`` pools them."""
@@ -891,7 +1008,8 @@ def predict_recorded_runs(model: Bundle | Model, runs: list[Run], engine: Engine
     out: dict[int, RecordedPrediction] = {}
     state = engine
     for i in time_order(runs):
-        out[i] = predict_recorded_run(m, runs[i], state, seed, f"run {i + 1}", bound, widths)
+        out[i] = predict_recorded_run(m, runs[i], state, seed, f"run {i + 1}", bound, widths, mean_modulus,
+                                      levels)
         state = history_after([runs[i]], m, state)
     return [out[i] for i in range(len(runs))]
 
@@ -899,21 +1017,27 @@ def predict_recorded_runs(model: Bundle | Model, runs: list[Run], engine: Engine
 # -- output ---------------------------------------------------------------------------------------
 def csv_columns(preds: Sequence[Prediction]) -> list[str]:
     """The columns ``write_csv`` writes: the stated history's label, time, OC, each target
-    predicted with its interval (``yB``, ``yB_lo``, ``yB_hi``), the engine-history channels,
-    and every input fed to the node."""
+    predicted with its interval and its model's envelope (``yB``, ``yB_lo``, ``yB_hi``,
+    ``yB_envelope``: the node's monitor-message field, above 1 where the model's inputs, the
+    engine history among them, left its training region), the engine-history channels, and
+    every input fed to the node."""
     p = preds[0]
-    return ["history", "t", "oc", *(c for tg in p.targets for c in (tg, f"{tg}_lo", f"{tg}_hi")),
-            *HISTORY_CHANNELS, *p.channels]
+    per_target = (c for tg in p.targets for c in (tg, f"{tg}_lo", f"{tg}_hi", f"{tg}_envelope"))
+    return ["history", "t", "oc", *per_target, *HISTORY_CHANNELS, *p.channels]
 
 
 def csv_notes(preds: Sequence[Prediction]) -> list[str]:
     """The notes ``write_csv`` puts above the header (without their "# "): the bounds and where
-    they acted, the interval, and how each filled channel was filled."""
+    they acted, where a model left its training region (``Prediction.envelope_notes``), the
+    interval, and how each filled channel was filled."""
     p = preds[0]
     out = [f"bounds: {p.bound_rule}"]
     for q in preds:
         at = f" ({q.label} h stood)" if len(preds) > 1 and q.label else ""
         out += [f"bounds acted{at}: {line}" for line in q.bound_notes()]
+    for q in preds:
+        at = f" ({q.label} h stood)" if len(preds) > 1 and q.label else ""
+        out += [f"envelope{at}: {line}" for line in q.envelope_notes()]
     out.append(f"interval: {', '.join(f'{tg}_lo..{tg}_hi' for tg in p.targets)}: {p.interval_rule}")
     for how in dict.fromkeys(p.filled_how.values()):
         mine = [c for c, h in p.filled_how.items() if h == how]
@@ -940,7 +1064,8 @@ def write_csv(preds: Sequence[Prediction], f: TextIO) -> int:
     n = 0
     for p in preds:
         names = [p.oc_names[i] if i >= 0 else "" for i in p.oc.tolist()]
-        band = np.stack([p.predicted, p.lo, p.hi], axis=2).reshape(p.t.size, -1)
+        env = p.envelope if p.envelope.shape == p.predicted.shape else np.full(p.predicted.shape, _NAN)
+        band = np.stack([p.predicted, p.lo, p.hi, env], axis=2).reshape(p.t.size, -1)
         body = np.column_stack([band, p.history, p.inputs])
         for k in range(p.t.size):
             w.writerow([p.label, f"{p.t[k]:.3f}", names[k], *map(_g, body[k].tolist())])

@@ -442,7 +442,8 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     blocks: list[Block] = []
     try:
         bound = AmplitudeBound.fit(runs.runs, schedule, [bundle.target])
-        recs = predict_recorded_runs(bundle, runs.runs, bound=bound)
+        levels = InputFill.fit(runs.runs, schedule, [bundle.target], "runs")
+        recs = predict_recorded_runs(bundle, runs.runs, bound=bound, levels=levels)
     except OrdervibError as exc:
         return [Paragraph(f"prediction: {exc}", note=True)]
     widths = IntervalWidths.from_recorded(bundle, recs)
@@ -486,7 +487,8 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
         fill = InputFill.fit(runs.runs, schedule, needed_channels(bundle))
         now = history_after(runs.runs, bundle)
         states = ((now, "after these runs"), (stated_history(start, 24.0), "cold (24 h)"))
-        preds = [predict_profile(bundle, plan, state, fill, label=label, bound=bound, widths=widths)
+        preds = [predict_profile(bundle, plan, state, fill, label=label, bound=bound, widths=widths,
+                                 levels=levels)
                  for state, label in states]
     except OrdervibError as exc:
         return blocks + [Paragraph(f"planned pass-off: {exc}", note=True)]

@@ -3,7 +3,8 @@ no canvas, no pyplot, no file I/O: ``replay.views.phase_plots.save_png`` writes 
 
 - ``fig_prediction``: the speed profile on top (the channels filled from training runs named),
   then per target the expected amplitude over the profile, one line per stated history with
-  its interval as a band and the upper bound dotted, where the bounds acted in the title, the
+  its interval as a band and the upper bound dotted, crosses where the model's inputs left
+  its training region (``envelope`` above 1), where the bounds acted in the title, the
   OCs shaded and named; with a recorded run (``RecordedPrediction``) its measured amplitude
   beside, eps_td per OC in the titles.
 - ``fig_history``: figure A.5: (a) the speed profiles, (b) the cumulative energy parameter
@@ -20,7 +21,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from node.runtime.history import HISTORY_CHANNELS
-from node.training.prediction import CAPPED, MODULUS, RAISED, Prediction, RecordedPrediction
+from node.training.prediction import CAPPED, MEAN_MODULUS, MODULUS, RAISED, Prediction, RecordedPrediction
 from replay.views.style import LABEL, SMALL
 
 MEASURED = "0.35"  # grey: what a recorded run measured
@@ -87,6 +88,10 @@ def fig_prediction(preds: Sequence[Prediction] | RecordedPrediction, unit: str =
                             label=f"{pct} interval" if i == 0 else None)
             if i == 0 and np.isfinite(p.upper[:, j]).any():
                 ax.plot(x, p.upper[:, j], color="0.4", lw=0.6, ls=":", label="bound")
+            out = p.outside()[:, j]
+            if out.any():  # where the model's inputs (the history among them) left its training region
+                ax.plot(x[out], p.predicted[out, j], ls="none", marker="x", ms=3, color=line.get_color(),
+                        label="outside the training region (envelope > 1)" if i == 0 else None)
         if recorded is None:
             acted = _acted(ps, j)
             if acted:
@@ -99,7 +104,9 @@ def fig_prediction(preds: Sequence[Prediction] | RecordedPrediction, unit: str =
 
 def _acted(ps: Sequence[Prediction], j: int) -> str:
     """Where the bounds acted on target j, over every prediction: "" when nowhere."""
-    words = ((RAISED, "raised to 0"), (MODULUS, "modulus of the 1x vector"), (CAPPED, "capped at the bound"))
+    words = ((RAISED, "raised to 0"), (MODULUS, "modulus of the 1x vector"),
+             (MEAN_MODULUS, "the fleet's mean amplitude for a 1x-vector model"),
+             (CAPPED, "capped at the bound"))
     parts = []
     for code, what in words:
         n = sum(int(np.sum(p.bounded[:, j] == code)) for p in ps)
