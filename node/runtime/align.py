@@ -254,11 +254,13 @@ class Aligner:
         The messages of channels not expected are counted at once and skipped (``push`` does
         nothing else with them); the others go through ``push``'s very steps."""
         known = self._known
-        if all(c in known for c in channels):
-            at: Sequence[int] = range(len(channels))
-        else:
-            at = [i for i, c in enumerate(channels) if c in known]
-            self.stats.unknown.update(c for c in channels if c not in known)
+        at: list[int] = []
+        unknown = self.stats.unknown
+        for i, c in enumerate(channels):
+            if c in known:
+                at.append(i)
+            else:
+                unknown[c] += 1
         out: list[tuple[int, list[AlignedSample]]] = []
         guard, jump = self.guard, self._jump
         for i in at:
