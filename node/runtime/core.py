@@ -2,10 +2,12 @@
 
 ``NodeCore.handle_batch(keys, payloads)`` takes sensor messages as they arrived (key
 expressions and raw JSON bytes), decodes them by the contract's payload rule
-(``node.contract.decode_samples``), aligns each bed's (``Aligner.push_columns``) and
+(``node.contract.decode_samples``), aligns each bed's (``Aligner.push_columns``; a bed's few
+messages of a live batch ``Aligner.push_list``, the same steps without numpy) and
 runs each bed's ``MonitorPipeline`` of each target of the model (one aligner per bed over
 the channels every target needs; the OC message once per bed, from the first target's
-pipeline: the targets share schedule and settings, so their detectors agree); it returns
+pipeline: the targets share schedule and settings, so one OC detector per bed serves them all,
+stepped once per sample by the first); it returns
 each message's decoded time and the monitor messages each message completed. ``handle`` is
 a batch of one. Malformed payloads are counted (per bed) and skipped; channels no model needs
 are ignored. The live node and offline replay both drive this class, through ``handle_batch``,
