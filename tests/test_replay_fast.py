@@ -194,6 +194,34 @@ def test_handle_batch_of_clean_single_bed_batches_equals_handle() -> None:
     assert a.late > 0 and a.duplicates > 0 and a.unknown["zz"] > 0
 
 
+def test_batches_of_any_size_with_receive_times_give_the_same_outputs() -> None:
+    """Three beds interleaved, with receive times and silences beyond the alignment wait: batches
+    of 1 and 7 messages (each bed's few messages aligned as Python lists, ``Aligner.push_list``)
+    and of 1000 (a bed's many at once with numpy) give the same outputs, counts and receipts."""
+    sched = Schedule((OperatingCondition("A", 4000.0),))
+    bundle = Bundle("wdmd", "yB", sched, [])
+    names = {"a": "nB", "b": "yB", "c": "tA", "x": "zz"}
+    msgs, recv = [], []
+    for j, bed in enumerate(("b1", "b2", "b3")):
+        for i, (c, t, v) in enumerate(_stream(20 + j, 1200)):
+            msgs.append((i, j, f"testbed/{bed}/sensor/{names[c]}", orjson.dumps({"t": t, "v": v})))
+    msgs.sort(key=lambda m: (m[0], m[1]))  # the beds' messages interleaved
+    keys, payloads = [m[2] for m in msgs], [m[3] for m in msgs]
+    clock = 0
+    for i in range(len(msgs)):  # 1 ms apart, with a silence of 1 s every 2000 messages
+        clock += 1_000_000 if i % 2000 else 1_000_000_000
+        recv.append(clock)
+    got = {}
+    for size in (1, 7, 1000):
+        core = NodeCore(bundle)
+        out = [(a + i, o) for a in range(0, len(msgs), size)
+               for i, o in core.handle_batch(keys[a:a + size], payloads[a:a + size], recv[a:a + size]).done]
+        got[size] = (orjson.dumps(out), orjson.dumps(core.finish()),
+                     [(b.received, b.last_recv, b.latest_t, b.aligner.stats) for b in core.beds.values()])
+    assert got[1] == got[7] == got[1000]
+    assert len(got[1][0]) > 100_000 and got[1][2][0][0] > 3000
+
+
 @pytest.fixture(scope="module")
 def model(tmp_path_factory) -> Path:
     from conftest import small_campaign

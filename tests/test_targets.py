@@ -156,3 +156,30 @@ def test_one_target_model_gives_the_reference_codes_messages(tmp_path: Path) -> 
                            stdout=subprocess.DEVNULL)
         outs[name] = _monitor(out)
     assert outs["ours"] == outs["ref"] and len(outs["ours"]) == 2
+
+
+def test_targets_of_a_bed_share_one_oc_detector_and_a_foreign_one_is_refused() -> None:
+    """A bed's pipelines step one OC detector (the first target's, once per sample): its OC and
+    phase in every target's message; a detector of another schedule is refused."""
+    from node.contract.schedule import OperatingCondition, Schedule
+    from node.models.bundle import Bundle
+    from node.runtime.core import NodeCore
+    from node.runtime.pipeline import MonitorPipeline
+
+    sched = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0)))
+    core = NodeCore(Model((Bundle("wdmd", "yA", sched, []), Bundle("wdmd", "yB", sched, []))))
+    out = []
+    for k in range(1200):  # 15 s at 4000 rpm, then 15 s at 6000
+        t = 100.0 + k / 40
+        speed = 4000.0 if k < 600 else 6000.0
+        for ch, v in (("nB", speed), ("yA", 1.0), ("yB", 2.0)):
+            out += core.handle(f"testbed/b1/sensor/{ch}", json.dumps({"t": t, "v": v}).encode())
+    first, second = core.beds["b1"].pipelines
+    assert second.detector is first.detector
+    by_target = {t: [(m["t"], m["oc"], m["phase"]) for k, m in out if k == monitor_key("b1", t)]
+                 for t in ("yA", "yB")}
+    assert by_target["yA"] == by_target["yB"] and len(by_target["yA"]) > 1000
+    assert {oc for _, oc, phase in by_target["yA"] if phase == "steady"} == {"A", "B"}
+    other = Schedule((OperatingCondition("A", 4100.0),))
+    with pytest.raises(ValueError, match="shared OC detector"):
+        MonitorPipeline(Bundle("wdmd", "yC", other, []), detector=first.detector)

@@ -276,10 +276,11 @@ class LiveNode:
         t0 = time.perf_counter()
         result = self.core.handle_batch(keys, payloads, recv)
         self._spent["core"] += time.perf_counter() - t0
+        known, last = self.core.known, self._last_recv
         for key, r in dict(zip(keys, recv, strict=True)).items():  # each key's newest receipt
-            bed = self._bed(key)
-            if bed is not None and r > self._last_recv.get(bed, 0):
-                self._last_recv[bed] = r
+            route = known(key)
+            if route is not None and r > last.get(route[0], 0):
+                last[route[0]] = r
         # each input's log time (ns) as log_time_ns takes it; a malformed one at its receive time
         log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
         keep = None if result.refused is None else (~result.refused).tolist()

@@ -244,8 +244,36 @@ class Aligner:
 
     def _one_by_one(self, channels: Sequence[str], t: np.ndarray, v: np.ndarray
                     ) -> list[tuple[int, list[AlignedSample]]]:
-        one_by_one = (self.push(c, ti, vi) for c, ti, vi in zip(channels, t.tolist(), v.tolist()))
-        return [(i, out) for i, out in enumerate(one_by_one) if out]
+        return self.push_list(channels, t.tolist(), v.tolist())
+
+    def push_list(self, channels: Sequence[str], t: Sequence[float], v: Sequence[float | None]
+                  ) -> list[tuple[int, list[AlignedSample]]]:
+        """``push(channels[i], t[i], v[i])`` for every i in turn, as Python lists (a few messages:
+        no numpy call); ``(i, samples)`` for each message i that completed samples.
+
+        The messages of channels not expected are counted at once and skipped (``push`` does
+        nothing else with them); the others go through ``push``'s very steps."""
+        known = self._known
+        at: list[int] = []
+        unknown = self.stats.unknown
+        for i, c in enumerate(channels):
+            if c in known:
+                at.append(i)
+            else:
+                unknown[c] += 1
+        out: list[tuple[int, list[AlignedSample]]] = []
+        guard, jump = self.guard, self._jump
+        for i in at:
+            c, ti, vi = channels[i], t[i], v[i]
+            last = self._last_t
+            if last is None or guard.pending or not -jump <= ti - last <= jump:
+                got = self._guarded(c, ti, vi)
+            else:
+                guard.taken += 1
+                got = self._push(c, ti, vi)
+            if got:
+                out.append((i, got))
+        return out
 
     def _plan(self, k: np.ndarray, c: np.ndarray, newest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What ``push`` would do with messages of slots k and channel codes c (no new run among

@@ -2,10 +2,12 @@
 
 ``NodeCore.handle_batch(keys, payloads)`` takes sensor messages as they arrived (key
 expressions and raw JSON bytes), decodes them by the contract's payload rule
-(``node.contract.decode_samples``), aligns each bed's (``Aligner.push_columns``) and
+(``node.contract.decode_samples``), aligns each bed's (``Aligner.push_columns``; a bed's few
+messages of a live batch ``Aligner.push_list``, the same steps without numpy) and
 runs each bed's ``MonitorPipeline`` of each target of the model (one aligner per bed over
 the channels every target needs; the OC message once per bed, from the first target's
-pipeline: the targets share schedule and settings, so their detectors agree); it returns
+pipeline: the targets share schedule and settings, so one OC detector per bed serves them all,
+stepped once per sample by the first); it returns
 each message's decoded time and the monitor messages each message completed. ``handle`` is
 a batch of one. Malformed payloads are counted (per bed) and skipped; channels no model needs
 are ignored. The live node and offline replay both drive this class, through ``handle_batch``,
@@ -24,9 +26,8 @@ by ``forget`` (the live node's expiry of silent beds); its engine history is kep
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import compress
 from typing import NamedTuple, TypeVar
 
 import numpy as np
@@ -45,7 +46,7 @@ from node.contract import (
 )
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
-from node.runtime.align import AlignedSample, Aligner
+from node.runtime.align import SMALL_BATCH, AlignedSample, Aligner
 from node.runtime.clock import ClockPolicy
 from node.runtime.history import HISTORY_CHANNELS, EngineState
 from node.runtime.pipeline import MonitorPipeline
@@ -192,71 +193,88 @@ class NodeCore:
             raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
         t, v, ok = decode_samples(payloads)
         routes = {key: self.route(key) for key in dict.fromkeys(keys)}  # admitted in arrival order
-        bed_of_key = {key: route[0] for key, route in routes.items() if type(route) is tuple}
-        channel_of = {key: route[1] for key, route in routes.items() if type(route) is tuple}
-        names = set(bed_of_key.values())
+        admitted = {key: route for key, route in routes.items() if type(route) is tuple}
         refused = None
-        if len(names) == 1 and len(channel_of) == len(routes):  # the common batch: one bed, sensor keys
-            parts = [(names.pop(), np.arange(len(keys)))]
-        else:
-            bed_of = list(map(bed_of_key.get, keys))
-            order = [name for name in dict.fromkeys(bed_of) if name is not None]  # by first message
-            code_of = {name: j for j, name in enumerate(order)}
-            codes = np.array([-1 if name is None else code_of[name] for name in bed_of], dtype=np.int64)
-            if len(channel_of) < len(routes):
-                refused = codes < 0
-                self._count_refused(Counter(compress(keys, refused.tolist())), routes)
-            parts = [(name, np.flatnonzero(codes == j)) for j, name in enumerate(order)]
-        received = None if recv is None else np.asarray(recv, dtype=np.int64)
+        parts: list[tuple[str, Sequence[int]]]
+        names = {route[0] for route in admitted.values()}
+        if len(names) == 1 and len(admitted) == len(routes):  # the common batch: one bed, sensor keys
+            parts = [(names.pop(), range(len(keys)))]
+        else:  # each bed's messages, beds in the order of their first message (Python lists: a
+            groups: dict[str, list[int]] = {}  # live batch holds a few messages per bed)
+            unroutable = []
+            for i, key in enumerate(keys):
+                route = admitted.get(key)
+                if route is None:
+                    unroutable.append(i)
+                else:
+                    group = groups.get(route[0])
+                    if group is None:
+                        group = groups[route[0]] = []
+                    group.append(i)
+            if unroutable:
+                refused = np.zeros(len(keys), dtype=bool)
+                refused[unroutable] = True
+                self._count_refused(Counter(keys[i] for i in unroutable), routes)
+            parts = list(groups.items())
+        tl, vl, okl = t.tolist(), v.tolist(), ok.tolist()
+        received = None if recv is None else np.asarray(recv, dtype=np.int64).tolist()
         done: list[tuple[int, str, list[AlignedSample]]] = []
         for name, idx in parts:
             bed = self.beds[name]
-            good = idx[ok[idx]]
+            good = [i for i in idx if okl[i]]
             bed.received += len(idx)
             bed.malformed += len(idx) - len(good)
-            if not len(good):
+            if not good:
                 continue
-            if bed.aligner.clock is None:  # no confirmed clock yet (node.runtime.clock)
-                newest = float(t[good].max())
-                bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
             if len(good) == len(keys):
-                channels = list(map(channel_of.__getitem__, keys))
+                channels = [admitted[key][1] for key in keys]
+                tg, vg = (t, v) if len(good) >= SMALL_BATCH else (tl, vl)
             else:
-                channels = [channel_of[keys[i]] for i in good.tolist()]
-            cuts = [] if received is None else self._idle_cuts(bed, received[good])
+                channels = [admitted[keys[i]][1] for i in good]
+                if len(good) >= SMALL_BATCH:
+                    tg, vg = t[good], v[good]
+                else:
+                    tg, vg = [tl[i] for i in good], [vl[i] for i in good]
+            if bed.aligner.clock is None:  # no confirmed clock yet (node.runtime.clock)
+                newest = max(tl[i] for i in good)
+                bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
+            # numpy for a bed's many messages (replay), Python lists for a few (live): the same steps
+            push: Callable[..., list[tuple[int, list[AlignedSample]]]] = \
+                bed.aligner.push_columns if len(good) >= SMALL_BATCH else bed.aligner.push_list
+            cuts = [] if received is None else self._idle_cuts(bed, [received[i] for i in good])
             starts = [0, *cuts] if cuts and cuts[0] else cuts or [0]
             for a, b in zip(starts, [*starts[1:], len(good)], strict=True):
                 flushed = bed.aligner.flush() if cuts and a in cuts else []
                 if b - a == len(good):
-                    part = bed.aligner.push_columns(channels, t[good], v[good])
+                    part = push(channels, tg, vg)
                 else:
-                    part = bed.aligner.push_columns(channels[a:b], t[good[a:b]], v[good[a:b]])
+                    part = push(channels[a:b], tg[a:b], vg[a:b])
                 if flushed and part and part[0][0] == 0:  # the message after the silence completed some too
                     flushed += part.pop(0)[1]
                 if flushed:
-                    done.append((int(good[a]), name, flushed))
-                done += [(int(good[a + j]), name, samples) for j, samples in part]
+                    done.append((good[a], name, flushed))
+                done += [(good[a + j], name, samples) for j, samples in part]
             if bed.aligner.clock is not None:
                 bed.latest_t = bed.aligner.clock
         if len(parts) > 1:
             done.sort(key=lambda x: x[0])  # each bed's aligner is independent; outputs in message order
         return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done], refused)
 
-    def _idle_cuts(self, bed: Bed, recv: np.ndarray) -> list[int]:
+    def _idle_cuts(self, bed: Bed, recv: list[int]) -> list[int]:
         """Where a bed's messages (receive times recv, ns, in arrival order) come ``idle_ns`` or
         more after the newest receipt before them: each such message index; the bed's newest
         receipt is advanced."""
         prev = bed.last_recv
-        newest = np.maximum.accumulate(recv)
-        bed.last_recv = int(newest[-1]) if prev is None else max(prev, int(newest[-1]))
-        before = np.empty_like(newest)
-        before[1:] = newest[:-1]
-        if prev is None:
-            before[0] = recv[0]  # the bed's first message: nothing waits before it
-        else:
-            before[0] = prev
-            np.maximum(before, prev, out=before)
-        return np.flatnonzero(recv - before >= self.idle_ns).tolist()
+        newest = recv[0] if prev is None else prev  # the bed's first message: nothing waits before it
+        idle = self.idle_ns
+        cuts = []
+        for j, r in enumerate(recv):
+            if r - newest >= idle:
+                cuts.append(j)
+            if r > newest:
+                newest = r
+        bed.last_recv = newest
+        return cuts
 
     def flush_idle(self, now: int, margin: int = 0) -> list[Output]:
         """The node's clock is ``now`` (ns): every bed silent ``idle_ns + margin`` or more since its
@@ -390,8 +408,9 @@ class NodeCore:
         if bed is None:
             first = MonitorPipeline(self.model.bundles[0], self._engines.get(name),
                                     slow_temperatures=self._slow_temperatures)
-            pipes = [first] + [MonitorPipeline(b, history=first.history,  # one engine, one history
-                                               slow_temperatures=self._slow_temperatures)
+            pipes = [first] + [MonitorPipeline(b, history=first.history,  # one engine, one history,
+                                               slow_temperatures=self._slow_temperatures,
+                                               detector=first.detector)  # one speed, one OC detector
                                for b in self.model.bundles[1:]]
             channels = sorted({c for p in pipes for c in p.sensor_channels})
             aligner = Aligner(channels, max_wait=self.model.config.align_wait_s, clock=self.clock)

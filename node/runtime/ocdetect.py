@@ -96,7 +96,9 @@ class OCDetector:
     def __init__(self, schedule: Schedule, config: RuntimeConfig | None = None, fs: float = FS) -> None:
         c = config or RuntimeConfig()
         self.schedule = schedule
+        self.config = c
         self.speeds = np.array([oc.speed for oc in schedule.ocs])
+        self._nominal = self.speeds.tolist()  # the same floats, without a numpy scalar per step
         self.tol = schedule.tolerance
         self.n_smooth = max(1, round(c.detector_smooth_s * fs))
         self.n_confirm = max(1, round(c.detector_confirm_s * fs))
@@ -158,7 +160,7 @@ class OCDetector:
 
         if phase is Phase.STEADY:
             assert oc is not None and self._anchor is not None  # set on arrival
-            nominal = float(self.speeds[oc])
+            nominal = self._nominal[oc]
             before = self._hist[-1 - self.n_depart] if len(self._hist) > self.n_depart else s
             if abs(s - nominal) < abs(before - nominal) or abs(s - nominal) <= 0.25 * self.tol * nominal:
                 # still settling onto the plateau: the held speed follows
@@ -169,7 +171,7 @@ class OCDetector:
 
         if phase is Phase.TRANSITION:
             assert oc is not None  # a transition heads for an OC
-            target = float(self.speeds[oc])
+            target = self._nominal[oc]
             band = self.tol * target
             if self._held(self.n_confirm, target, band):
                 self._arrive(oc)

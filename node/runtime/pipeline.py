@@ -73,15 +73,22 @@ class MonitorPipeline:
     """
 
     def __init__(self, bundle: Bundle, engine: EngineState | None = None,
-                 history: HistoryTracker | None = None, slow_temperatures: bool = False) -> None:
+                 history: HistoryTracker | None = None, slow_temperatures: bool = False,
+                 detector: OCDetector | None = None) -> None:
         """history: the bed's tracker when several targets' pipelines share it (it is stepped
         once per sample; ``engine`` is then unused); slow_temperatures: await the slow
-        temperatures even when this target's models take no history input (another target's do)."""
+        temperatures even when this target's models take no history input (another target's do);
+        detector: the OC detector of the bed's first target's pipeline, when this one follows it
+        (the targets of a model share schedule and settings, so their detectors agree): that
+        pipeline steps (and resets) it on each sample before this one reads its state."""
         cfg = bundle.config
         self.bundle = bundle
         self.target = bundle.target
         self.switch = bundle.schedule.switch
-        self.detector = OCDetector(bundle.schedule, cfg, FS)
+        if detector is not None and (detector.schedule != bundle.schedule or detector.config != cfg):
+            raise ValueError("a shared OC detector must have the pipeline's schedule and settings")
+        self._follows = detector is not None  # another pipeline steps the detector
+        self.detector = detector or OCDetector(bundle.schedule, cfg, FS)
         self._names = bundle.schedule.names  # a tuple built on each access: keep one
         self._uses_history = any(c in HISTORY_CHANNELS for c in bundle.inputs)
         slow = SLOW_TEMPERATURES if self._uses_history or slow_temperatures else ()
@@ -125,40 +132,50 @@ class MonitorPipeline:
     def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
         if sample.new_run:
             self._new_run()
-        vals = self._filled(sample.values)
-        st = self.detector.step(sample.values.get(self.switch, _NAN))
-        oc_changed = st.oc != self._state[0]
+        values = sample.values
+        vals = self._filled(values)
+        detector = self.detector
+        st = detector.state if self._follows else detector.step(values.get(self.switch, _NAN))
+        oc, phase = st
+        oc_changed = oc != self._state[0]
         if self._curve is not None:
             vals[RUN_CURVE] = self._curve.step(vals[self.switch], vals[self.target], oc_changed)
         # stepped with or without history inputs: the bed's engine history stays known
         known = self.history.step(sample.t, vals[self.switch],
-                                  tuple(vals[c] for c in self._slow) if self._slow else _NO_SLOW)
+                                  tuple([vals[c] for c in self._slow]) if self._slow else _NO_SLOW)
         if self._uses_history:
             vals.update(zip(HISTORY_CHANNELS, known))
         oc_msg = None
-        if oc_changed or st.phase != self._state[1]:
+        if oc_changed or phase != self._state[1]:
             oc_msg = self._switch(sample.t, st, oc_changed)
-        measured = sample.values.get(self.target, _NAN)
-        msg = {"t": sample.t, "oc": self._name(st.oc), "phase": st.phase.value,
-               "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
-               "score": None, "band": None, "model": None, "reason": None,
-               "run_scale": None, "envelope": None}
-        z = NAN_VECTOR
+        measured = values.get(self.target, _NAN)
+        # one dict literal per sample, its keys in the contract's order (the JSON bytes follow it)
         if self._uses_phase:
-            phase_deg = sample.values.get(self._phase_ch, _NAN)
+            phase_deg = values.get(self._phase_ch, _NAN)
             z = order_vector(measured, phase_deg)
-            msg.update(measured_phase=_num(phase_deg), predicted_phase=None, vector_residual=None,
-                       vector_score=None)
-        if self._active is not None:
-            self._predict(self._active, vals, measured, msg, z)
-            self._active.since += 1
+            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": phase.value,
+                   "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
+                   "score": None, "band": None, "model": None, "reason": None,
+                   "run_scale": None, "envelope": None, "measured_phase": _num(phase_deg),
+                   "predicted_phase": None, "vector_residual": None, "vector_score": None}
+        else:
+            z = NAN_VECTOR
+            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": phase.value,
+                   "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
+                   "score": None, "band": None, "model": None, "reason": None,
+                   "run_scale": None, "envelope": None}
+        active = self._active
+        if active is not None:
+            self._predict(active, vals, measured, msg, z)
+            active.since += 1
+        steady = phase is Phase.STEADY
         if self._jump is not None:
-            self._jump.step(measured, st.phase is Phase.STEADY)
+            self._jump.step(measured, steady)
             if self._jump.flagged:
                 msg["flag"], msg["reason"] = Flag.ALARM, Reason.STEP
         if self._vector:
-            self._watch_vector(self._vector, z, st.phase, msg)
-        if self._flat is not None and self._flat.step(measured, st.phase is not Phase.OFF):
+            self._watch_vector(self._vector, z, steady, msg)
+        if self._flat is not None and self._flat.step(measured, phase is not Phase.OFF):
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.FLATLINE
         self._hist.append(tuple(vals.values()))
         return msg, oc_msg
@@ -167,8 +184,9 @@ class MonitorPipeline:
         """Step the model in force when its inputs are known, and its residual rule; into msg
         (z: the measured 1x vector, for a model that predicts it)."""
         u = [vals[c] for c in a.inputs]
-        if not all(x - x == 0.0 for x in u):  # an input never seen yet in this run
-            return
+        for x in u:
+            if x - x != 0.0:  # an input never seen yet in this run
+                return
         env, model_id, widen, e = a.envelope, a.model_id, 1.0, None
         if env is not None:  # beyond it: inputs held at its edge, the band widened, both said
             e = env.distance(u, a.since / FS)
@@ -182,36 +200,51 @@ class MonitorPipeline:
             if on:
                 model_id += CURVE
         r = measured - pred if math.isfinite(measured) and math.isfinite(pred) else _NAN
+        check = a.check
         if on:  # the run scale measures the model's own residuals, as training calibrated it
-            score, raised = a.check.step(r / widen, (measured - own) / widen)
+            score, raised = check.step(r / widen, (measured - own) / widen)
         else:
-            score, raised = a.check.step(r / widen if widen != 1.0 else r)
-        msg.update(predicted=_num(pred), residual=None if r != r else r, score=score,
-                   band=a.check.band * widen if widen != 1.0 else a.check.band,
-                   model=model_id, run_scale=a.check.run_scale, envelope=e)
+            score, raised = check.step(r / widen if widen != 1.0 else r)
+        msg["predicted"] = _num(pred)
+        msg["residual"] = None if r != r else r
+        msg["score"] = score
+        msg["band"] = check.band * widen if widen != 1.0 else check.band
+        msg["model"] = model_id
+        msg["run_scale"] = check.run_scale
+        msg["envelope"] = e
         if a.vector is not None and not on:
             v = a.vector.vector
-            msg.update(predicted_phase=_num(lag_degrees(v)), vector_residual=_num(abs(z - v)))
+            msg["predicted_phase"] = _num(lag_degrees(v))
+            msg["vector_residual"] = _num(abs(z - v))
         if raised:
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.RESIDUAL
         else:
             msg["flag"] = Flag.OK
 
     @staticmethod
-    def _watch_vector(checks: list[StepCheck], z: complex, phase: Phase, msg: dict) -> None:
-        """The vector rule on this sample's 1x vector z (NaN when amplitude or phase is null):
-        ``vector_score`` the larger statistic over its threshold (alarm beyond 1)."""
-        steady = phase is Phase.STEADY
-        msg["vector_score"] = max(chk.step(z, steady) / chk.threshold for chk in checks)
-        if any(chk.flagged for chk in checks) and msg["flag"] is not Flag.ALARM:
+    def _watch_vector(checks: list[StepCheck], z: complex, steady: bool, msg: dict) -> None:
+        """The vector rule on this sample's 1x vector z (NaN when amplitude or phase is null;
+        steady: on a steady plateau): ``vector_score`` the larger statistic over its threshold
+        (alarm beyond 1; the first of equal ones, as ``max``)."""
+        score = None
+        flagged = False
+        for chk in checks:
+            x = chk.step(z, steady) / chk.threshold
+            if score is None or x > score:
+                score = x
+            flagged = flagged or chk.flagged
+        msg["vector_score"] = score
+        if flagged and msg["flag"] is not Flag.ALARM:
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.VECTOR
 
     def _name(self, oc: int | None) -> str | None:
         return None if oc is None else self._names[oc]
 
     def _new_run(self) -> None:
-        """A new run: the detector restarts off, every rule and the held values afresh."""
-        self.detector.reset()
+        """A new run: the detector restarts off (reset by the pipeline that steps it), every rule
+        and the held values afresh."""
+        if not self._follows:
+            self.detector.reset()
         self._hist.clear()
         self._last = dict.fromkeys(self.channels, _NAN)
         for rule in (self._flat, self._jump, *self._vector, self._runscale, self._curve):
