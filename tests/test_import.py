@@ -184,7 +184,9 @@ def _check_round_trip(original: Path, out: Path) -> None:
             moves = [pad[2 + s:len(pad) - 2 + s] - y for s in (-2, -1, 1, 2)]
             bound = np.max([np.abs(wrap_degrees(m) if phase else m) for m in moves], axis=0)
             ok = np.isfinite(y) & np.isfinite(bound)  # the original and its neighbours measured
-            assert ok.mean() > 0.25, ch
+            # enough compared: a phase only where its order is above the unit's threshold (the LP
+            # and HP shafts idle below their first critical: yA_ph 21 %, yC_ph 3.5 % of these slots)
+            assert ok.sum() >= 100 and (phase or ok.mean() > 0.25), (ch, ok.sum())
             assert np.isfinite(x[ok]).all(), ch  # so the source was, around the slot: a value
             err = np.abs(wrap_degrees(x - y) if phase else x - y)[ok]
             assert np.all(err <= bound[ok] + 1e-6 * np.max(np.abs(y[ok]), initial=1.0)), ch
