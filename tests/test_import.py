@@ -440,7 +440,8 @@ def test_bad_files_and_maps_one_line(tmp_path: Path, capsys: pytest.CaptureFixtu
     (tmp_path / "word.csv").write_text("time,speed\n1767600000.0,1\n1767600000.01,fast\n")
     bad_map('bed = "b1"\n' + good, tmp_path / "word.csv", "column 'speed', data row 2: 'fast' is no number")
     (tmp_path / "big.toml").write_text("#" * 70_000)
-    _fails(capsys, [str(f["csv"]), "--map", str(tmp_path / "big.toml")], out, "larger than 64 KiB")
+    _fails(capsys, [str(f["csv"]), "--map", str(tmp_path / "big.toml")], out,
+           "more than the 65536 such a file may hold")
 
 
 def test_existing_out_is_never_overwritten(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

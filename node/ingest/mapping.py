@@ -36,6 +36,7 @@ from node.contract import (
     is_name,
     is_phase_channel,
 )
+from node.contract.documents import read_bounded
 from node.ingest.units import conversion, detection_factor
 
 MAX_MAP_BYTES = 64 * 1024  # a map file is small text
@@ -132,17 +133,10 @@ class ImportMap:
 def load_map(path: str | os.PathLike) -> ImportMap:
     """Read and check MAP.toml (at most 64 KiB); one-line ``OrdervibError`` for a bad one."""
     name = os.fspath(path)
-    try:
-        with open(name, "rb") as f:
-            raw = f.read(MAX_MAP_BYTES + 1)
+    try:  # a regular file of at most 64 KiB (a FIFO or a device is refused without waiting)
+        raw = read_bounded(name, f"map {name}", MAX_MAP_BYTES)
     except FileNotFoundError:
         raise OrdervibError(f"map file not found: {name}") from None
-    except IsADirectoryError:
-        raise OrdervibError(f"map {name} is a directory") from None
-    except OSError as exc:
-        raise OrdervibError(f"cannot read map {name}: {exc.strerror}") from None
-    if len(raw) > MAX_MAP_BYTES:
-        raise OrdervibError(f"{name}: larger than {MAX_MAP_BYTES // 1024} KiB: not an import map")
     try:
         doc = tomllib.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
