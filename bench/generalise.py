@@ -116,9 +116,10 @@ def held_out(model: Path, tr: list, te: list, guard: bool) -> list[tuple[str, fl
     return [(e.name, e.eps, kinds[e.name]) for e in evals]
 
 
-def engine_args(name: str, default_set: str, argv: list[str] | None) -> tuple[Path, str, list[Engine]]:
+def engine_args(name: str, default_set: str, argv: list[str] | None
+                ) -> tuple[Path, str, list[Engine], bool]:
     """``--set`` and ``--workdir`` of a bench over these engines: the folder of the recordings
-    (made), the set's name and its engines."""
+    (made), the set's name, its engines, and --reuse (generalise only; else False)."""
     ap = argparse.ArgumentParser(prog=f"python -m bench {name}")
     ap.add_argument("--set", choices=[*SETS, "all"], default=default_set)
     ap.add_argument("--workdir", help="keep the simulated recordings here (default: a new temp folder)")
@@ -128,20 +129,18 @@ def engine_args(name: str, default_set: str, argv: list[str] | None) -> tuple[Pa
     args = ap.parse_args(argv)
     work = Path(args.workdir or tempfile.mkdtemp(prefix=f"ordervib-{name}-"))
     work.mkdir(parents=True, exist_ok=True)
-    global REUSE
-    REUSE = bool(getattr(args, "reuse", False))
-    return work, args.set, SETS["dev"] + SETS["report"] if args.set == "all" else SETS[args.set]
+    engines = SETS["dev"] + SETS["report"] if args.set == "all" else SETS[args.set]
+    return work, args.set, engines, bool(getattr(args, "reuse", False))
 
 
 COLUMNS: tuple[tuple[str, dict], ...] = (
     ("no phase, held", {"phase": False, "fade": False}), ("no phase", {"phase": False}),
     ("default, held", {"fade": False}), ("default", {}))
 GUARDED = (("no phase, guarded", 1), ("default, guarded", 3))  # the curve guard on that column's model
-REUSE = False  # --reuse: the models already in the work dir
 
 
 def main(argv: list[str] | None = None) -> int:
-    work, set_name, engines = engine_args("generalise", "report", argv)
+    work, set_name, engines, reuse = engine_args("generalise", "report", argv)
     from node.contract.schedule import load_schedule
     from node.training.evaluation import baseline_eps
     from node.training.fit import load_runs
@@ -155,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         tr, te = load_runs([str(train)], quiet=True), load_runs([str(test)], quiet=True)
         for name, extra in COLUMNS:
             model = work / f"{e.name}-{name.replace(', ', '-').replace(' ', '-')}"
-            reused = REUSE and (model / "manifest.json").exists()
+            reused = reuse and (model / "manifest.json").exists()
             if not reused and not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")
                 return 2

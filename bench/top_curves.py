@@ -89,7 +89,7 @@ def choose(members: list[Member], subsets: bool) -> tuple[Member, ...]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    work, _, engines = engine_args("top-curves", "dev", argv)
+    work, _, engines, _ = engine_args("top-curves", "dev", argv)
     from node.contract.schedule import load_schedule
     from node.training.dataset import with_history
     from node.training.evaluation import baseline_eps, predict_segments
