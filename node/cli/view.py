@@ -54,6 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="write DIR/<bed>-<target>-polar.png and -bode.png (needs the target's phase channel), "
         "start no viewer",
     )
+    p.add_argument("--slow-roll", metavar="LO,HI", default=None,
+                   help="with --plots: subtract each run's mean 1x vector between LO and HI rpm of the "
+                   "switch speed (the runout or bow at slow roll) in the Bode plot")
     p.add_argument("--bed", metavar="NAME", default=None, help="test bed (default: the only one)")
     p.add_argument(
         "--target",
@@ -106,6 +109,15 @@ def _check(args: argparse.Namespace) -> None:
         check_output(args.save, "--save", suffix=".rrd", inputs=[args.recording] if args.recording else [])
     if args.plots is not None and not os.path.isdir(args.plots):
         raise OrdervibError(f"--plots {args.plots} is not a directory")
+    if args.slow_roll is not None:
+        from replay.views.phase_plots import speed_band
+
+        if args.plots is None:
+            raise OrdervibError("--slow-roll needs --plots")
+        try:
+            args.slow_roll = speed_band(args.slow_roll)
+        except ValueError as e:
+            raise OrdervibError(f"--slow-roll: {e}") from None
 
 
 def _png_paths(args: argparse.Namespace, data: ViewData) -> list[str]:
@@ -116,7 +128,8 @@ def _png_paths(args: argparse.Namespace, data: ViewData) -> list[str]:
     return paths
 
 
-def _write_plots(data: ViewData, vectors: Vectors, paths: list[str]) -> str:
+def _write_plots(data: ViewData, vectors: Vectors, paths: list[str],
+                 slow_roll: tuple[float, float] | None = None) -> str:
     """The polar and Bode plots to paths, each replaced only by a complete file; the summary line."""
     import numpy as np
 
@@ -124,7 +137,7 @@ def _write_plots(data: ViewData, vectors: Vectors, paths: list[str]) -> str:
 
     title = f"{data.bed} {data.target}: 1x vector"
     figures = (polar_figure(vectors, title, data.switch, data.target_unit),
-               bode_figure(vectors, title, data.switch, data.target, data.target_unit))
+               bode_figure(vectors, title, data.switch, data.target, data.target_unit, slow_roll))
     for fig, path in zip(figures, paths):
         with replacing(path) as part:
             save_png(fig, part)
@@ -255,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plots is not None:
         vectors = _vectors(data)
         paths = _png_paths(args, data)
-        line = _write_plots(data, vectors, paths)
+        line = _write_plots(data, vectors, paths, args.slow_roll)
         if not args.quiet:
             print(line)
         if args.save is None:

@@ -4,25 +4,36 @@
   amplitude, angle the phase lag measured clockwise from 0 degrees at the right (the
   Rerun view's x = Re, y = Im picture); measured as dots coloured by the switch speed (a
   colour bar), predicted as black crosses.
-- ``bode_figure``: the Bode pair, amplitude and phase against speed on two stacked axes
-  sharing speed; the phase wrapped to [-180, 180) and drawn as markers (no line across
-  a wrap); measured dots in a colour per run, predicted black crosses.
+  Speeds are labelled along each run's longest run-up and coast-down.
+- ``bode_figure``: the Bode pair of the transients, as a rotordynamics engineer reads it:
+  amplitude and phase lag against speed on two stacked axes, one trace per ramp
+  (``node.runtime.transient.find_transitions``: run-ups solid, coast-downs and ramps down
+  dashed, a colour per run; the plateaus left out), the phase lag unwrapped along each
+  run (continuous through a resonance's roll of about 180 degrees; left out where the
+  amplitude is within the noise, ``PHASE_FLOOR``), optionally slow-roll
+  compensated (each run's mean vector in a low speed band subtracted: the runout or bow),
+  each resonance found (``transient.analyse``) marked with its critical speed and AF. The
+  prediction is left to the polar plot and the Rerun view (a model predicts the plateaus'
+  level, not a Bode). A recording without ramps: every sample as markers, predicted too.
 
 Both return a matplotlib Figure on an Agg canvas; ``save_png`` writes one.
 """
 
 from __future__ import annotations
 
+import math
 from datetime import UTC, datetime
 from typing import cast
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.projections.polar import PolarAxes
 from matplotlib.ticker import MaxNLocator
 
+from node.runtime.transient import Span, analyse, find_transitions
 from replay.views.view_data import Vectors
 
 DPI = 100
@@ -74,6 +85,7 @@ def polar_figure(v: Vectors, title: str, switch: str, unit: str) -> Figure:
             vec = v.predicted()[ok]
             ax.scatter(-np.angle(vec), np.abs(vec), color=PREDICTED, s=4.0, marker="x", linewidths=0.5,
                        alpha=0.6, label="predicted", rasterized=True)
+        _speed_labels(ax, v, r)
         ax.set_thetagrids(np.arange(0, 360, 45), LAG_LABELS)
         ax.set_rmax(rmax)
         ax.yaxis.set_major_locator(MaxNLocator(4))
@@ -88,11 +100,158 @@ def polar_figure(v: Vectors, title: str, switch: str, unit: str) -> Figure:
     return fig
 
 
-def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str) -> Figure:
-    """The Bode pair (amplitude and wrapped phase against speed), a colour per run."""
+MAX_SPEED_LABELS = 8  # per ramp of the polar plot
+MAX_SPEED = 1e6  # rpm: a speed band beyond it is a typing error
+PHASE_FLOOR = 0.05  # the Bode's phase is left out below this share of the run's largest amplitude
+
+
+def speed_band(text: str) -> tuple[float, float]:
+    """A speed band "LO,HI" (rpm, 0 <= LO < HI <= ``MAX_SPEED``); ValueError in one line.
+
+    >>> speed_band("1000,1500")
+    (1000.0, 1500.0)
+    """
+    parts = text.split(",")
+    try:
+        lo, hi = (float(x) for x in parts) if len(parts) == 2 else (math.nan, math.nan)
+    except ValueError:
+        lo = hi = math.nan
+    if not 0.0 <= lo < hi <= MAX_SPEED:
+        raise ValueError(f"want LO,HI in rpm with 0 <= LO < HI <= {MAX_SPEED:g}, got {text!r}")
+    return lo, hi
+
+
+def _ramps(v: Vectors, r: int) -> list[tuple[Span, np.ndarray]]:
+    """Run r's ramps (``find_transitions`` on its switch speed) with their rows of v."""
+    rows = np.flatnonzero(v.run == r)
+    return [(sp, rows[sp.start:sp.stop]) for sp in find_transitions(v.speed[rows])]
+
+
+def _nice_step(span: float, most: int) -> float:
+    """A round speed step (1, 2 or 5 x 10^k rpm) giving at most ``most`` labels over span."""
+    raw = max(span / most, 1e-9)
+    base = 10.0 ** math.floor(math.log10(raw))
+    return next(m * base for m in (1.0, 2.0, 5.0, 10.0) if m * base >= raw)
+
+
+def _speed_labels(ax: PolarAxes, v: Vectors, r: int) -> None:
+    """Round speeds written beside the measured vector along run r's longest run-up and coast-down."""
+    z = v.measured()
+    longest: dict[str, tuple[Span, np.ndarray]] = {}
+    for sp, idx in _ramps(v, r):
+        if sp.direction not in longest or abs(sp.to_speed - sp.from_speed) > abs(
+                longest[sp.direction][0].to_speed - longest[sp.direction][0].from_speed):
+            longest[sp.direction] = (sp, idx)
+    for sp, idx in longest.values():
+        ok = idx[np.isfinite(z[idx]) & np.isfinite(v.speed[idx])]
+        if len(ok) < 2:
+            continue
+        lo, hi = float(np.min(v.speed[ok])), float(np.max(v.speed[ok]))
+        step = _nice_step(hi - lo, MAX_SPEED_LABELS)
+        for mark in np.arange(math.ceil(lo / step) * step, hi, step):
+            k = ok[int(np.argmin(np.abs(v.speed[ok] - mark)))]
+            ax.annotate(f"{mark:,.0f}", (-float(np.angle(z[k])), float(np.abs(z[k]))), fontsize=6,
+                        color="dimgray" if sp.direction == "up" else "saddlebrown",
+                        xytext=(3, 3), textcoords="offset points")
+
+
+def _unwrapped(phase: np.ndarray, before: float | None) -> np.ndarray:
+    """A ramp's phase lag (K,) in degrees unwrapped (NaN kept), shifted by whole turns to start
+    nearest ``before`` (the run's previous ramp's last value; None: its first in [-180, 180))."""
+    out = np.full(phase.shape, np.nan)
+    ok = np.isfinite(phase)
+    if ok.any():
+        u = np.degrees(np.unwrap(np.radians(phase[ok])))
+        turns = np.floor((u[0] + 180.0) / 360.0) if before is None else np.round((u[0] - before) / 360.0)
+        out[ok] = u - 360.0 * turns
+    return out
+
+
+def _compensated(v: Vectors, sel: np.ndarray,
+                 band: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray]:
+    """Amplitude and phase lag (degrees) of the measured vectors of rows ``sel`` less the mean
+    vector of those rows whose speed lies in ``band`` (rpm; None or no such rows: as measured)."""
+    amp, ph = v.amplitude[sel], v.phase[sel]
+    if band is None:
+        return amp, ph
+    z = v.measured()[sel]
+    slow = np.isfinite(z) & (v.speed[sel] >= band[0]) & (v.speed[sel] <= band[1])
+    if not slow.any():
+        return amp, ph
+    z = z - np.mean(z[slow])
+    return np.abs(z), np.degrees(-np.angle(z))
+
+
+def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str,
+                slow_roll: tuple[float, float] | None = None, tracker_tau: float = 0.0) -> Figure:
+    """The Bode pair of the transients (see the module), a colour per run.
+
+    slow_roll: a speed band (rpm) whose mean 1x vector, per run, is subtracted (None: none);
+    tracker_tau: the order tracker's lag (s) undone when finding the criticals (0: not undone).
+    """
+    runs = _runs(v)
+    ramps = {r: _ramps(v, r) for r in runs}
+    if not any(ramps.values()):
+        return _bode_markers(v, runs, title, switch, target, unit)
+    fig = Figure(figsize=(10.0, 7.5))
+    amp_ax, ph_ax = fig.subplots(2, 1, sharex=True)
+    marked = 0
+    for k, r in enumerate(runs):
+        color = f"C{k % 10}"
+        last: float | None = None
+        top = max((float(np.nanmax(_compensated(v, idx, slow_roll)[0], initial=0.0)) for _, idx in ramps[r]),
+                  default=0.0)
+        for n, (sp, idx) in enumerate(ramps[r]):
+            amp, ph = _compensated(v, idx, slow_roll)
+            ph = np.where(amp >= PHASE_FLOOR * top, ph, np.nan)  # a vector lost in the noise has no phase
+            style = "-" if sp.direction == "up" else "--"
+            amp_ax.plot(v.speed[idx], amp, style, lw=0.8, color=color, label=None if n else _run_label(v, r))
+            lag = _unwrapped(ph, last)
+            ph_ax.plot(v.speed[idx], lag, style, lw=0.8, color=color)
+            if np.isfinite(lag).any():
+                last = float(lag[np.isfinite(lag)][-1])
+            marked += _mark_criticals(amp_ax, v, idx, color, tracker_tau, text=k == 0)
+    amp_ax.set_ylabel(f"{target} amplitude ({unit})")
+    amp_ax.set_ylim(bottom=0.0)
+    ph_ax.set_ylabel(f"{target} phase lag (°, unwrapped)")
+    ph_ax.set_xlabel(f"{switch} (rpm)")
+    for ax in (amp_ax, ph_ax):
+        ax.grid(True, lw=0.4, alpha=0.5)
+        ax.tick_params(labelsize=8)
+    amp_ax.legend(fontsize=6, ncol=2 if len(runs) > 4 else 1)
+    how = (f"slow roll {slow_roll[0]:,.0f}-{slow_roll[1]:,.0f} rpm subtracted" if slow_roll
+           else "no slow-roll compensation")
+    fig.suptitle(f"{title}: transients; run-ups solid, ramps down dashed; {marked} critical(s) marked ▼ "
+                 f"(speed, AF by half power)\nphase unwrapped along each run, left out below "
+                 f"{PHASE_FLOOR:.0%} of the run's largest amplitude; {how}", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def _mark_criticals(ax: Axes, v: Vectors, idx: np.ndarray, color: str, tracker_tau: float, text: bool) -> int:
+    """The resonances ``transient.analyse`` finds in one ramp's rows, marked on the amplitude
+    axis (with speed and AF written where ``text``); how many."""
+    amp, ph = v.amplitude[idx], v.phase[idx]
+    if np.isfinite(amp).sum() < 10:
+        return 0
+    try:
+        found = analyse(v.speed[idx], amp, ph if np.isfinite(ph).any() else None,
+                        tracker_tau=tracker_tau).criticals
+    except ValueError:  # too few samples with speed and amplitude
+        return 0
+    for c in found:
+        ax.plot([c.speed], [c.amplitude], "v", ms=6, color=color, mec="black", mew=0.5)
+        if text:
+            ax.annotate(f"{c.speed:,.0f} rpm\nAF {c.af:.1f}", (c.speed, c.amplitude), fontsize=7,
+                        xytext=(4, 6), textcoords="offset points")
+    return len(found)
+
+
+def _bode_markers(v: Vectors, runs: list[int], title: str, switch: str, target: str, unit: str) -> Figure:
+    """Amplitude and wrapped phase of every sample as markers (a recording without ramps)."""
     fig = Figure(figsize=(9.0, 7.0))
     amp_ax, ph_ax = fig.subplots(2, 1, sharex=True)
-    for k, r in enumerate(_runs(v)):
+    for k, r in enumerate(runs):
         sel = v.run == r
         color = f"C{k % 10}"
         for ax, y, yp in ((amp_ax, v.amplitude, v.predicted_amplitude), (ph_ax, v.phase, v.predicted_phase)):
@@ -111,6 +270,6 @@ def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str) -> 
         ax.grid(True, lw=0.4, alpha=0.5)
         ax.tick_params(labelsize=8)
     amp_ax.legend(fontsize=7, markerscale=3.0, ncol=2)
-    fig.suptitle(f"{title}\nphase wrapped to [-180, 180), markers", fontsize=10)
+    fig.suptitle(f"{title}\nno ramps found: every sample, phase wrapped to [-180, 180), markers", fontsize=10)
     fig.tight_layout()
     return fig
