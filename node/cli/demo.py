@@ -106,12 +106,15 @@ def run(args: argparse.Namespace) -> int:
              node.stats.received, sent, node.stats.published, node.stats.overflow, alarms)
     log.info("%s", fault_summary(node.core.alarm_log.episodes, rec_test.with_suffix(".truth.json")))
     rrd = out / "node.rrd"
-    log.info("[5/5] Rerun file %s", rrd)
-    if cli(["view", str(node_rec), "--save", str(rrd), "--schedule", str(schedule)]) != 0:
+    log.info("[5/5] Rerun file %s, the polar and Bode PNGs of the 1x vector", rrd)
+    if cli(["view", str(node_rec), "--save", str(rrd), "--schedule", str(schedule), "--plots", str(out),
+            "--quiet"]) != 0:
         return 2
     print(f"done in {time.perf_counter() - t0:.0f} s")
     print(f"node recording (MCAP): {node_rec.resolve()}")
     print(f"Rerun file:            {rrd.resolve()}   (open with: rerun {rrd})")
+    for png in sorted(out.glob("*-polar.png")) + sorted(out.glob("*-bode.png")):
+        print(f"1x vector plot (PNG):  {png.resolve()}")
     print(f"model bundle:          {model.resolve()}")
     return 0
 
