@@ -91,7 +91,7 @@ def test_report_has_a_summary_then_four_folded_panels_each_with_a_figure_and_not
     p = _panels(html)
     assert list(p.sections) == SECTIONS
     assert p.sections[SUMMARY[0]]["title"] == SUMMARY[1] and not p.sections[SUMMARY[0]]["folded"]
-    for (pid, title), numeral in zip(PANELS, ("I.", "II.", "III.", "IV.")):
+    for (pid, title), numeral in zip(PANELS, ("I.", "II.", "III.", "IV.", "V."), strict=True):
         assert p.sections[pid]["title"] == title and title.startswith(numeral + " ")
         assert p.sections[pid]["images"] >= 1, pid
         assert p.sections[pid]["folded"], pid

@@ -2,11 +2,11 @@
 
 A summary first (per target a verdict and a table of the OCs: kind, eps_td of the model and
 the curve per run set, held-out or in-sample by ``node.training.provenance``, outside the
-envelope, alarm episodes), then four panels folded in ``<details>`` (``replay.report``): I the
+envelope, alarm episodes), then five panels folded in ``<details>`` (``replay.report``): I the
 characteristic curve in context, II the per-OC parameters of every run, III validation
 (measured against predicted, eps_td and R^2 beside the characteristic curve's, the node's
-alarms), IV prediction. Plots are embedded PNGs: the file opens in any browser, with no
-server and no network.
+alarms), IV prediction, V the transients (``replay.report.transients``). Plots are embedded
+PNGs: the file opens in any browser, with no server and no network.
 """
 
 from __future__ import annotations

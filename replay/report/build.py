@@ -1,10 +1,10 @@
-"""The engineer's report of pass-off runs: a summary, then the four panels, per target, as one
+"""The engineer's report of pass-off runs: a summary, then the five panels, per target, as one
 HTML page.
 
 ``build_report`` returns the page (``replay.report.document``); ``ordervib report`` checks the
 files and writes it. The summary (``SUMMARY``, ``replay.report.summary``) comes first, open:
 per target a verdict and a table of the OCs. Each panel then has a stable id (``PANELS``), a
-heading numbered I-IV and a line of what it holds (``GISTS``), folded in a ``<details>``;
+heading numbered I-V and a line of what it holds (``GISTS``), folded in a ``<details>``;
 with several targets, each holds one part per target.
 """
 
@@ -29,6 +29,7 @@ from replay.report.panels import (
     validation_panel,
 )
 from replay.report.summary import summary_blocks
+from replay.report.transients import transient_panel
 
 log = logging.getLogger(__name__)
 
@@ -37,16 +38,19 @@ PANELS: tuple[tuple[str, str], ...] = (
     ("panel-parameters", "II. Parameter extraction"),
     ("panel-validation", "III. Validation"),
     ("panel-prediction", "IV. Prediction"),
+    ("panel-transients", "V. Transients"),
 )
 SUMMARY = ("summary", "Summary")
 GISTS = {  # each folded panel's line under its title
     "panel-context": "the characteristic curve with every run, each OC's plateau levels, the thermal "
                      "contexts (Dirichlet-process clusters) and their posteriors",
     "panel-parameters": "per OC, the model's inputs and the engine history of every run (parallel "
-                        "coordinates, tables)",
+                        "coordinates, tables); the rho_DPCCA heatmap of every channel",
     "panel-validation": "per OC and run set, eps_td and R\u00b2 against the curve; measured against "
                         "predicted; the node's alarm episodes",
     "panel-prediction": "each run predicted without its measured order; the schedule as a planned pass-off",
+    "panel-transients": "the Bode plot of every ramp; each resonance's critical speed, AF and spread over "
+                        "the runs, its separation margin from the OCs",
 }
 
 
@@ -97,6 +101,7 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
         lambda t: parameters_panel(model[t], runs, schedule, t),
         lambda t: validation_panel(model[t], runs, schedule, t, alarms, scores[t]),
         lambda t: prediction_panel(model[t], runs, schedule, t, scores[t].kinds),
+        lambda t: transient_panel(runs.runs, runs.labels, schedule, t),
     ]
     panels = [summary]
     for (pid, title), make in zip(PANELS, makers):

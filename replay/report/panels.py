@@ -1,4 +1,4 @@
-"""The four panels of the engineer's report, each as the blocks of one target.
+"""Panels I-IV of the engineer's report, each as the blocks of one target.
 
 ``context_panel`` (I), ``parameters_panel`` (II), ``validation_panel`` (III) and
 ``prediction_panel`` (IV) take the target's bundle, the runs, the schedule and the target,
@@ -32,6 +32,7 @@ from node.training.evaluation import (
 )
 from node.training.runs import Run
 from replay.offline import NodeAlarms
+from replay.report.correlation import MASK, MAX_ROWS, dpcca_figure, dpcca_rows
 from replay.report.document import Block, Figure, Heading, Paragraph, Table
 from replay.report.figures import (
     curve_figure,
@@ -207,7 +208,20 @@ def parameters_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
         rows = [[label, *map(_g, row)] for label, row in zip(runs.labels, values)
                 if np.isfinite(row).any()]
         blocks.append(Table(["run", *names], rows, f"{name}: inputs {', '.join(inputs)}"))
-    return blocks
+    return blocks + _dpcca_blocks(runs, schedule, target)
+
+
+def _dpcca_blocks(runs: RunSet, schedule: Schedule, target: str) -> list[Block]:
+    """The rho_DPCCA heatmap (figure 3.8; ``replay.report.correlation``)."""
+    labels, channels, values = dpcca_rows(runs.runs, schedule, target)
+    if not labels or not channels:
+        return [Paragraph(f"no OC visit of 10 s or more with {target} and other channels: no rho_DPCCA "
+                          "heatmap", note=True)]
+    cut = f"; the first {MAX_ROWS} of {len(labels)} visits shown" if len(labels) > MAX_ROWS else ""
+    fig = dpcca_figure(labels, channels, values, target)
+    return [Figure.of(fig, f"|rho_DPCCA| between {target} and every other channel in each OC visit of each "
+                      f"run (mean over the scales 0.25-8 s; the measure training ranks inputs by), one row "
+                      f"per visit, grouped by OC; below {MASK} not drawn (dissertation figure 3.8){cut}")]
 
 
 def _locate(runs: Sequence[Run], segs: list[Segment], names: Sequence[str], bed: str, t: float

@@ -189,11 +189,12 @@ def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str,
     slow_roll: a speed band (rpm) whose mean 1x vector, per run, is subtracted (None: none);
     tracker_tau: the order tracker's lag (s) undone when finding the criticals (0: not undone).
     """
-    runs = _runs(v)
+    ok = np.isfinite(v.amplitude) & np.isfinite(v.speed)  # a Bode of the amplitude alone where no phase
+    runs = [int(r) for r in np.unique(v.run[ok])]
     ramps = {r: _ramps(v, r) for r in runs}
     if not any(ramps.values()):
         return _bode_markers(v, runs, title, switch, target, unit)
-    fig = Figure(figsize=(10.0, 7.5))
+    fig = Figure(figsize=(11.0, 8.0))
     amp_ax, ph_ax = fig.subplots(2, 1, sharex=True)
     marked = 0
     for k, r in enumerate(runs):
@@ -217,13 +218,13 @@ def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str,
     ph_ax.set_xlabel(f"{switch} (rpm)")
     for ax in (amp_ax, ph_ax):
         ax.grid(True, lw=0.4, alpha=0.5)
-        ax.tick_params(labelsize=8)
-    amp_ax.legend(fontsize=6, ncol=2 if len(runs) > 4 else 1)
+        ax.tick_params(labelsize=9)
+    amp_ax.legend(fontsize=9, ncol=3 if len(runs) > 4 else 1)
     how = (f"slow roll {slow_roll[0]:,.0f}-{slow_roll[1]:,.0f} rpm subtracted" if slow_roll
            else "no slow-roll compensation")
     fig.suptitle(f"{title}: transients; run-ups solid, ramps down dashed; {marked} critical(s) marked ▼ "
                  f"(speed, AF by half power)\nphase unwrapped along each run, left out below "
-                 f"{PHASE_FLOOR:.0%} of the run's largest amplitude; {how}", fontsize=9)
+                 f"{PHASE_FLOOR:.0%} of the run's largest amplitude; {how}", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -242,7 +243,7 @@ def _mark_criticals(ax: Axes, v: Vectors, idx: np.ndarray, color: str, tracker_t
     for c in found:
         ax.plot([c.speed], [c.amplitude], "v", ms=6, color=color, mec="black", mew=0.5)
         if text:
-            ax.annotate(f"{c.speed:,.0f} rpm\nAF {c.af:.1f}", (c.speed, c.amplitude), fontsize=7,
+            ax.annotate(f"{c.speed:,.0f} rpm\nAF {c.af:.1f}", (c.speed, c.amplitude), fontsize=9,
                         xytext=(4, 6), textcoords="offset points")
     return len(found)
 
@@ -268,8 +269,8 @@ def _bode_markers(v: Vectors, runs: list[int], title: str, switch: str, target: 
     ph_ax.set_xlabel(f"{switch} (rpm)")
     for ax in (amp_ax, ph_ax):
         ax.grid(True, lw=0.4, alpha=0.5)
-        ax.tick_params(labelsize=8)
-    amp_ax.legend(fontsize=7, markerscale=3.0, ncol=2)
+        ax.tick_params(labelsize=9)
+    amp_ax.legend(fontsize=9, markerscale=3.0, ncol=2)
     fig.suptitle(f"{title}\nno ramps found: every sample, phase wrapped to [-180, 180), markers", fontsize=10)
     fig.tight_layout()
     return fig
