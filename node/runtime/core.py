@@ -43,6 +43,7 @@ from node.contract import (
     oc_key,
     parse_sensor_key,
     sensor_key,
+    transient_key,
 )
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
@@ -316,6 +317,9 @@ class NodeCore:
         out: list[Output] = []
         for name, bed in self.beds.items():
             out += self._run(name, bed.aligner.end())
+            ended = [tr for p in bed.pipelines if (tr := p.end_transient()) is not None]
+            out += [(transient_key(name), tr) for tr in ended]  # each target's last transition
+            self.published += len(ended)
         return out
 
     def flush_bed(self, name: str) -> list[Output]:
@@ -431,5 +435,7 @@ class NodeCore:
                     bed.alarm_samples += 1
                     self.alarm_log.add(key, msg)
                 out.append((key, msg))
+                if pipe.transient is not None:  # the end of a transition: its criticals
+                    out.append((transient_key(name), pipe.transient))
         self.published += len(out)
         return out
