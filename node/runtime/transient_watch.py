@@ -107,7 +107,8 @@ class TransientWatch:
 
             def to_switch(nc: float) -> float:
                 return float(np.interp(nc, own[order][ok], sw[order][ok])) if ok.any() else math.nan
-            first, last = float(sw[0]), float(sw[-1])
+            raw = _smooth(ramp[:, 4], 1)  # gaps filled
+            first, last = float(raw[0]), float(raw[-1])
         else:
             def to_switch(nc: float) -> float:
                 return nc
