@@ -54,7 +54,8 @@ def run_transients(run: Run, schedule: Schedule, target: str, settings: Transien
     return out + ([last] if last is not None else [])
 
 
-def group(criticals: Sequence[tuple[float, ...]], join_pct: float = JOIN_PCT) -> list[list[tuple[float, ...]]]:
+def group(criticals: Sequence[tuple[float, ...]],
+          join_pct: float = JOIN_PCT) -> list[list[tuple[float, ...]]]:
     """Criticals (shaft speed, ...) grouped into resonances: sorted by speed, a new group where one
     lies more than ``join_pct`` % above the current group's mean speed.
 
