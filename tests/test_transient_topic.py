@@ -200,6 +200,7 @@ def test_the_schema_is_in_the_recording_and_every_message_passes(fleet_case: Pat
     with (fleet_case / "out.mcap").open("rb") as f:
         seen = 0
         for schema, _, message in make_reader(f).iter_messages(topics=[transient_key("bed1")]):
+            assert schema is not None
             stored = orjson.loads(schema.data)
             assert schema.name == "ordervib.transient" and stored == json_schema(TopicKind.TRANSIENT)
             assert stored["properties"]["criticals"]["items"]["required"][:4] == [
