@@ -188,6 +188,8 @@ class HealthMessage(TypedDict):
     clock_jumps: NotRequired[Annotated[int, "moves of the bed's clock its channels confirmed "
                                             "(a clock set back or forward, a restart)"]]
     clock_held: NotRequired[Annotated[int, "samples held apart now, awaiting confirmation of their clock"]]
+    transients_dropped: NotRequired[Annotated[int, "transitions too long to analyse (over 900 s), "
+                                                   "dropped unpublished, every target"]]
     lag_ms_p50: NotRequired[Annotated[float | None, "receive to publish, ms, median of the last ones"]]
     lag_ms_p99: NotRequired[Annotated[float | None, "receive to publish, ms, 99th percentile"]]
     staleness: NotRequired[Annotated[float | None, "wall minus the receipt of the bed's last message, s"]]

@@ -357,6 +357,7 @@ class NodeCore:
         g = b.aligner.guard
         msg["clock_faults"], msg["clock_conflicts"] = g.faults, g.conflicts
         msg["clock_jumps"], msg["clock_held"] = g.jumps, g.held
+        msg["transients_dropped"] = sum(p.transients_dropped for p in b.pipelines)
         if lag_ms is not None:
             msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
         return msg

@@ -742,8 +742,8 @@ class RampAnalyser:
         return self.end()
 
     def end(self) -> Transient | None:
-        """The ramp in progress (if any) analysed now, and forgotten; the history before it too
-        (a new run starts afresh)."""
+        """The ramp in progress (if any) analysed now (None: none, too short, too few samples),
+        and forgotten (``reset`` forgets the history before it too)."""
         if self._ramp is None:
             return None
         ramp, self._ramp = np.asarray(self._ramp), None
