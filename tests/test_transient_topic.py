@@ -238,3 +238,13 @@ def test_an_old_bundle_without_fleet_transients_loads_and_says_no_model(fleet_ca
     from node.contract import OrdervibError
     with pytest.raises(OrdervibError, match="transients version 99"):
         load_model(old)
+
+
+def test_train_refuses_transient_as_a_target_in_one_line(fleet_case: Path, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    d = fleet_case
+    assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "ramps.toml"), "--target",
+                 "yB,transient", "--out", str(tmp_path / "m"), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--target transient: never a target's name" in err
+    assert not (tmp_path / "m").exists()

@@ -317,8 +317,10 @@ class NodeCore:
         out: list[Output] = []
         for name, bed in self.beds.items():
             out += self._run(name, bed.aligner.end())
-            ended = [tr for p in bed.pipelines if (tr := p.end_transient()) is not None]
-            out += [(transient_key(name), tr) for tr in ended]  # each target's last transition
+            ended = [(transient_key(name), tr) for p in bed.pipelines if (tr := p.end_transient())]
+            for key, tr in ended:  # each target's last transition
+                self.alarm_log.add(key, tr)
+            out += ended
             self.published += len(ended)
         return out
 
@@ -437,6 +439,7 @@ class NodeCore:
                     self.alarm_log.add(key, msg)
                 out.append((key, msg))
                 if pipe.transient is not None:  # the end of a transition: its criticals
+                    self.alarm_log.add(transient_key(name), pipe.transient)
                     out.append((transient_key(name), pipe.transient))
         self.published += len(out)
         return out
