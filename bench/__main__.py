@@ -25,6 +25,7 @@ BENCHMARKS = {
     "thresholds": "bench.thresholds",
     "plans": "bench.plans",
     "transients": "bench.transients",
+    "transient-fleet": "bench.transient_fleet",
 }
 
 

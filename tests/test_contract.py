@@ -142,6 +142,7 @@ def test_keys_round_trip_and_kinds() -> None:
     assert topic_kind(sensor_key("b", "nB")) is TopicKind.SENSOR
     assert topic_kind(monitor_key("b", "yC")) is TopicKind.MONITOR
     assert topic_kind(oc_key("b")) is TopicKind.OC and topic_kind(health_key("b")) is TopicKind.HEALTH
+    assert topic_kind(monitor_key("b", "transient")) is TopicKind.TRANSIENT
     assert topic_kind("elsewhere/b/sensor/nB") is TopicKind.OTHER
     assert is_monitor_key(health_key("b")) and not is_monitor_key(sensor_key("b", "nB"))
     assert bed_of(oc_key("x7")) == "x7" and bed_of("other") is None
@@ -154,12 +155,13 @@ def test_keys_round_trip_and_kinds() -> None:
 
 def test_enums_hold_the_contract_strings() -> None:
     assert [f.value for f in Flag] == ["ok", "alarm", "no-model"]
-    assert {r.value for r in Reason} == {"residual", "step", "flatline", "vector"}
+    assert {r.value for r in Reason} == {"residual", "step", "flatline", "vector", "transient"}
     assert [Phase.from_code(i) for i in range(3)] == [Phase.OFF, Phase.TRANSITION, Phase.STEADY]
     assert all(Phase.from_code(p.code) is p for p in Phase)
 
 
-@pytest.mark.parametrize("kind", [TopicKind.SENSOR, TopicKind.MONITOR, TopicKind.OC, TopicKind.HEALTH])
+@pytest.mark.parametrize("kind", [TopicKind.SENSOR, TopicKind.MONITOR, TopicKind.OC, TopicKind.HEALTH,
+                                  TopicKind.TRANSIENT])
 def test_schemas_are_objects_with_properties_and_required(kind: TopicKind) -> None:
     schema = json_schema(kind)
     jsonschema.Draft202012Validator.check_schema(schema)

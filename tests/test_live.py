@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import orjson
 import pytest
 from conftest import small_campaign
 
@@ -154,7 +155,8 @@ def test_three_beds_at_40_hz_every_sample_gets_its_monitor_message(setup, tmp_pa
 
 def test_three_targets_live_equal_replay_for_each_target(tmp_path):
     """One model of yA, yB and yC, with their phases: the live node's monitor messages of every
-    target equal offline replay's to the last bit, vector fields included."""
+    target equal offline replay's to the last bit, vector fields included, and so do its
+    transient messages (each transition's criticals against the fleet's)."""
     from node.live.node import LiveNode
     from node.models.bundle import load_model
     from replay.publish import publish_recording
@@ -183,12 +185,18 @@ def test_three_targets_live_equal_replay_for_each_target(tmp_path):
     def by_target(path: Path) -> dict[str, list[bytes]]:
         out: dict[str, list[bytes]] = {}
         for m in iter_messages(path):
-            if "/monitor/y" in m.topic:
+            if "/monitor/y" in m.topic or m.topic.endswith("/monitor/transient"):
                 out.setdefault(m.topic, []).append(bytes(m.payload))
         return out
     live, offline = by_target(tmp_path / "node.mcap"), by_target(tmp_path / "offline.mcap")
-    assert sorted(live) == [f"testbed/bed1/monitor/{t}" for t in ("yA", "yB", "yC")]
+    transients = "testbed/bed1/monitor/transient"
+    assert sorted(live) == [f"testbed/bed1/monitor/{t}" for t in ("transient", "yA", "yB", "yC")]
+    assert live[transients] == offline[transients]  # byte for byte, in the same order
+    assert {orjson.loads(m)["target"] for m in live[transients]} == {"yA", "yB", "yC"}
+    assert sum(len(orjson.loads(m)["criticals"]) for m in live[transients]) >= 3
     for topic in live:
+        if topic == transients:
+            continue
         assert len(live[topic]) > 500
         assert live[topic] == offline[topic], topic
         assert any(b'"measured_phase":' in m for m in live[topic])  # the phase is used

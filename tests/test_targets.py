@@ -10,10 +10,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import orjson
 import pytest
 
 from node.cli import main
-from node.contract import ORDER_CHANNELS, is_monitor_key, monitor_key, oc_key
+from node.contract import ORDER_CHANNELS, is_monitor_key, monitor_key, oc_key, transient_key
 from node.contract.errors import OrdervibError
 from node.mcap import read_payloads
 from node.models.bundle import Model, load_bundle, load_model, save_model
@@ -70,13 +71,16 @@ def test_each_target_publishes_what_it_does_alone_and_workers_agree(camp: Path, 
     assert outs[0].read_bytes() == outs[1].read_bytes()
     together = _monitor(outs[0])
     bed = next(iter(together)).split("/")[1]
-    assert set(together) == {oc_key(bed), *(monitor_key(bed, t) for t in ORDER_CHANNELS)}
+    assert set(together) == {oc_key(bed), transient_key(bed),
+                             *(monitor_key(bed, t) for t in ORDER_CHANNELS)}
     for t in ORDER_CHANNELS:
         replay(str(camp / "test.mcap"), load_model(camp / t), str(tmp_path / f"{t}.mcap"), workers=0)
         alone = _monitor(tmp_path / f"{t}.mcap")
-        assert set(alone) == {oc_key(bed), monitor_key(bed, t)}
+        assert set(alone) == {oc_key(bed), transient_key(bed), monitor_key(bed, t)}
         assert together[monitor_key(bed, t)] == alone[monitor_key(bed, t)]  # byte for byte
         assert together[oc_key(bed)] == alone[oc_key(bed)]  # once per bed, as alone
+        mine = [m for m in together[transient_key(bed)] if orjson.loads(m)["target"] == t]
+        assert mine and mine == alone[transient_key(bed)]  # each target's transitions, as alone
     assert len(together[monitor_key(bed, "yA")]) > 100
 
 

@@ -16,6 +16,7 @@ from node.contract.keys import (
     OFF_FRACTION,
     ORDER_CHANNELS,
     PHASE_CHANNELS,
+    RESERVED_NAMES,
     RUN_GAP,
     SENSOR_CHANNELS,
     SENSOR_SUBSCRIPTION,
@@ -39,6 +40,7 @@ from node.contract.keys import (
     sensor_key,
     sensor_subscription,
     topic_kind,
+    transient_key,
 )
 from node.contract.messages import (
     Flag,
@@ -50,6 +52,8 @@ from node.contract.messages import (
     Reason,
     Refused,
     SensorSample,
+    TransientCritical,
+    TransientMessage,
     json_schema,
 )
 from node.contract.payload import check_sample, decode_sample, decode_samples, log_time_ns, log_times_ns
@@ -57,15 +61,15 @@ from node.contract.schedule import OperatingCondition, Schedule, load_schedule
 
 __all__ = [
     "CHANNEL_UNITS", "FS", "MONITOR_SUBSCRIPTION", "OFF_FRACTION", "ORDER_CHANNELS", "PHASE_CHANNELS",
-    "RUN_GAP",
+    "RESERVED_NAMES", "RUN_GAP",
     "SENSOR_CHANNELS",
     "SENSOR_SUBSCRIPTION", "SPEED_CHANNELS", "TopicKind", "bed_matcher", "bed_of", "health_key",
     "is_monitor_key", "is_name", "is_output_key",
     "is_phase_channel", "liveliness_key", "monitor_key", "node_health_key", "oc_key", "parse_monitor_key",
     "parse_sensor_key", "phase_channel", "run_starts", "sensor_key", "sensor_subscription",
-    "topic_kind", "Flag", "HealthMessage", "MonitorMessage", "NodeHealthMessage", "OCMessage", "Phase",
-    "Reason", "Refused",
-    "SensorSample", "json_schema", "check_sample", "decode_sample", "decode_samples", "log_time_ns",
-    "log_times_ns",
+    "topic_kind", "transient_key", "Flag", "HealthMessage", "MonitorMessage", "NodeHealthMessage",
+    "OCMessage", "Phase", "Reason", "Refused",
+    "SensorSample", "TransientCritical", "TransientMessage", "json_schema", "check_sample", "decode_sample",
+    "decode_samples", "log_time_ns", "log_times_ns",
     "OrdervibError", "OperatingCondition", "Schedule", "load_schedule",
 ]

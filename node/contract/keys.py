@@ -117,6 +117,8 @@ def is_name(chunk: str) -> bool:
 
 OC_TOPIC = "oc"  # monitor/<OC_TOPIC>: OC switches
 HEALTH_TOPIC = "health"  # monitor/<HEALTH_TOPIC>: the bed's health
+TRANSIENT_TOPIC = "transient"  # monitor/<TRANSIENT_TOPIC>: each analysed transition's criticals
+RESERVED_NAMES = frozenset({OC_TOPIC, HEALTH_TOPIC, TRANSIENT_TOPIC})  # never a target's name
 
 _SENSOR_RE = re.compile(rf"{PREFIX}/({_NAME})/sensor/({_NAME})\Z")
 _MONITOR_RE = re.compile(rf"{PREFIX}/({_NAME})/monitor/({_NAME})\Z")
@@ -131,11 +133,13 @@ class TopicKind(StrEnum):
     MONITOR = "monitor"  # monitor/<target>
     OC = "oc"
     HEALTH = "health"
+    TRANSIENT = "transient"  # monitor/transient: one message per target and transition analysed
     NODE_HEALTH = "node-health"  # ordervib/node/<id>/health: a node's own counters
     OTHER = "other"
 
 
-_RESERVED_KINDS = {OC_TOPIC: TopicKind.OC, HEALTH_TOPIC: TopicKind.HEALTH}
+_RESERVED_KINDS = {OC_TOPIC: TopicKind.OC, HEALTH_TOPIC: TopicKind.HEALTH,
+                   TRANSIENT_TOPIC: TopicKind.TRANSIENT}
 
 
 def sensor_key(bed: str, channel: str) -> str:
@@ -156,6 +160,15 @@ def oc_key(bed: str) -> str:
 def health_key(bed: str) -> str:
     """Key of a bed's health messages."""
     return monitor_key(bed, HEALTH_TOPIC)
+
+
+def transient_key(bed: str) -> str:
+    """Key of a bed's transient messages (every target's, each names its ``target``).
+
+    >>> transient_key("b1"), topic_kind(transient_key("b1"))
+    ('testbed/b1/monitor/transient', <TopicKind.TRANSIENT: 'transient'>)
+    """
+    return monitor_key(bed, TRANSIENT_TOPIC)
 
 
 def phase_channel(order: str) -> str:
@@ -200,8 +213,8 @@ def parse_sensor_key(key: str) -> tuple[str, str] | None:
 
 
 def parse_monitor_key(key: str) -> tuple[str, str] | None:
-    """(bed, name) of a monitor key (name: a target, ``oc`` or ``health``), or None (for a bed or
-    name that breaks the name rule too)."""
+    """(bed, name) of a monitor key (name: a target, ``oc``, ``health`` or ``transient``), or None
+    (for a bed or name that breaks the name rule too)."""
     m = _MONITOR_RE.match(key)
     return (m.group(1), m.group(2)) if m else None
 
@@ -213,7 +226,7 @@ def bed_of(key: str) -> str | None:
 
 
 def is_monitor_key(key: str) -> bool:
-    """Whether a key is one of the node's outputs of a bed (monitor, oc or health)."""
+    """Whether a key is one of the node's outputs of a bed (monitor, oc, health or transient)."""
     return _MONITOR_RE.match(key) is not None
 
 

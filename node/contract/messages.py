@@ -36,6 +36,7 @@ class Reason(StrEnum):
     STEP = "step"
     FLATLINE = "flatline"
     VECTOR = "vector"
+    TRANSIENT = "transient"  # a critical speed shifted beyond the fleet's spread (monitor/transient)
 
 
 class Phase(StrEnum):
@@ -115,6 +116,47 @@ class OCMessage(TypedDict):
     previous: Annotated[str | None, "the OC in force before"]
 
 
+class TransientCritical(TypedDict):
+    """One resonance crossed in a transition (an item of a transient message's ``criticals``)."""
+
+    speed: Annotated[float, "critical speed, rpm of the schedule's switch channel"]
+    amplitude: Annotated[float, "peak 1x amplitude there (the target's unit)"]
+    phase_change: Annotated[float | None, "change of the phase lag across the resonance, degrees; "
+                                          "null without phase"]
+    af: Annotated[float, "amplification factor, API 684's half-power Nc / (N2 - N1) (where the "
+                         "amplitude has no clean peak, that of the fitted mode: af_method)"]
+    expected_speed: Annotated[float | None, "the fleet's mean critical of this resonance in this kind "
+                                            "of transition (rpm of the switch channel); null: none "
+                                            "matches or the model has no fleet transients"]
+    shift: Annotated[float | None, "(speed - expected_speed) / expected_speed, %"]
+    shift_rpm: NotRequired[Annotated[float | None, "speed - expected_speed, rpm"]]
+    limit: NotRequired[Annotated[float | None, "the |shift| beyond which the critical is an alarm, %"]]
+    expected_af: NotRequired[Annotated[float | None, "the fleet's mean AF of this resonance"]]
+    af_method: NotRequired[Annotated[str, "how af was read: half-power or modal fit"]]
+    zeta: NotRequired[Annotated[float, "the damping ratio af implies"]]
+    shaft_speed: NotRequired[Annotated[float, "the critical in rpm of the channel analysed (the "
+                                              "target's own shaft where the model has it)"]]
+
+
+class TransientMessage(TypedDict):
+    """``testbed/<bed>/monitor/transient``: one message per target at the end of each transition the
+    node analysed (a run-up, a coast-down, the ramp between two plateaus)."""
+
+    t: Annotated[float, "the transition's end, s (the sensor clock)"]
+    target: Annotated[str, "the modelled channel analysed"]
+    direction: Annotated[str, "up or down"]
+    from_speed: Annotated[float, "speed at its start, rpm of the switch channel"]
+    to_speed: Annotated[float, "speed at its end, rpm of the switch channel"]
+    criticals: Annotated[list[TransientCritical], "one object per resonance crossed, ascending speed"]
+    flag: Annotated[Flag, "ok, alarm (a critical shifted beyond the fleet's spread), or no-model "
+                          "(the model has no fleet transients)"]
+    reason: Annotated[Reason | None, "the rule that raised the alarm (transient)"]
+    kind: NotRequired[Annotated[str, "the kind of transition the fleet is kept per: direction, "
+                                     "from and to (an OC or a speed band)"]]
+    rate: NotRequired[Annotated[float, "mean speed rate, rpm/s of the switch channel"]]
+    speed_channel: NotRequired[Annotated[str, "the speed channel the 1x vector was analysed on"]]
+
+
 # the fields a bed's health and the node's own share: the serving node and its recording
 Wall = Annotated[float, "the node's clock, s since the Unix epoch"]
 Recording = Annotated[bool, "the node's recording is being written; false: an alarm"]
@@ -146,6 +188,8 @@ class HealthMessage(TypedDict):
     clock_jumps: NotRequired[Annotated[int, "moves of the bed's clock its channels confirmed "
                                             "(a clock set back or forward, a restart)"]]
     clock_held: NotRequired[Annotated[int, "samples held apart now, awaiting confirmation of their clock"]]
+    transients_dropped: NotRequired[Annotated[int, "transitions too long to analyse (over 900 s), "
+                                                   "dropped unpublished, every target"]]
     lag_ms_p50: NotRequired[Annotated[float | None, "receive to publish, ms, median of the last ones"]]
     lag_ms_p99: NotRequired[Annotated[float | None, "receive to publish, ms, 99th percentile"]]
     staleness: NotRequired[Annotated[float | None, "wall minus the receipt of the bed's last message, s"]]
@@ -194,6 +238,7 @@ class NodeHealthMessage(TypedDict):
 MESSAGE_TYPES: dict[TopicKind, type] = {
     TopicKind.SENSOR: SensorSample, TopicKind.MONITOR: MonitorMessage,
     TopicKind.OC: OCMessage, TopicKind.HEALTH: HealthMessage, TopicKind.NODE_HEALTH: NodeHealthMessage,
+    TopicKind.TRANSIENT: TransientMessage,
 }
 
 
@@ -212,6 +257,10 @@ def _type_schema(tp: Any) -> dict[str, Any]:
         return out
     if origin is dict:
         return {"type": "object", "additionalProperties": _type_schema(get_args(tp)[1])}
+    if origin is list:
+        return {"type": "array", "items": _type_schema(get_args(tp)[0])}
+    if isinstance(tp, type) and issubclass(tp, dict) and hasattr(tp, "__annotations__"):  # a TypedDict
+        return _object_schema(tp)
     if isinstance(tp, type) and issubclass(tp, StrEnum):
         return {"type": "string", "enum": [m.value for m in tp]}
     simple = {float: "number", int: "integer", str: "string", bool: "boolean", type(None): "null"}
@@ -229,6 +278,11 @@ def json_schema(kind: TopicKind) -> dict[str, Any]:
     cls = MESSAGE_TYPES.get(kind)
     if cls is None:
         return {"title": "ordervib message", "type": "object"}
+    return {"title": f"ordervib {kind.value} message", **_object_schema(cls)}
+
+
+def _object_schema(cls: type) -> dict[str, Any]:
+    """The JSON Schema of a TypedDict: description, ``"type": "object"``, properties, required."""
     hints = get_type_hints(cls, include_extras=True)
     props, required = {}, []
     for name, tp in hints.items():
@@ -237,5 +291,5 @@ def json_schema(kind: TopicKind) -> dict[str, Any]:
         else:
             required.append(name)
         props[name] = _type_schema(tp)
-    return {"title": f"ordervib {kind.value} message", "description": (cls.__doc__ or "").strip(),
-            "type": "object", "properties": props, "required": required}
+    return {"description": (cls.__doc__ or "").strip(), "type": "object", "properties": props,
+            "required": required}

@@ -80,6 +80,7 @@ from node.contract import (
     parse_sensor_key,
     sensor_key,
     sensor_subscription,
+    transient_key,
 )
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
 from node.live.inbox import Inbox
@@ -456,7 +457,7 @@ class LiveNode:
                 last["expired"] = True
                 self._publish(health_key(name), last)
             self.core.forget(name)
-            for key in (*state.keys, oc_key(name), health_key(name)):
+            for key in (*state.keys, oc_key(name), health_key(name), transient_key(name)):
                 pub = self._publishers.pop(key, None)
                 if pub is not None:
                     pub.undeclare()

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from node import __version__
-from node.contract import FS
+from node.contract import FS, RESERVED_NAMES
 from node.contract.documents import NPZ_OVERHEAD, parse_json, read_bounded, read_document, read_npz
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
@@ -39,6 +39,7 @@ from node.models.envelope import Envelope
 from node.models.kinds import model_from_arrays
 from node.models.ocmodel import RUN_CURVE
 from node.models.result import Calibration, OCResult
+from node.models.transients import FleetTransients
 
 FORMAT = "ordervib-model"
 FORMAT_VERSION = 2  # 2: the run-time settings are stored ("runtime"); 1 is read with the defaults
@@ -76,6 +77,7 @@ class Bundle:
     training: dict = field(default_factory=dict)
     curve: tuple[np.ndarray, np.ndarray] | None = None  # characteristic curve (speeds, means)
     checks: dict = field(default_factory=dict)  # model-free checks, e.g. {"flatline_samples": 80}
+    transients: FleetTransients | None = None  # the fleet's criticals per transition (None: not kept)
 
     @property
     def history_s(self) -> float:
@@ -144,6 +146,8 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike) -> Path:
         "training": bundle.training, "checks": bundle.checks, "ocs": [_manifest_oc(r) for r in bundle.ocs],
         "arrays_sha256": hashlib.sha256(data).hexdigest(),
     }
+    if bundle.transients is not None:  # (older versions ignore it: their node has no transient topic)
+        manifest["transients"] = bundle.transients.manifest()
     (out / MANIFEST).write_text(json.dumps(manifest, indent=1))
     return out
 
@@ -172,6 +176,10 @@ class Model:
         repeated = sorted({t for t in targets if targets.count(t) > 1})
         if repeated:
             raise ValueError(f"target(s) repeated: {', '.join(repeated)}")
+        reserved = sorted(set(targets) & RESERVED_NAMES)
+        if reserved:  # monitor/<target> would be another topic's key (contract section 2)
+            raise ValueError(f"{', '.join(reserved)} is never a target's name (monitor/{reserved[0]} "
+                             "is another topic)")
         first = self.bundles[0]
         for b in self.bundles[1:]:
             if b.schedule != first.schedule or b.config != first.config:
@@ -226,7 +234,10 @@ def load_model(path: str | os.PathLike) -> Model:
     root = Path(path)
     manifest = _manifest(root)
     if manifest.get("format_version") != MULTI_VERSION:
-        return Model((load_bundle(root),))
+        try:
+            return Model((load_bundle(root),))
+        except ValueError as exc:  # a reserved target name
+            raise OrdervibError(f"{root}: malformed model ({exc})") from None
     targets = manifest.get("targets")
     if not (isinstance(targets, list) and targets
             and all(isinstance(t, str) and _TARGET_NAME.match(t) for t in targets)):
@@ -329,9 +340,12 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
         if curve is None and any(RUN_CURVE in r.inputs for r in ocs):
             raise ValueError(f"an OC takes {RUN_CURVE!r} but the bundle has no characteristic curve")
         config = _config(root, manifest)
+        transients = None  # bundles before them kept none: no expected speed, no transient alarm
+        if manifest.get("transients") is not None:
+            transients = FleetTransients.from_manifest(manifest["transients"])
         return Bundle(manifest["method"], manifest["target"], schedule, ocs,
                       config, manifest.get("training", {}), curve,
-                      _checks(manifest.get("checks", {})))
+                      _checks(manifest.get("checks", {})), transients)
     except (KeyError, TypeError, ValueError) as exc:
         raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
 

@@ -43,6 +43,7 @@ from node.contract import (
     oc_key,
     parse_sensor_key,
     sensor_key,
+    transient_key,
 )
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
@@ -316,6 +317,11 @@ class NodeCore:
         out: list[Output] = []
         for name, bed in self.beds.items():
             out += self._run(name, bed.aligner.end())
+            ended = [(transient_key(name), tr) for p in bed.pipelines if (tr := p.end_transient())]
+            for key, tr in ended:  # each target's last transition
+                self.alarm_log.add(key, tr)
+            out += ended
+            self.published += len(ended)
         return out
 
     def flush_bed(self, name: str) -> list[Output]:
@@ -353,6 +359,7 @@ class NodeCore:
         g = b.aligner.guard
         msg["clock_faults"], msg["clock_conflicts"] = g.faults, g.conflicts
         msg["clock_jumps"], msg["clock_held"] = g.jumps, g.held
+        msg["transients_dropped"] = sum(p.transients_dropped for p in b.pipelines)
         if lag_ms is not None:
             msg["lag_ms_p50"], msg["lag_ms_p99"] = lag_ms
         return msg
@@ -431,5 +438,8 @@ class NodeCore:
                     bed.alarm_samples += 1
                     self.alarm_log.add(key, msg)
                 out.append((key, msg))
+                if pipe.transient is not None:  # the end of a transition: its criticals
+                    self.alarm_log.add(transient_key(name), pipe.transient)
+                    out.append((transient_key(name), pipe.transient))
         self.published += len(out)
         return out

@@ -18,6 +18,11 @@ stiffness drifting in. An OC model that predicts the vector (a vector curve) is 
 with the measured vectors. The monitor message then carries ``measured_phase``,
 ``predicted_phase``, ``vector_residual`` (|measured - predicted vector|) and
 ``vector_score``. Every timing comes from the bundle's ``RuntimeConfig``.
+
+Each sample also steps the target's ``TransientWatch`` (``node.runtime.transient_watch``): at
+the end of a transition (a run-up, a coast-down, a ramp between plateaus; a run's last one at
+the next run or the end of the stream, ``end_transient``) ``transient`` holds its
+``monitor/transient`` message for that sample, else None.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ from node.runtime.guard import CURVE, guard_of
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
 from node.runtime.ocdetect import OCDetector, OCState
 from node.runtime.runcurve import RUN_CURVE, RunCurve
+from node.runtime.transient_watch import TransientWatch
 
 _NAN = float("nan")
 _NO_SLOW = (_NAN, _NAN, _NAN)
@@ -106,7 +112,15 @@ class MonitorPipeline:
         vector_models = any(predicts_vector(r.model) for r in bundle.ocs)
         self._uses_phase = bool(self._vector) or vector_models
         phase = (self._phase_ch,) if self._uses_phase else ()
-        self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow, *phase})
+        # the transitions: on the speed and phase the fleet's were analysed on (an older bundle:
+        # the switch speed, and the phase where the other rules read it)
+        self._transient = TransientWatch(self.target, bundle.schedule, bundle.transients)
+        self._tr_phase = self._uses_phase or self._transient.settings.phase
+        self.transient: dict | None = None  # the transient message of the last sample, if any
+        if self._tr_phase:
+            phase = (self._phase_ch,)
+        self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow, *phase,
+                                self._transient.speed})
         # what the test bed publishes: the derived inputs are computed here, never awaited
         derived = {RUN_CURVE, *HISTORY_CHANNELS}
         self.sensor_channels = [c for c in self.channels if c not in derived]
@@ -130,6 +144,7 @@ class MonitorPipeline:
             self._curve = RunCurve(*bundle.curve, cfg.run_curve_bin)
 
     def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
+        self.transient = None
         if sample.new_run:
             self._new_run()
         values = sample.values
@@ -178,7 +193,21 @@ class MonitorPipeline:
         if self._flat is not None and self._flat.step(measured, phase is not Phase.OFF):
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.FLATLINE
         self._hist.append(tuple(vals.values()))
+        tw = self._transient
+        ended = tw.step(sample.t, values.get(tw.speed, _NAN), values.get(self.switch, _NAN), measured,
+                        values.get(self._phase_ch) if self._tr_phase else None)
+        if ended is not None:
+            self.transient = ended
         return msg, oc_msg
+
+    def end_transient(self) -> dict | None:
+        """The stream ended: the transition in progress analysed, its message (None: none)."""
+        return self._transient.end()
+
+    @property
+    def transients_dropped(self) -> int:
+        """Transitions too long to analyse (over the analyser's bound), dropped."""
+        return self._transient.dropped
 
     def _predict(self, a: _Active, vals: dict[str, float], measured: float, msg: dict, z: complex) -> None:
         """Step the model in force when its inputs are known, and its residual rule; into msg
@@ -245,6 +274,7 @@ class MonitorPipeline:
         and the held values afresh."""
         if not self._follows:
             self.detector.reset()
+        self.transient = self._transient.end()  # the last run's last transition (its coast-down)
         self._hist.clear()
         self._last = dict.fromkeys(self.channels, _NAN)
         for rule in (self._flat, self._jump, *self._vector, self._runscale, self._curve):

@@ -27,7 +27,7 @@ Steps (pure numerics, no I/O; arrays time-major, one sample per 1 / fs s):
   each critical is where its mode's lag has turned 90 degrees, its AF the phase slope there,
   (Nc / 2) dphi/dN.
 * ``analyse``: the three for one ramp; ``RampAnalyser``: the same sample by sample (the
-  node's driver, for a later session).
+  node drives one per bed and target: ``node.runtime.transient_watch``).
 
 >>> import numpy as np
 >>> t = np.arange(0, 60, 1 / 40)
@@ -520,7 +520,8 @@ def _phase_candidates(x: np.ndarray, vs: np.ndarray, smooth: int, min_af: float
         if np.nanmax(af_local[a:b + 1]) < min_af:
             continue  # too slow a roll for a critical
         roll = lag[b] - lag[a]
-        m0 = int(round(roll / math.pi)) or (1 if roll >= math.pi / 2 else 0)
+        m0 = max(int(round(roll / math.pi)), 0) or (1 if roll >= math.pi / 2 else 0)  # (a net
+        # roll backwards, a lag that grows in a stretch but falls more over it: no mode)
         if not m0:
             continue
         options = []
@@ -670,8 +671,11 @@ class RampAnalyser:
     starts where it exceeds ``min_rate`` rpm/s and ends after ``gap_s`` + ``pad_s`` below it
     (or moving the other way); it keeps the ``smooth_s`` + ``pad_s`` before its start. A ramp
     shorter than ``min_span`` of its top speed gives nothing; one longer than ``max_s`` is
-    dropped (bounded memory). ``analysis``: ``analyse``'s keywords (tracker_tau, velocity,
-    min_amplitude, ...). State: a few seconds of samples and the ramp's own.
+    dropped (bounded memory) and counted (``dropped``). ``analysis``: ``analyse``'s keywords
+    (tracker_tau, velocity, min_amplitude, ...). State: a few seconds of samples and the ramp's
+    own. ``aux``: further values carried with each sample (a time, another channel's speed);
+    ``samples`` holds the ramp last analysed, (K, 3 + len(aux)): speed, amplitude, phase, aux.
+    ``end()``: the ramp in progress analysed now (the data ended: a run's last coast-down).
 
     >>> speed = np.concatenate([np.full(200, 3000.0), np.linspace(3000, 9000, 2400),
     ...                         np.full(400, 9000.0)])
@@ -695,12 +699,14 @@ class RampAnalyser:
         self.max_s = max_s
         self.analysis = analysis
         self._n = max(1, int(round(smooth_s * fs)))
-        self._recent: deque[tuple[float, float, float]] = deque(maxlen=self._n + int(round(pad_s * fs)))
+        self._recent: deque[tuple[float, ...]] = deque(maxlen=self._n + int(round(pad_s * fs)))
         self._window: deque[float] = deque(maxlen=self._n)
         self._means: deque[float] = deque(maxlen=self._n + 1)
-        self._ramp: list[tuple[float, float, float]] | None = None
+        self._ramp: list[tuple[float, ...]] | None = None
         self._sign = 0
         self._quiet = 0
+        self.dropped = 0  # ramps longer than max_s, dropped
+        self.samples: np.ndarray | None = None  # the ramp last analysed (see the class docstring)
 
     def _rate(self, speed: float) -> float:
         """rpm/s of the moving average over the last ``smooth_s`` (0 until it has that history)."""
@@ -713,9 +719,11 @@ class RampAnalyser:
             return 0.0
         return (self._means[-1] - self._means[0]) / self.smooth_s
 
-    def step(self, speed: float, amplitude: float, phase: float | None = None) -> Transient | None:
-        """Take one sample (rpm, amplitude, phase lag in degrees or None; NaN for missing)."""
-        sample = (float(speed), float(amplitude), math.nan if phase is None else float(phase))
+    def step(self, speed: float, amplitude: float, phase: float | None = None,
+             aux: tuple[float, ...] = ()) -> Transient | None:
+        """Take one sample (rpm, amplitude, phase lag in degrees or None; NaN for missing; aux:
+        values carried along, see the class docstring)."""
+        sample = (float(speed), float(amplitude), math.nan if phase is None else float(phase), *aux)
         rate = self._rate(sample[0])
         if self._ramp is None:
             self._recent.append(sample)
@@ -727,8 +735,16 @@ class RampAnalyser:
         self._quiet = 0 if self._sign * rate > self.min_rate else self._quiet + 1
         if len(self._ramp) > self.max_s * self.fs:
             self._ramp = None  # longer than any ramp: dropped
+            self.dropped += 1
             return None
         if self._quiet <= (self.gap_s + self.pad_s) * self.fs:
+            return None
+        return self.end()
+
+    def end(self) -> Transient | None:
+        """The ramp in progress (if any) analysed now (None: none, too short, too few samples),
+        and forgotten (``reset`` forgets the history before it too)."""
+        if self._ramp is None:
             return None
         ramp, self._ramp = np.asarray(self._ramp), None
         s = _filled(ramp[:, 0])
@@ -736,6 +752,15 @@ class RampAnalyser:
             return None
         phases = None if np.isnan(ramp[:, 2]).all() else ramp[:, 2]
         try:
-            return analyse(ramp[:, 0], ramp[:, 1], phases, fs=self.fs, **self.analysis)  # type: ignore[arg-type]
+            out = analyse(ramp[:, 0], ramp[:, 1], phases, fs=self.fs, **self.analysis)  # type: ignore[arg-type]
         except ValueError:
             return None  # too few samples with speed and amplitude
+        self.samples = ramp
+        return out
+
+    def reset(self) -> None:
+        """Forget everything but the counters (a new run: its first ramp starts afresh)."""
+        self._recent.clear()
+        self._window.clear()
+        self._means.clear()
+        self._ramp, self._sign, self._quiet, self.samples = None, 0, 0, None

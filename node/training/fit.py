@@ -139,7 +139,7 @@ def load_runs(paths: Sequence[str], quiet: bool = False) -> list[Run]:
 def resolve_targets(spec: str | None, runs: list[Run]) -> list[str]:
     """The targets of ``--target`` (a comma list), each held by every run; default: every tracked
     order (``ORDER_CHANNELS``) all the runs hold, else those some run holds."""
-    from node.contract import ORDER_CHANNELS
+    from node.contract import ORDER_CHANNELS, RESERVED_NAMES
     if spec is None:
         targets = [c for c in ORDER_CHANNELS if all(c in r.channels for r in runs)]
         targets = targets or [c for c in ORDER_CHANNELS if any(c in r.channels for r in runs)]
@@ -154,6 +154,8 @@ def resolve_targets(spec: str | None, runs: list[Run]) -> list[str]:
     if repeated:
         raise OrdervibError(f"--target repeats {', '.join(repeated)}")
     for c in targets:
+        if c in RESERVED_NAMES:
+            raise OrdervibError(f"--target {c}: never a target's name (monitor/{c} is another topic)")
         if not all(c in r.channels for r in runs):
             held = sum(c in r.channels for r in runs)
             raise OrdervibError(f"--target {c}: the channel is missing from {len(runs) - held} of "
@@ -237,6 +239,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         history_config,
         train,
     )
+    from node.training.transients import fleet_transients
 
     t0 = time.perf_counter()
     budget = FALSE_ALARMS_PER_HOUR if o["false_alarms_per_hour"] is None else o["false_alarms_per_hour"]
@@ -289,7 +292,8 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
                                 f"no-model)")
         checks = calibrate_checks(runs, schedule, target, per_rule, use_phase=o["phase"], labels=labels)
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
-        bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks))
+        transients = fleet_transients(runs, schedule, target)
+        bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks, transients))
         trained.append((target, results))
     if use_history:  # said once the model stands (a failure: one line)
         log.log(*cooling_note(config.history_cooling))

@@ -741,9 +741,18 @@ def takes_history(model: Bundle | Model) -> bool:
     return any(c in HISTORY_CHANNELS for b in as_model(model).bundles for c in b.inputs)
 
 
+def _unmeasured(model: Bundle | Model) -> Model:
+    """The model as a prediction runs it: no fleet transients (the targets are not measured,
+    their transitions not analysed against the fleet; nor their own shafts' speeds awaited)."""
+    m = as_model(model)
+    if all(b.transients is None for b in m.bundles):
+        return m
+    return Model(tuple(dataclasses.replace(b, transients=None) for b in m.bundles))
+
+
 def needed_channels(model: Bundle | Model) -> list[str]:
     """The sensor channels the node awaits for ``model``, but the targets and their phases."""
-    m = as_model(model)
+    m = _unmeasured(model)
     own = {c for b in m.bundles for c in (b.target, phase_channel(b.target))}
     pipes = [MonitorPipeline(b) for b in m.bundles]
     return sorted({c for p in pipes for c in p.sensor_channels} - own)
@@ -766,7 +775,7 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
     each OC at the speed, from training runs (``InputFill.fit`` of the targets), taken for
     the mean modulus and where no model predicted; None, or a target it lacks: the fleet
     curve (``Bundle.curve``, over every OC's samples)."""
-    m = as_model(model)
+    m = _unmeasured(model)
     sched = m.schedule
     need = needed_channels(m)
     slow = [c for c in SLOW_TEMPERATURES if c not in need]

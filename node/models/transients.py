@@ -1,0 +1,242 @@
+"""The fleet's transients: per kind of transition and resonance, the spread of the critical speed
+and the amplification factor over the training runs, and the rule that flags a shift beyond it.
+
+A bundle keeps them in its manifest (``"transients"``, JSON, versioned ``TRANSIENTS_VERSION``);
+a bundle without them (trained before) loads with none: the node then publishes its transient
+messages with ``expected_speed`` and ``shift`` null and flag ``no-model``, never an alarm.
+
+The kind of a transition (``transition_kind``) is its direction and where it starts and ends: an
+OC whose plateau speed lies within ``KIND_NEAR`` of the speed, else a band of ``BAND_PCT`` % of
+the schedule's top plateau speed (idle, off). A critical found in a transition matches the fleet
+resonance of the same kind nearest to it in speed, within ``match_pct`` %. Its shift, (speed -
+mean) / mean in %, is an alarm beyond ``limit``: ``k_sigma`` times the fleet's standard deviation
+in %, widened by sqrt(1 + 1 / n) for a mean of n transitions, and never below ``floor_pct``
+(few runs underestimate a spread; the floor also covers what the fleet's runs never showed,
+such as a metal temperature they never reached); a resonance seen in fewer than ``MIN_SEEN``
+transitions of its kind, or in less than half of them, raises nothing.
+
+>>> s = FleetStat.of([9600.0, 9650.0, 9700.0])
+>>> round(s.mean), round(s.std, 1), s.count
+(9650, 50.0, 3)
+>>> af = FleetStat.of([15.0, 15.0, 15.0])
+>>> fleet = FleetTransients(TransientSettings(), {"up R1->R2": Kind(4, (Resonance(s, s, af),))})
+>>> res, shift, limit = fleet.compare("up R1->R2", 9170.0)
+>>> round(shift, 2), round(limit, 2), abs(shift) > limit
+(-4.97, 2.5, True)
+>>> FleetTransients.from_manifest(fleet.manifest()) == fleet
+True
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+TRANSIENTS_VERSION = 1
+K_SIGMA = 4.0  # an alarm beyond this many fleet sigmas (see docs/transients.md: the calibration)
+FLOOR_PCT = 2.5  # ... and never within this many % of the fleet's mean
+MATCH_PCT = 8.0  # a critical matches a fleet resonance within this many % of its mean
+JOIN_PCT = 3.0  # training: criticals of a kind within this many % of a group's mean are one resonance
+MIN_SEEN = 2  # a resonance seen in fewer transitions of its kind raises nothing
+BAND_PCT = 5.0  # a speed that is no OC's plateau is labelled by a band this wide, % of the top plateau
+KIND_NEAR = 0.04  # a speed within this fraction of an OC's plateau speed is that OC
+MAX_KINDS = 1000  # kinds a bundle may hold (bounded input)
+MAX_RESONANCES = 100  # resonances per kind
+
+
+@dataclass(frozen=True)
+class FleetStat:
+    """Mean, (sample) standard deviation and count of one quantity over the fleet's transitions."""
+
+    mean: float
+    std: float
+    count: int
+
+    @classmethod
+    def of(cls, values: Sequence[float]) -> FleetStat:
+        n = len(values)
+        m = math.fsum(values) / n
+        sd = math.sqrt(math.fsum((v - m) ** 2 for v in values) / (n - 1)) if n > 1 else 0.0
+        return cls(m, sd, n)
+
+    def to_dict(self) -> dict[str, float]:
+        return {"mean": self.mean, "std": self.std, "count": self.count}
+
+    @classmethod
+    def from_dict(cls, d: object) -> FleetStat:
+        if not isinstance(d, dict):
+            raise ValueError("a fleet statistic must be an object")
+        mean, std, count = d.get("mean"), d.get("std"), d.get("count")
+        for name, v in (("mean", mean), ("std", std)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"fleet statistic {name} must be a finite number, got {v!r}")
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise ValueError(f"fleet statistic count must be a positive integer, got {count!r}")
+        if std < 0:  # type: ignore[operator]
+            raise ValueError(f"fleet statistic std must be >= 0, got {std!r}")
+        return cls(float(mean), float(std), count)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class Resonance:
+    """One resonance of a kind of transition: its critical speed in rpm of the switch channel
+    (``speed``) and of the shaft analysed (``shaft``: the one compared, the physical critical;
+    the switch speed at that moment also varies with how the shafts lag each other through the
+    transition), and its AF."""
+
+    speed: FleetStat
+    shaft: FleetStat
+    af: FleetStat
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One kind of transition: how many the training runs made, and the resonances they crossed."""
+
+    transitions: int
+    resonances: tuple[Resonance, ...]
+
+
+@dataclass(frozen=True)
+class TransientSettings:
+    """How the transitions are analysed and compared (stored with the fleet's figures).
+
+    speed: the channel the 1x vector is analysed on (the target's own shaft; None: the
+    schedule's switch channel); phase: the target's phase channel is used; tracker_s: the order
+    tracker's lag undone (s; 0: none, alike in training and monitoring); min_amplitude: criticals
+    below it (the target's unit) are left out; k_sigma, floor_pct, match_pct: the alarm rule
+    (module docstring).
+    """
+
+    speed: str | None = None
+    phase: bool = False
+    tracker_s: float = 0.0
+    min_amplitude: float = 0.2
+    k_sigma: float = K_SIGMA
+    floor_pct: float = FLOOR_PCT
+    match_pct: float = MATCH_PCT
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"speed": self.speed, "phase": self.phase, "tracker_s": self.tracker_s,
+                "min_amplitude": self.min_amplitude, "k_sigma": self.k_sigma,
+                "floor_pct": self.floor_pct, "match_pct": self.match_pct}
+
+    @classmethod
+    def from_dict(cls, d: object) -> TransientSettings:
+        if not isinstance(d, dict):
+            raise ValueError("transients.settings must be an object")
+        unknown = sorted(set(d) - set(cls().to_dict()))
+        if unknown:
+            raise ValueError(f"unknown transients setting(s): {', '.join(unknown)}")
+        speed, phase = d.get("speed"), d.get("phase", False)
+        if speed is not None and not isinstance(speed, str):
+            raise ValueError(f"transients.settings.speed must be a channel name or null, got {speed!r}")
+        if not isinstance(phase, bool):
+            raise ValueError(f"transients.settings.phase must be true or false, got {phase!r}")
+        nums = {}
+        for key, lo, hi in (("tracker_s", 0.0, 60.0), ("min_amplitude", 0.0, 1e6), ("k_sigma", 0.0, 1e3),
+                            ("floor_pct", 0.0, 100.0), ("match_pct", 0.0, 100.0)):
+            v = d.get(key, getattr(cls(), key))
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                raise ValueError(f"transients.settings.{key} must be a number in [{lo:g}, {hi:g}], got {v!r}")
+            nums[key] = float(v)
+        return cls(speed, phase, **nums)
+
+
+@dataclass(frozen=True)
+class FleetTransients:
+    """The fleet's transients of one target: settings and, per kind (``transition_kind``), the
+    resonances in ascending mean speed."""
+
+    settings: TransientSettings
+    kinds: dict[str, Kind] = field(default_factory=dict)
+
+    def limit(self, res: Resonance, transitions: int) -> float | None:
+        """The |shift| (%) beyond which a critical of ``res`` is an alarm; None: it raises none
+        (seen too seldom among the ``transitions`` of its kind)."""
+        n = res.shaft.count
+        if n < MIN_SEEN or 2 * n < transitions:
+            return None
+        spread = 100.0 * res.shaft.std / res.shaft.mean * math.sqrt(1.0 + 1.0 / n)
+        return max(self.settings.k_sigma * spread, self.settings.floor_pct)
+
+    def compare(self, kind: str, speed: float) -> tuple[Resonance | None, float | None, float | None]:
+        """The fleet resonance a critical at ``speed`` (rpm of the shaft analysed) in a transition
+        of ``kind`` matches (None: none within ``match_pct``), its shift in % and the limit."""
+        k = self.kinds.get(kind)
+        if k is None or not k.resonances:
+            return None, None, None
+        best = min(k.resonances, key=lambda r: abs(speed - r.shaft.mean))
+        shift = 100.0 * (speed - best.shaft.mean) / best.shaft.mean
+        if abs(shift) > self.settings.match_pct:
+            return None, None, None
+        return best, shift, self.limit(best, k.transitions)
+
+    def manifest(self) -> dict[str, Any]:
+        """The bundle manifest's ``transients`` object."""
+        return {"version": TRANSIENTS_VERSION, "settings": self.settings.to_dict(),
+                "kinds": {name: {"transitions": k.transitions,
+                                 "resonances": [{"speed": r.speed.to_dict(), "shaft": r.shaft.to_dict(),
+                                                 "af": r.af.to_dict()} for r in k.resonances]}
+                          for name, k in self.kinds.items()}}
+
+    @classmethod
+    def from_manifest(cls, d: object) -> FleetTransients:
+        """From a manifest's ``transients`` object (ValueError for a malformed or newer one)."""
+        if not isinstance(d, dict):
+            raise ValueError("transients must be an object")
+        if d.get("version") != TRANSIENTS_VERSION:
+            raise ValueError(f"transients version {d.get('version')!r} is not supported "
+                             f"(this ordervib reads {TRANSIENTS_VERSION})")
+        settings = TransientSettings.from_dict(d.get("settings", {}))
+        kinds = d.get("kinds", {})
+        if not isinstance(kinds, dict) or len(kinds) > MAX_KINDS:
+            raise ValueError(f"transients.kinds must be an object of at most {MAX_KINDS} kinds")
+        out = {}
+        for name, k in kinds.items():
+            if not isinstance(k, dict) or not isinstance(k.get("resonances"), list) \
+                    or len(k["resonances"]) > MAX_RESONANCES:
+                raise ValueError(f"transients.kinds[{name!r}] must hold at most {MAX_RESONANCES} resonances")
+            n = k.get("transitions")
+            if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+                raise ValueError(f"transients.kinds[{name!r}].transitions must be a positive integer")
+            res = []
+            for r in k["resonances"]:
+                if not isinstance(r, dict):
+                    raise ValueError(f"transients.kinds[{name!r}]: a resonance must be an object")
+                speed, shaft = FleetStat.from_dict(r.get("speed")), FleetStat.from_dict(r.get("shaft"))
+                if speed.mean <= 0 or shaft.mean <= 0:
+                    raise ValueError(f"transients.kinds[{name!r}]: a critical speed must be positive")
+                res.append(Resonance(speed, shaft, FleetStat.from_dict(r.get("af"))))
+            out[str(name)] = Kind(n, tuple(sorted(res, key=lambda x: x.shaft.mean)))
+        return cls(settings, out)
+
+
+def speed_label(speed: float, plateaus: Sequence[tuple[str, float]]) -> str:
+    """An OC's name where ``speed`` lies within ``KIND_NEAR`` of its plateau (the nearest; the first
+    of equal ones), else the band of ``BAND_PCT`` % of the top plateau it falls in.
+
+    >>> p = [("OC1", 6500.0), ("OC2", 9800.0)]
+    >>> speed_label(6420.0, p), speed_label(2900.0, p), speed_label(12.0, p)
+    ('OC1', '30%', '0%')
+    """
+    top = max((s for _, s in plateaus), default=0.0)
+    if plateaus:
+        name, plateau = min(plateaus, key=lambda p: abs(speed - p[1]))
+        if plateau > 0 and abs(speed / plateau - 1.0) <= KIND_NEAR:
+            return name
+    if not top > 0 or not math.isfinite(speed):
+        return "?"
+    return f"{BAND_PCT * round(100.0 * speed / top / BAND_PCT):g}%"
+
+
+def transition_kind(direction: str, from_speed: float, to_speed: float,
+                    plateaus: Sequence[tuple[str, float]]) -> str:
+    """The kind of a transition: ``"<direction> <from>-><to>"`` (``speed_label`` each end).
+
+    >>> transition_kind("up", 2950.0, 6480.0, [("OC1", 6500.0), ("OC2", 9800.0)])
+    'up 30%->OC1'
+    """
+    return f"{direction} {speed_label(from_speed, plateaus)}->{speed_label(to_speed, plateaus)}"

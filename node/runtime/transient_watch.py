@@ -1,0 +1,151 @@
+"""One target's transitions watched sample by sample: the ``monitor/transient`` message of each.
+
+A ``TransientWatch`` steps a ``RampAnalyser`` (``node.runtime.transient``) once per aligned
+sample on the target's 1x amplitude (and phase, where the model uses it) against the speed of
+the channel its settings name (the target's own shaft; default the schedule's switch channel).
+At a transition's end it returns the message of contract section 2: each critical's speed is
+stated in rpm of the switch channel (the switch channel's speed where the analysed shaft passed
+the critical: both speeds averaged over 1 s, the switch's read at the shaft's critical), with
+the fleet's expected speed and the shift where the model holds the fleet's transients
+(``node.models.transients``). Pure: the same in the live node, replay and training.
+
+>>> import numpy as np
+>>> from node.contract.schedule import OperatingCondition, Schedule
+>>> sched = Schedule((OperatingCondition("A", 9000.0),))
+>>> w = TransientWatch("yB", sched, None)
+>>> speed = np.concatenate([np.full(200, 3000.0), np.linspace(3000, 9000, 2400), np.full(400, 9000.0)])
+>>> r = speed / 6000
+>>> v = speed * r**2 / (1 - r**2 + 0.1j * r) * 1e-3
+>>> out = [w.step(k / 40, s, s, a, None) for k, (s, a) in enumerate(zip(speed, np.abs(v)))]
+>>> [(m["direction"], m["kind"], round(m["criticals"][0]["speed"], -1), m["flag"].value)
+...  for m in out if m is not None]
+[('up', 'up 35%->A', 6000.0, 'no-model')]
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from node.contract import CHANNEL_UNITS, Flag, Reason
+from node.contract.schedule import Schedule
+from node.models.transients import FleetTransients, Resonance, TransientSettings, transition_kind
+from node.runtime.transient import RampAnalyser, Transient
+
+VELOCITY_UNIT = "mm/s"  # a target in this unit is a velocity: divided by the speed (the displacement)
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _smooth(x: np.ndarray, n: int) -> np.ndarray:
+    """x (K,) with gaps interpolated, averaged over n samples (centred; shorter at the ends)."""
+    ok = np.isfinite(x)
+    if not ok.any():
+        return x
+    idx = np.arange(len(x))
+    f = np.interp(idx, idx[ok], x[ok]) if not ok.all() else x
+    k = np.ones(max(1, n))
+    return np.convolve(f, k, mode="same") / np.convolve(np.ones(len(f)), k, mode="same")
+
+
+class TransientWatch:
+    """The transitions of one target (see the module docstring).
+
+    target: the modelled channel; schedule: its model's (the switch channel, the OCs' plateaus
+    that name the kinds of transition); fleet: the model's fleet transients (None: a model
+    trained without them: no expected speed, flag ``no-model``); settings: how to analyse
+    (default the fleet's, else ``TransientSettings()``). ``speed``: the channel analysed on;
+    ``dropped``: ramps too long to analyse (bounded memory).
+    """
+
+    def __init__(self, target: str, schedule: Schedule, fleet: FleetTransients | None,
+                 settings: TransientSettings | None = None) -> None:
+        self.target = target
+        self.fleet = fleet
+        self.settings = settings or (fleet.settings if fleet is not None else TransientSettings())
+        self.switch = schedule.switch
+        self.speed = self.settings.speed or schedule.switch
+        self._plateaus = [(oc.name, oc.speed) for oc in schedule.ocs]
+        self._own = self.speed != self.switch  # the switch speed is carried along to map to
+        self.analyser = RampAnalyser(tracker_tau=self.settings.tracker_s,
+                                     velocity=CHANNEL_UNITS.get(target) == VELOCITY_UNIT,
+                                     min_amplitude=self.settings.min_amplitude)
+
+    @property
+    def dropped(self) -> int:
+        return self.analyser.dropped
+
+    def step(self, t: float, speed: float, switch: float, amplitude: float,
+             phase: float | None) -> dict | None:
+        """One aligned sample (t s; the analysed channel's and the switch channel's speeds, rpm;
+        the target's amplitude; its phase lag, degrees, or None): the transient message of a
+        transition that ended with it, else None."""
+        tr = self.analyser.step(speed, amplitude, phase, (t, switch) if self._own else (t,))
+        return None if tr is None else self._message(tr)
+
+    def end(self) -> dict | None:
+        """The data ended (a new run, the end of the stream): the transition in progress analysed
+        now, its message (None: none, or too short); the watch then starts afresh."""
+        tr = self.analyser.end()
+        msg = None if tr is None else self._message(tr)
+        self.analyser.reset()
+        return msg
+
+    def _message(self, tr: Transient) -> dict:
+        """The contract's message of a transition just analysed (``analyser.samples``)."""
+        ramp = self.analyser.samples
+        assert ramp is not None
+        t = ramp[:, 3]
+        if self._own:
+            sw = _smooth(ramp[:, 4], int(self.analyser.fs))
+            own = _smooth(ramp[:, 0], int(self.analyser.fs))
+            order = np.argsort(own, kind="stable")
+            ok = np.isfinite(sw[order]) & np.isfinite(own[order])
+
+            def to_switch(nc: float) -> float:
+                return float(np.interp(nc, own[order][ok], sw[order][ok])) if ok.any() else math.nan
+            raw = _smooth(ramp[:, 4], 1)  # gaps filled
+            first, last = float(raw[0]), float(raw[-1])
+        else:
+            def to_switch(nc: float) -> float:
+                return nc
+            first, last = tr.from_speed, tr.to_speed
+        kind = transition_kind(tr.direction, first, last, self._plateaus)
+        fleet = self.fleet
+        # each fleet resonance answers the critical nearest to it (others near it are new ones)
+        match: dict[int, tuple[Resonance, float, float | None]] = {}
+        if fleet is not None:
+            best: dict[int, int] = {}
+            for i, c in enumerate(tr.criticals):
+                res, shift, limit = fleet.compare(kind, c.speed)
+                if res is not None and shift is not None:
+                    j = best.get(id(res))
+                    if j is None or abs(shift) < abs(match[j][1]):
+                        if j is not None:
+                            del match[j]
+                        best[id(res)] = i
+                        match[i] = (res, shift, limit)
+        alarm = False
+        crits = []
+        for i, c in enumerate(tr.criticals):
+            speed = to_switch(c.speed)
+            expected = shift = limit = expected_af = None
+            if i in match:
+                res, shift, limit = match[i]
+                expected, expected_af = res.speed.mean, res.af.mean
+                alarm = alarm or (limit is not None and abs(shift) > limit)
+            crits.append({"speed": _num(speed), "amplitude": _num(c.amplitude),
+                          "phase_change": _num(c.phase_change), "af": _num(c.af),
+                          "expected_speed": expected, "shift": shift,
+                          "shift_rpm": None if expected is None else _num(speed - expected), "limit": limit,
+                          "expected_af": expected_af, "af_method": c.af_method, "zeta": _num(c.zeta),
+                          "shaft_speed": _num(c.speed)})
+        dur = (t[-1] - t[0]) if len(t) > 1 else math.nan
+        flag = Flag.NO_MODEL if fleet is None else Flag.ALARM if alarm else Flag.OK
+        return {"t": float(t[-1]), "target": self.target, "direction": tr.direction,
+                "from_speed": _num(first), "to_speed": _num(last), "criticals": crits, "flag": flag,
+                "reason": Reason.TRANSIENT if alarm else None, "kind": kind,
+                "rate": _num((last - first) / dur) if dur > 0 else None, "speed_channel": self.speed}
