@@ -33,7 +33,7 @@ from typing import cast
 import numpy as np
 
 from harness import beam as bm
-from node.order_tracking import shaft_revolutions, vkf_orders
+from node.order_tracking import cot_orders, shaft_revolutions, tvdft_orders, vkf_orders
 from node.sysid import WDMD, eps_td
 
 FS = 1000.0                 # Hz, sample rate of the run
@@ -153,11 +153,22 @@ def add_noise(run: Run, pct: float, rng: np.random.Generator) -> np.ndarray:
 
 
 # --- order tracking --------------------------------------------------------------
-def order1_amplitudes(y: np.ndarray, rpm: np.ndarray, fs: float) -> np.ndarray:
-    """Order-1 amplitude (K, p) of every output column of y (K, p) by the VKF."""
-    return np.column_stack([
-        vkf_orders(y[:, i], fs, rpm, [1.0], bandwidth_hz=VKF_BANDWIDTH_HZ).amplitudes[:, 0]
-        for i in range(y.shape[1])])
+TRACKERS = ("vkf", "tvdft", "cot")  # the order trackers the bench compares (section 3.2.1)
+TVDFT_REVS = 8.0  # TVDFT window, revolutions (as COT's blocks)
+
+
+def order1_amplitudes(y: np.ndarray, rpm: np.ndarray, fs: float, tracker: str = "vkf") -> np.ndarray:
+    """Order-1 amplitude (K_out, p) of every output column of y (K, p): by the VKF (K_out = K),
+    the TVDFT (K_out = K, NaN within half a window of either end) or COT (one row per block)."""
+    def one(x: np.ndarray) -> np.ndarray:
+        if tracker == "vkf":
+            return vkf_orders(x, fs, rpm, [1.0], bandwidth_hz=VKF_BANDWIDTH_HZ).amplitudes[:, 0]
+        if tracker == "tvdft":
+            return tvdft_orders(x, fs, rpm, [1.0], block_revs=TVDFT_REVS).amplitudes[:, 0]
+        if tracker == "cot":
+            return cot_orders(x, fs, rpm, [1.0]).amplitudes[:, 0]
+        raise ValueError(f"tracker must be one of {TRACKERS}, got {tracker!r}")
+    return np.column_stack([one(y[:, i]) for i in range(y.shape[1])])
 
 
 # --- one OC ------------------------------------------------------------------------
@@ -192,28 +203,40 @@ class Truth:
     amps: dict[tuple[str, str], np.ndarray]
 
     @classmethod
-    def of(cls, run: Run) -> Truth:
+    def of(cls, run: Run, tracker: str = "vkf") -> Truth:
         amps = {}
         for oc in PROFILE:
             for part in ("train", "test"):
                 a, b = oc_span(run, oc, part)
-                amps[(oc, part)] = order1_amplitudes(run.y[a:b], run.rpm[a:b], run.fs)
+                amps[(oc, part)] = order1_amplitudes(run.y[a:b], run.rpm[a:b], run.fs, tracker)
         return cls(amps)
 
 
 def oc_errors(run: Run, truth: Truth, y_meas: np.ndarray, oc: str,
               model: WDMD) -> tuple[float, float]:
-    """(train, test) eps_td of the order-1 amplitudes of the model's free run."""
-    pred = oc_predictions(run, y_meas, oc, model)
-    out = []
-    for part in ("train", "test"):
-        a, b = oc_span(run, oc, part)
-        yp = pred[part]
-        if not np.all(np.isfinite(yp)) or np.abs(yp).max() > 1e3 * np.abs(run.y).max():
-            out.append(float("inf"))
-            continue
-        out.append(eps_td(truth.amps[(oc, part)], order1_amplitudes(yp, run.rpm[a:b], run.fs)))
-    return out[0], out[1]
+    """(train, test) eps_td of the order-1 amplitudes (VKF) of the model's free run."""
+    return prediction_errors(run, {"vkf": truth}, oc, oc_predictions(run, y_meas, oc, model))["vkf"]
+
+
+def prediction_errors(run: Run, truths: dict[str, Truth], oc: str, pred: dict[str, np.ndarray]
+                      ) -> dict[str, tuple[float, float]]:
+    """Per tracker of ``truths``: (train, test) eps_td of the order-1 amplitudes of the OC's free
+    runs ``pred`` (``oc_predictions``) against the truth's by the same tracker, on the rows where
+    both are finite (the TVDFT's ends are not); inf for a model that blew up."""
+    out: dict[str, tuple[float, float]] = {}
+    for tracker, truth in truths.items():
+        errs = []
+        for part in ("train", "test"):
+            a, b = oc_span(run, oc, part)
+            yp = pred[part]
+            if not np.all(np.isfinite(yp)) or np.abs(yp).max() > 1e3 * np.abs(run.y).max():
+                errs.append(float("inf"))
+                continue
+            ref, got = truth.amps[(oc, part)], order1_amplitudes(yp, run.rpm[a:b], run.fs, tracker)
+            ok = np.all(np.isfinite(ref), axis=1) & np.all(np.isfinite(got), axis=1)
+            errs.append(eps_td(ref[ok], got[ok]))
+        out[tracker] = (errs[0], errs[1])
+    return out
 
 
 def make_model(estimator: str, levels: int = LEVELS, fs: float = FS) -> WDMD:

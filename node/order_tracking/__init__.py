@@ -2,9 +2,10 @@
 
 - :func:`cot_orders`: computed order tracking (angular resampling, block DFT).
 - :func:`vkf_orders`: joint second-generation Vold-Kalman filter.
+- :func:`tvdft_orders`: time-variant DFT (the kernel follows the order), one output a sample.
 - :func:`rpm_from_tacho`, :func:`tacho_pulse_times`: speed from a tacho signal.
 
-Both trackers return an :class:`OrderTrack` with time-major arrays; amplitudes are
+The trackers return an :class:`OrderTrack` with time-major arrays; amplitudes are
 peak amplitudes of ``a*cos(p*theta + phi)`` and phases ``phi`` refer to the shaft
 angle integrated from the speed, zero at the first sample. Invalid input raises
 ValueError.
@@ -13,6 +14,7 @@ ValueError.
 from .angle import rpm_from_tacho, shaft_revolutions, tacho_pulse_times
 from .cot import cot_orders
 from .result import OrderTrack
+from .tvdft import tvdft_orders
 from .vkf import DEFAULT_BANDWIDTH_HZ, vkf_orders, weighting_factor
 
 __all__ = [
@@ -22,6 +24,7 @@ __all__ = [
     "rpm_from_tacho",
     "shaft_revolutions",
     "tacho_pulse_times",
+    "tvdft_orders",
     "vkf_orders",
     "weighting_factor",
 ]

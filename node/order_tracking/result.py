@@ -21,7 +21,7 @@ class OrderTrack:
         first input sample.
     orders : (n_orders,) float, the tracked orders (multiples of shaft speed).
     rpm : (K_out,) or (K_out, n_orders) float, reference speed(s) at ``times`` (rev/min).
-    method : "cot" or "vkf".
+    method : "cot", "vkf" or "tvdft".
     """
 
     times: np.ndarray
