@@ -101,7 +101,7 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
         lambda t: parameters_panel(model[t], runs, schedule, t),
         lambda t: validation_panel(model[t], runs, schedule, t, alarms, scores[t]),
         lambda t: prediction_panel(model[t], runs, schedule, t, scores[t].kinds),
-        lambda t: transient_panel(runs.runs, runs.labels, schedule, t),
+        lambda t: transient_panel(runs.runs, runs.labels, schedule, t, model[t]),
     ]
     panels = [summary]
     for (pid, title), make in zip(PANELS, makers):
