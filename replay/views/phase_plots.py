@@ -242,9 +242,11 @@ def _mark_criticals(ax: Axes, v: Vectors, idx: np.ndarray, color: str, tracker_t
         return 0
     for c in found:
         ax.plot([c.speed], [c.amplitude], "v", ms=6, color=color, mec="black", mew=0.5)
-        if text:
+        if text:  # staggered, so that neighbours' labels do not overlap
+            rise = 6 + 26 * (len(ax.texts) % 3)
             ax.annotate(f"{c.speed:,.0f} rpm\nAF {c.af:.1f}", (c.speed, c.amplitude), fontsize=9,
-                        xytext=(4, 6), textcoords="offset points")
+                        xytext=(4, rise), textcoords="offset points",
+                        arrowprops={"arrowstyle": "-", "lw": 0.5, "color": "gray"} if rise > 6 else None)
     return len(found)
 
 
