@@ -290,11 +290,10 @@ class LiveNode:
         t0 = time.perf_counter()
         result = self.core.handle_batch(keys, payloads, recv)
         self._spent["core"] += time.perf_counter() - t0
-        known, last = self.core.known, self._last_recv
-        for key, r in dict(zip(keys, recv, strict=True)).items():  # each key's newest receipt
-            route = known(key)
-            if route is not None and r > last.get(route[0], 0):
-                last[route[0]] = r
+        last = self._last_recv
+        for bed, r in result.newest.items():  # each bed's newest receipt
+            if r > last.get(bed, 0):
+                last[bed] = r
         # each input's log time (ns) as log_time_ns takes it; a malformed one at its receive time
         log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
         keep = None if result.refused is None else (~result.refused).tolist()

@@ -270,18 +270,51 @@ class Aligner:
                 unknown[c] += 1
         out: list[tuple[int, list[AlignedSample]]] = []
         guard, jump, push = self.guard, self._jump, self._push
+        phases, opened, stats, n, wait = self._phase, self._open, self.stats, self._n, self.wait_slots
         taken = 0
         for i in at:
-            ti = t[i]
+            c, ti = channels[i], t[i]
             last = self._last_t
             if last is None or guard.pending or not -jump <= ti - last <= jump:
                 guard.taken += taken
                 taken = 0
-                got = self._guarded(channels[i], ti, v[i])
-            else:
-                taken += 1
-                got = push(channels[i], ti, v[i])
-            if got:
+                got = self._guarded(c, ti, v[i])
+                if got:
+                    out.append((i, got))
+                continue
+            taken += 1
+            phase = phases.get(c)
+            if phase is None or ti - last >= RUN_GAP:  # a channel's first, or a new run: push's steps
+                got = push(c, ti, v[i])
+                if got:
+                    out.append((i, got))
+                continue
+            # push's very steps (``_push``) inside a run under way (a clock is set: it has started)
+            k = phase.slot(ti)
+            if ti > last:
+                self._last_t = ti
+            nxt = self._next
+            if k < nxt:
+                if self._emitted or self._newest - k >= wait:  # its slot is gone (or expired)
+                    stats.late += 1
+                    stats.late_by_channel[c] += 1
+                    continue
+                self._next = nxt = k
+            slot = opened.get(k)
+            if slot is None:
+                slot = opened[k] = {}
+            elif c in slot:
+                stats.duplicates += 1
+                continue
+            vi = v[i]
+            slot[c] = _NAN if vi is None else float(vi)
+            if k > self._newest:
+                self._newest = k
+            if (self._emitted and len(opened.get(nxt, ())) == n) or self._newest - nxt >= wait:
+                got = []
+                while ((self._emitted and len(opened.get(self._next, ())) == n)
+                       or self._newest - self._next >= wait):
+                    got.append(self._emit(self._next))
                 out.append((i, got))
         guard.taken += taken
         return out

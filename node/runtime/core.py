@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import NamedTuple, TypeVar
 
 import numpy as np
@@ -64,6 +65,9 @@ class Batch(NamedTuple):
     t: np.ndarray  # (n,) each payload's sensor time, s; NaN where malformed
     done: list[tuple[int, list[Output]]]  # (i, outputs) of each message i that completed outputs
     refused: np.ndarray | None = None  # (n,) True where the message was refused; None: none was
+    # each bed's newest receive time (ns) among its admitted messages, malformed ones too
+    # (empty when no receive times were given)
+    newest: Mapping[str, int] = MappingProxyType({})
 
 
 Out = TypeVar("Out")  # what a message completed: outputs, or their encoded form
@@ -192,7 +196,8 @@ class NodeCore:
         if len(keys) != len(payloads):
             raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
         t, v, ok = decode_samples(payloads)
-        routes = {key: self.route(key) for key in dict.fromkeys(keys)}  # admitted in arrival order
+        cached, admit = self._routes.get, self.route  # admitted in arrival order
+        routes = {key: cached(key) or admit(key) for key in dict.fromkeys(keys)}
         admitted = {key: route for key, route in routes.items() if type(route) is tuple}
         refused = None
         parts: list[tuple[str, Sequence[int]]]
@@ -219,8 +224,11 @@ class NodeCore:
         tl, vl, okl = t.tolist(), v.tolist(), ok.tolist()
         received = None if recv is None else np.asarray(recv, dtype=np.int64).tolist()
         done: list[tuple[int, str, list[AlignedSample]]] = []
+        receipts: dict[str, int] = {}  # Batch.newest
         for name, idx in parts:
             bed = self.beds[name]
+            if received is not None:
+                receipts[name] = max(received) if len(idx) == len(keys) else max([received[i] for i in idx])
             good = [i for i in idx if okl[i]]
             bed.received += len(idx)
             bed.malformed += len(idx) - len(good)
@@ -258,7 +266,7 @@ class NodeCore:
                 bed.latest_t = bed.aligner.clock
         if len(parts) > 1:
             done.sort(key=lambda x: x[0])  # each bed's aligner is independent; outputs in message order
-        return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done], refused)
+        return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done], refused, receipts)
 
     def _idle_cuts(self, bed: Bed, recv: list[int]) -> list[int]:
         """Where a bed's messages (receive times recv, ns, in arrival order) come ``idle_ns`` or
