@@ -107,6 +107,7 @@ IDLE_CHECK_S = 0.05  # how often silent beds' waiting slots are looked at, s (No
 # silence), and a message stamped on receipt but not yet in the inbox must not count as later
 # than a flush: a silent bed's waiting slots go out align_wait_s plus this after its last receipt
 IDLE_MARGIN_NS = 250_000_000
+SMALL_LOG = 64  # a batch's input log times in plain Python below this many messages, numpy above
 
 
 @dataclass
@@ -295,7 +296,10 @@ class LiveNode:
             if r > last.get(bed, 0):
                 last[bed] = r
         # each input's log time (ns) as log_time_ns takes it; a malformed one at its receive time
-        log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
+        if len(batch) < SMALL_LOG:  # (log_time_ns of each, as log_times_ns gives them)
+            log_ns = [round((x if x == x else r / 1e9) * 1e9) for x, r in zip(result.t.tolist(), recv)]
+        else:
+            log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
         keep = None if result.refused is None else (~result.refused).tolist()
         rows: list[tuple[str, int, int, bytes]] = []  # the batch's recording, written at once
         for start, stop, outs in recording_order(len(batch), result.done):

@@ -39,6 +39,7 @@ from node.contract import (
     Refused,
     bed_matcher,
     bed_of,
+    decode_list,
     decode_samples,
     monitor_key,
     oc_key,
@@ -195,7 +196,16 @@ class NodeCore:
         None: no receive times, the wait is on sensor time only."""
         if len(keys) != len(payloads):
             raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
-        t, v, ok = decode_samples(payloads)
+        v: np.ndarray | None = None  # the values as an array: for a bed's SMALL_BATCH messages or more
+        if len(payloads) < SMALL_BATCH:  # a live batch: Python lists (one array: Batch.t)
+            tl, vl, okl = decode_list(payloads)
+            t = np.array(tl, dtype=np.float64)
+            received = None if recv is None else (recv.tolist() if isinstance(recv, np.ndarray)
+                                                  else list(map(int, recv)))
+        else:
+            t, v, ok = decode_samples(payloads)
+            tl, vl, okl = t.tolist(), v.tolist(), ok.tolist()
+            received = None if recv is None else np.asarray(recv, dtype=np.int64).tolist()
         cached, admit = self._routes.get, self.route  # admitted in arrival order
         routes = {key: cached(key) or admit(key) for key in dict.fromkeys(keys)}
         admitted = {key: route for key, route in routes.items() if type(route) is tuple}
@@ -221,8 +231,6 @@ class NodeCore:
                 refused[unroutable] = True
                 self._count_refused(Counter(keys[i] for i in unroutable), routes)
             parts = list(groups.items())
-        tl, vl, okl = t.tolist(), v.tolist(), ok.tolist()
-        received = None if recv is None else np.asarray(recv, dtype=np.int64).tolist()
         done: list[tuple[int, str, list[AlignedSample]]] = []
         receipts: dict[str, int] = {}  # Batch.newest
         for name, idx in parts:
@@ -234,15 +242,15 @@ class NodeCore:
             bed.malformed += len(idx) - len(good)
             if not good:
                 continue
-            if len(good) == len(keys):
-                channels = [admitted[key][1] for key in keys]
-                tg, vg = (t, v) if len(good) >= SMALL_BATCH else (tl, vl)
+            whole = len(good) == len(keys)
+            channels = [admitted[key][1] for key in keys] if whole else [admitted[keys[i]][1] for i in good]
+            tg: Sequence[float] | np.ndarray
+            vg: Sequence[float] | np.ndarray
+            if len(good) >= SMALL_BATCH:  # (then the batch was decoded as arrays)
+                assert v is not None
+                tg, vg = (t, v) if whole else (t[good], v[good])
             else:
-                channels = [admitted[keys[i]][1] for i in good]
-                if len(good) >= SMALL_BATCH:
-                    tg, vg = t[good], v[good]
-                else:
-                    tg, vg = [tl[i] for i in good], [vl[i] for i in good]
+                tg, vg = (tl, vl) if whole else ([tl[i] for i in good], [vl[i] for i in good])
             if bed.aligner.clock is None:  # no confirmed clock yet (node.runtime.clock)
                 newest = max(tl[i] for i in good)
                 bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
