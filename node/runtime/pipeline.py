@@ -43,6 +43,7 @@ from node.runtime.ocdetect import OCDetector, OCState
 from node.runtime.runcurve import RUN_CURVE, RunCurve
 
 _NAN = float("nan")
+_PHASE = {p: p.value for p in Phase}  # each phase's string (an enum's .value is a slow descriptor)
 _NO_SLOW = (_NAN, _NAN, _NAN)
 
 
@@ -153,14 +154,14 @@ class MonitorPipeline:
         if self._uses_phase:
             phase_deg = values.get(self._phase_ch, _NAN)
             z = order_vector(measured, phase_deg)
-            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": phase.value,
+            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": _PHASE[phase],
                    "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
                    "score": None, "band": None, "model": None, "reason": None,
                    "run_scale": None, "envelope": None, "measured_phase": _num(phase_deg),
                    "predicted_phase": None, "vector_residual": None, "vector_score": None}
         else:
             z = NAN_VECTOR
-            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": phase.value,
+            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": _PHASE[phase],
                    "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
                    "score": None, "band": None, "model": None, "reason": None,
                    "run_scale": None, "envelope": None}
