@@ -310,7 +310,9 @@ class Aligner:
             slot[c] = _NAN if vi is None else float(vi)
             if k > self._newest:
                 self._newest = k
-            if (self._emitted and len(opened.get(nxt, ())) == n) or self._newest - nxt >= wait:
+            # the head slot (nxt) stood incomplete and unexpired after the last message: only a
+            # message into it can complete it, only a newer slot expire it
+            if (k == nxt and self._emitted and len(slot) == n) or self._newest - nxt >= wait:
                 got = []
                 while ((self._emitted and len(opened.get(self._next, ())) == n)
                        or self._newest - self._next >= wait):
