@@ -24,7 +24,6 @@ from node.contract import (
     Reason,
     TopicKind,
     bed_of,
-    decode_list,
     decode_sample,
     decode_samples,
     health_key,
@@ -39,7 +38,7 @@ from node.contract import (
     sensor_key,
     topic_kind,
 )
-from node.contract.payload import T_MAX
+from node.contract.payload import T_MAX, decode_list
 
 T = 1_767_600_000.0
 # (payload, expected (t, v) or None for malformed)

@@ -52,14 +52,7 @@ from node.contract.messages import (
     SensorSample,
     json_schema,
 )
-from node.contract.payload import (
-    check_sample,
-    decode_list,
-    decode_sample,
-    decode_samples,
-    log_time_ns,
-    log_times_ns,
-)
+from node.contract.payload import check_sample, decode_sample, decode_samples, log_time_ns, log_times_ns
 from node.contract.schedule import OperatingCondition, Schedule, load_schedule
 
 __all__ = [
@@ -72,7 +65,7 @@ __all__ = [
     "parse_sensor_key", "phase_channel", "run_starts", "sensor_key", "sensor_subscription",
     "topic_kind", "Flag", "HealthMessage", "MonitorMessage", "NodeHealthMessage", "OCMessage", "Phase",
     "Reason", "Refused",
-    "SensorSample", "json_schema", "check_sample", "decode_list", "decode_sample", "decode_samples",
-    "log_time_ns", "log_times_ns",
+    "SensorSample", "json_schema", "check_sample", "decode_sample", "decode_samples", "log_time_ns",
+    "log_times_ns",
     "OrdervibError", "OperatingCondition", "Schedule", "load_schedule",
 ]

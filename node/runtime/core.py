@@ -39,13 +39,13 @@ from node.contract import (
     Refused,
     bed_matcher,
     bed_of,
-    decode_list,
     decode_samples,
     monitor_key,
     oc_key,
     parse_sensor_key,
     sensor_key,
 )
+from node.contract.payload import decode_list
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import SMALL_BATCH, AlignedSample, Aligner
