@@ -98,7 +98,8 @@ def run_worker(model: object, work: list[list[tuple[str, bytes, int]]], tmp: Pat
     t0 = time.process_time()
     for batch in work:
         handle(batch)
-    node._publish_many(node.core.finish())
+    for k, msg in node.core.finish():  # (the live node's end: its last samples, one by one)
+        node._publish(k, msg)
     cpu = time.process_time() - t0
     if profile is not None:
         profile.disable()
