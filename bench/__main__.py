@@ -16,6 +16,7 @@ BENCHMARKS = {
     "import-speed": "bench.import_speed",
     "train-speed": "bench.train_speed",
     "replay-speed": "bench.replay_speed",
+    "worker-speed": "bench.worker_speed",
     "rotor": "bench.rotor",
     "live": "bench.live",
     "soak": "bench.soak",

@@ -142,3 +142,56 @@ def test_health_is_per_bed_and_pure():
     assert h1["dropped"] == h2["dropped"] == 3 and h2["samples"] > h2["missing"].get("yB", 0) > 0
     assert core.health("b1", 1e9, dropped=3) == h1  # no clock, no side effect
     jsonschema.validate(h1, json_schema(TopicKind.HEALTH))
+
+
+def _hostile_stream(seed: int) -> list[tuple[str, float, float | None]]:
+    """Four channels at 40 Hz, jittered and reordered, with duplicates, dropouts, nulls, late
+    messages, an unknown channel, a silence that starts a new run and a far-off clock burst."""
+    rng = np.random.default_rng(seed)
+    chans = ["a", "b", "c", "d"]
+    msgs: list[tuple[float, str, float, float | None]] = []  # (arrival, channel, t, v)
+    for run, (t0, n) in enumerate(((1000.0, 300), (1200.0, 200))):  # 100 s apart: a new run
+        for k in range(n):
+            for c in chans:
+                if rng.random() < 0.04:
+                    continue  # dropout
+                t = t0 + k / 40 + rng.uniform(-0.008, 0.008)
+                v = None if rng.random() < 0.03 else float(rng.normal())
+                arrival = t + (rng.uniform(0.3, 0.6) if rng.random() < 0.02 else rng.uniform(0, 0.01))
+                msgs.append((arrival, c, t, v))
+                if rng.random() < 0.03:
+                    msgs.append((arrival + 0.001, c, t, v))  # duplicate
+            if rng.random() < 0.02:
+                msgs.append((t0 + k / 40, "zz", t0 + k / 40, 1.0))  # a channel nobody expects
+        if run == 0:
+            msgs += [(t0 + 5.0 + j * 1e-4, "a", 9e8 + j / 40, 0.0) for j in range(3)]  # a far clock
+    msgs.sort(key=lambda m: m[0])
+    return [(c, t, v) for _, c, t, v in msgs]
+
+
+def _state(aligner: Aligner, samples: list) -> tuple:
+    s = aligner.stats
+    rows = [(x.t, x.new_run, sorted((c, repr(v)) for c, v in x.values.items())) for x in samples]
+    return (rows, s.samples, s.late, dict(s.late_by_channel), s.duplicates, dict(s.missing),
+            dict(s.unknown), aligner.guard.taken, aligner.guard.faults)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_push_list_has_push_s_very_effects_on_a_hostile_stream(seed):
+    msgs = _hostile_stream(seed)
+    one = Aligner(["a", "b", "c", "d"], max_wait=0.25)
+    by_one = feed(one, msgs)
+    rng = np.random.default_rng(seed + 10)
+    lists = Aligner(["a", "b", "c", "d"], max_wait=0.25)
+    by_list: list = []
+    i = 0
+    while i < len(msgs):
+        j = i + int(rng.integers(1, 40))
+        c, t, v = zip(*msgs[i:j], strict=True)
+        done = lists.push_list(list(c), list(t), list(v))
+        assert [k for k, _ in done] == sorted({k for k, _ in done})  # in message order, once each
+        by_list += [x for _, got in done for x in got]
+        i = j
+    by_list += lists.flush()
+    assert by_one and one.stats.late and one.stats.duplicates and one.stats.unknown
+    assert _state(lists, by_list) == _state(one, by_one)

@@ -38,7 +38,7 @@ from node.contract import (
     sensor_key,
     topic_kind,
 )
-from node.contract.payload import T_MAX
+from node.contract.payload import T_MAX, decode_list
 
 T = 1_767_600_000.0
 # (payload, expected (t, v) or None for malformed)
@@ -94,16 +94,26 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
 def test_batch_rule_equals_the_scalar_rule_on_the_matrix() -> None:
     payloads = [p for p, _ in CASES]
     t, v, ok = decode_samples(payloads)
+    _same_as_lists(payloads, t, v, ok)
     want = [_as_arrays(e) for _, e in CASES]
     assert _same(t, np.array([w[0] for w in want]))
     assert _same(v, np.array([w[1] for w in want]))
     assert ok.tolist() == [w[2] for w in want]
 
 
+def _same_as_lists(payloads: list[bytes], t: np.ndarray, v: np.ndarray, ok: np.ndarray) -> None:
+    """decode_list (the live node's few messages) gives decode_samples' very values."""
+    tl, vl, okl = decode_list(payloads)
+    assert okl == ok.tolist()
+    assert np.array(tl, dtype=np.float64).tobytes() == t.tobytes()
+    assert np.array(vl, dtype=np.float64).tobytes() == v.tobytes()
+
+
 def test_batch_fast_path_applies_the_time_range() -> None:
     # all floats: the batch takes its fast path, which must still refuse out-of-range times
     payloads = [b'{"t": 1767600000.0, "v": 1.0}', b'{"t": -2.0, "v": null}', b'{"t": 1e300, "v": 2.0}']
     t, v, ok = decode_samples(payloads)
+    _same_as_lists(payloads, t, v, ok)
     assert ok.tolist() == [True, False, False]
     assert _same(t, np.array([T, math.nan, math.nan])) and _same(v, np.array([1.0, math.nan, math.nan]))
 
@@ -125,6 +135,7 @@ payload_objects = st.fixed_dictionaries(
 @given(st.lists(st.binary(max_size=40) | payload_objects.map(lambda o: json.dumps(o).encode()), max_size=12))
 def test_any_bytes_never_raise_and_batch_equals_scalar(payloads: list[bytes]) -> None:
     t, v, ok = decode_samples(payloads)
+    _same_as_lists(payloads, t, v, ok)
     for i, p in enumerate(payloads):
         s = decode_sample(p)
         assert ok[i] == (s is not None)

@@ -73,6 +73,34 @@ def decode_sample(payload: bytes) -> tuple[float, float | None] | None:
         return None
 
 
+def decode_list(payloads: Sequence[bytes]) -> tuple[list[float], list[float], list[bool]]:
+    """``decode_samples`` as Python lists, for a few payloads (no numpy call): the very same
+    values (the common batch without a per-message check, any other message by message).
+
+    >>> decode_list([b'{"t": 1.5, "v": null}', b'{"t": -1.0, "v": 2.0}'])
+    ([1.5, nan], [nan, nan], [True, False])
+    """
+    nan = math.nan
+    try:
+        ds = list(map(orjson.loads, payloads))
+        ts, vs = list(map(_T, ds)), list(map(_V, ds))
+        if set(map(type, ts)) <= {float} and _FLOAT_OR_NULL.issuperset(map(type, vs)):
+            ok = [T_MIN <= x < T_MAX for x in ts]  # NaN cannot come from JSON, infinity neither
+            if all(ok):
+                return ts, [nan if x is None else x for x in vs], ok
+            return ([x if good else nan for x, good in zip(ts, ok, strict=True)],
+                    [nan if x is None or not good else x for x, good in zip(vs, ok, strict=True)], ok)
+    except _ERRORS:
+        pass
+    t, v, oks = [], [], []
+    for payload in payloads:
+        s = decode_sample(payload)
+        t.append(nan if s is None else s[0])
+        v.append(nan if s is None or s[1] is None else s[1])
+        oks.append(s is not None)
+    return t, v, oks
+
+
 def decode_samples(payloads: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``decode_sample`` over a batch: ``(t, v, ok)``, each of shape (n,).
 

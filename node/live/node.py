@@ -57,7 +57,7 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from itertools import compress
 from types import TracebackType
@@ -108,6 +108,7 @@ IDLE_CHECK_S = 0.05  # how often silent beds' waiting slots are looked at, s (No
 # silence), and a message stamped on receipt but not yet in the inbox must not count as later
 # than a flush: a silent bed's waiting slots go out align_wait_s plus this after its last receipt
 IDLE_MARGIN_NS = 250_000_000
+SMALL_LOG = 64  # a batch's input log times in plain Python below this many messages, numpy above
 
 
 @dataclass
@@ -212,10 +213,6 @@ class LiveNode:
         self.thread.start()
 
     # -- recording: a failure stops it, never the node
-    def _record(self, key: str, t: float, data: bytes, recv_ns: int) -> None:
-        """One message of time t (s), received (or published) at recv_ns."""
-        self._record_many([(key, log_time_ns(t), recv_ns, data)], 1)
-
     def _record_many(self, messages: Iterable[tuple[str, int, int, bytes]], n: int) -> None:
         """n (key, log time ns, receive time ns, payload) messages at once."""
         if self.stats.recording_error is None:
@@ -248,17 +245,35 @@ class LiveNode:
             abandon()
 
     def _publish(self, key: str, msg: dict | Any) -> None:
-        pub = self._publishers.get(key)
-        if pub is None:
-            pub = self.session.declare_publisher(key, encoding=self._json,
-                                                 congestion_control=self._congestion)
-            self._publishers[key] = pub
-        data = orjson.dumps(msg)
-        t0 = time.perf_counter()
-        pub.put(data)  # waits at most Zenoh's wait_before_drop for a congested subscriber
-        self._spent["put"] += time.perf_counter() - t0
-        self._record(key, msg["t"], data, time.time_ns())
-        self.stats.published += 1
+        self._publish_many(((key, msg),))
+
+    def _publisher(self, key: str) -> Any:
+        pub = self._publishers[key] = self.session.declare_publisher(
+            key, encoding=self._json, congestion_control=self._congestion)
+        return pub
+
+    def _publish_many(self, outs: Sequence[tuple[str, dict | Any]]) -> None:
+        """Publish (key, message) outputs in turn, then record them (in the same order)."""
+        rows = self._send(outs)
+        self._record_many(rows, len(rows))
+
+    def _send(self, outs: Sequence[tuple[str, dict | Any]]) -> list[tuple[str, int, int, bytes]]:
+        """Publish (key, message) outputs in turn; their rows for the recording, each stamped
+        with its publish time (``_record_many``'s rows)."""
+        pubs, dumps, clock, wall, log_ns = (self._publishers, orjson.dumps, time.perf_counter, time.time_ns,
+                                            log_time_ns)
+        rows = []
+        put = 0.0
+        for key, msg in outs:
+            pub = pubs.get(key) or self._publisher(key)
+            data = dumps(msg)
+            t0 = clock()
+            pub.put(data)  # waits at most Zenoh's wait_before_drop for a congested subscriber
+            put += clock() - t0
+            rows.append((key, log_ns(msg["t"]), wall(), data))
+        self._spent["put"] += put
+        self.stats.published += len(rows)
+        return rows
 
     def _drain(self) -> list[tuple[str, bytes, int]]:
         """The messages waiting (at most ``BATCH_MAX``); waits a little for the first."""
@@ -277,25 +292,24 @@ class LiveNode:
         t0 = time.perf_counter()
         result = self.core.handle_batch(keys, payloads, recv)
         self._spent["core"] += time.perf_counter() - t0
-        known, last = self.core.known, self._last_recv
-        for key, r in dict(zip(keys, recv, strict=True)).items():  # each key's newest receipt
-            route = known(key)
-            if route is not None and r > last.get(route[0], 0):
-                last[route[0]] = r
+        last = self._last_recv
+        for bed, r in result.newest.items():  # each bed's newest receipt
+            if r > last.get(bed, 0):
+                last[bed] = r
         # each input's log time (ns) as log_time_ns takes it; a malformed one at its receive time
-        log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
+        if len(batch) < SMALL_LOG:  # (log_time_ns of each, as log_times_ns gives them)
+            log_ns = [round((x if x == x else r / 1e9) * 1e9) for x, r in zip(result.t.tolist(), recv)]
+        else:
+            log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
         keep = None if result.refused is None else (~result.refused).tolist()
+        rows: list[tuple[str, int, int, bytes]] = []  # the batch's recording, written at once
         for start, stop, outs in recording_order(len(batch), result.done):
             if stop > start:  # the inputs up to the one that completed these outputs
-                rows = zip(keys[start:stop], log_ns[start:stop], recv[start:stop], payloads[start:stop])
-                if keep is None:
-                    self._record_many(rows, stop - start)
-                elif n := sum(keep[start:stop]):
-                    self._record_many(compress(rows, keep[start:stop]), n)
+                part = zip(keys[start:stop], log_ns[start:stop], recv[start:stop], payloads[start:stop])
+                rows += part if keep is None else compress(part, keep[start:stop])
             if outs:
                 i = stop - 1
-                for key, msg in outs:
-                    self._publish(key, msg)
+                rows += self._send(outs)
                 lag = (time.time_ns() - recv[i]) / 1e6
                 bed = self._bed(keys[i]) or ""
                 lags = self._lag.get(bed)
@@ -304,6 +318,8 @@ class LiveNode:
                 lags.append(lag)
                 if lag > self._lag_max.get(bed, 0.0):
                     self._lag_max[bed] = lag
+        if rows:
+            self._record_many(rows, len(rows))
 
     def _on_gc(self, phase: str, info: dict) -> None:  # gc.callbacks: time the collections
         if phase == "start":
@@ -327,8 +343,7 @@ class LiveNode:
                     now = self.queue.now_if_empty()  # behind, a silence is not known
                     if now is not None:  # (every message stamped before now is handled)
                         next_idle = time.monotonic() + IDLE_CHECK_S
-                        for k, msg in self.core.flush_idle(now, IDLE_MARGIN_NS):
-                            self._publish(k, msg)
+                        self._publish_many(self.core.flush_idle(now, IDLE_MARGIN_NS))
                 if time.monotonic() >= next_tick:
                     next_tick = max(next_tick + 1.0, time.monotonic())  # no burst after a long batch
                     self._tick()
@@ -337,8 +352,7 @@ class LiveNode:
                     rest = took - spent["core"] - spent["put"] - spent["flush"]
                     log.warning("worker stalled %.2f s over %d messages (%s, recording and rest %.2f s)",
                                 took, len(batch), ", ".join(f"{k} {v:.2f} s" for k, v in spent.items()), rest)
-            for k, msg in self.core.finish():
-                self._publish(k, msg)
+            self._publish_many(self.core.finish())
         except BaseException as exc:  # the node is dead: say so at once, never look alive
             self.stats.worker_error = f"{type(exc).__name__}: {exc}"
             log.debug("the worker thread died", exc_info=True)

@@ -189,13 +189,14 @@ class McapWriter:
         ``channel_of`` registers a topic it lacks (0: none, the message is skipped). Returns the
         number of messages appended."""
         buf, offs, pack, get, limit = self._buf, self._offs, MESSAGE.pack, channels.get, self.chunk_size
+        op, body = int(Opcode.MESSAGE), _BODY  # (an enum member looked up per message costs)
         n = 0
         for topic, log_time, publish_time, data in messages:
             cid = get(topic) or channel_of(topic)
             if not cid:
                 continue
             offs.append(len(buf))
-            buf += pack(Opcode.MESSAGE, _BODY + len(data), cid, 0, log_time, publish_time)
+            buf += pack(op, body + len(data), cid, 0, log_time, publish_time)
             buf += data
             n += 1
             if len(buf) >= limit:

@@ -120,7 +120,7 @@ class Envelope:
     def distance(self, u: Sequence[float], since_s: float) -> float:
         """The envelope value of one sample: inputs ``u`` (m,) and seconds since the switch."""
         s = [(x - c) / h for x, c, h in zip((*u, since_s), self._centre, self._half)]
-        box = max(abs(x) for x in s)
+        box = max(map(abs, s))
         d = [x - m for x, m in zip(s, self._mean)]
         sq = 0.0
         for j, row in enumerate(self._rows):

@@ -157,37 +157,44 @@ class Aligner:
 
     def _push(self, channel: str, t: float, v: float | None) -> list[AlignedSample]:
         """``push`` of a known channel's message the clock guard took."""
-        out: list[AlignedSample] = []
-        if self._last_t is not None and t - self._last_t >= RUN_GAP:  # a new run, on a new grid
-            out += self.flush()
+        last = self._last_t
+        if last is not None and t - last >= RUN_GAP:  # a new run, on a new grid
+            out = self.flush()
             self._phase.clear()
             self._started, self._new_run, self._emitted = False, True, False
+        else:
+            out = []
         phase = self._phase.get(channel)
         if phase is None:
             phase = self._phase[channel] = ChannelPhase(self.fs)
         k = phase.slot(t)  # round(t fs - phi), phi before this sample
         if not self._started:
             self._started, self._next, self._newest = True, k, k
-        self._last_t = t if self._last_t is None else max(self._last_t, t)
+        if self._last_t is None or t > self._last_t:  # max(last, t)
+            self._last_t = t
         if k < self._next:
             if self._emitted or self._newest - k >= self.wait_slots:  # its slot is gone (or expired)
                 self.stats.late += 1
                 self.stats.late_by_channel[channel] += 1
                 return out
             self._next = k  # nothing emitted yet: the run starts earlier than its first message
-        slot = self._open.setdefault(k, {})
-        if channel in slot:
+        opened = self._open
+        slot = opened.get(k)
+        if slot is None:
+            slot = opened[k] = {}
+        elif channel in slot:
             self.stats.duplicates += 1
             return out
         slot[channel] = _NAN if v is None else float(v)
-        self._newest = max(self._newest, k)
-        while True:  # emit in order every slot complete (every channel in) or expired
-            head = self._open.get(self._next)  # (a run's first slot is known once the wait has passed)
-            complete = self._emitted and head is not None and len(head) == self._n
-            expired = self._newest - self._next >= self.wait_slots
-            if not (complete or expired):
-                return out
+        if k > self._newest:
+            self._newest = k
+        # emit in order every slot complete (every channel in) or expired (a run's first slot is
+        # known once the wait has passed)
+        n, wait = self._n, self.wait_slots
+        while ((self._emitted and len(opened.get(self._next, ())) == n)
+               or self._newest - self._next >= wait):
             out.append(self._emit(self._next))
+        return out
 
     def push_columns(self, channels: Sequence[str], t: np.ndarray, v: np.ndarray
                      ) -> list[tuple[int, list[AlignedSample]]]:
@@ -262,17 +269,56 @@ class Aligner:
             else:
                 unknown[c] += 1
         out: list[tuple[int, list[AlignedSample]]] = []
-        guard, jump = self.guard, self._jump
+        guard, jump, push = self.guard, self._jump, self._push
+        phases, opened, stats, n, wait = self._phase, self._open, self.stats, self._n, self.wait_slots
+        taken = 0
         for i in at:
-            c, ti, vi = channels[i], t[i], v[i]
+            c, ti = channels[i], t[i]
             last = self._last_t
             if last is None or guard.pending or not -jump <= ti - last <= jump:
-                got = self._guarded(c, ti, vi)
-            else:
-                guard.taken += 1
-                got = self._push(c, ti, vi)
-            if got:
+                guard.taken += taken
+                taken = 0
+                got = self._guarded(c, ti, v[i])
+                if got:
+                    out.append((i, got))
+                continue
+            taken += 1
+            phase = phases.get(c)
+            if phase is None or ti - last >= RUN_GAP:  # a channel's first, or a new run: push's steps
+                got = push(c, ti, v[i])
+                if got:
+                    out.append((i, got))
+                continue
+            # push's very steps (``_push``) inside a run under way (a clock is set: it has started)
+            k = phase.slot(ti)
+            if ti > last:
+                self._last_t = ti
+            nxt = self._next
+            if k < nxt:
+                if self._emitted or self._newest - k >= wait:  # its slot is gone (or expired)
+                    stats.late += 1
+                    stats.late_by_channel[c] += 1
+                    continue
+                self._next = nxt = k
+            slot = opened.get(k)
+            if slot is None:
+                slot = opened[k] = {}
+            elif c in slot:
+                stats.duplicates += 1
+                continue
+            vi = v[i]
+            slot[c] = _NAN if vi is None else float(vi)
+            if k > self._newest:
+                self._newest = k
+            # the head slot (nxt) stood incomplete and unexpired after the last message: only a
+            # message into it can complete it, only a newer slot expire it
+            if (k == nxt and self._emitted and len(slot) == n) or self._newest - nxt >= wait:
+                got = []
+                while ((self._emitted and len(opened.get(self._next, ())) == n)
+                       or self._newest - self._next >= wait):
+                    got.append(self._emit(self._next))
                 out.append((i, got))
+        guard.taken += taken
         return out
 
     def _plan(self, k: np.ndarray, c: np.ndarray, newest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

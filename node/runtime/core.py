@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import NamedTuple, TypeVar
 
 import numpy as np
@@ -45,6 +46,7 @@ from node.contract import (
     sensor_key,
     transient_key,
 )
+from node.contract.payload import decode_list
 from node.models.bundle import Bundle, Model, as_model
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import SMALL_BATCH, AlignedSample, Aligner
@@ -65,6 +67,9 @@ class Batch(NamedTuple):
     t: np.ndarray  # (n,) each payload's sensor time, s; NaN where malformed
     done: list[tuple[int, list[Output]]]  # (i, outputs) of each message i that completed outputs
     refused: np.ndarray | None = None  # (n,) True where the message was refused; None: none was
+    # each bed's newest receive time (ns) among its admitted messages, malformed ones too
+    # (empty when no receive times were given)
+    newest: Mapping[str, int] = MappingProxyType({})
 
 
 Out = TypeVar("Out")  # what a message completed: outputs, or their encoded form
@@ -192,8 +197,18 @@ class NodeCore:
         None: no receive times, the wait is on sensor time only."""
         if len(keys) != len(payloads):
             raise ValueError(f"{len(keys)} keys but {len(payloads)} payloads")
-        t, v, ok = decode_samples(payloads)
-        routes = {key: self.route(key) for key in dict.fromkeys(keys)}  # admitted in arrival order
+        v: np.ndarray | None = None  # the values as an array: for a bed's SMALL_BATCH messages or more
+        if len(payloads) < SMALL_BATCH:  # a live batch: Python lists (one array: Batch.t)
+            tl, vl, okl = decode_list(payloads)
+            t = np.array(tl, dtype=np.float64)
+            received = None if recv is None else (recv.tolist() if isinstance(recv, np.ndarray)
+                                                  else list(map(int, recv)))
+        else:
+            t, v, ok = decode_samples(payloads)
+            tl, vl, okl = t.tolist(), v.tolist(), ok.tolist()
+            received = None if recv is None else np.asarray(recv, dtype=np.int64).tolist()
+        cached, admit = self._routes.get, self.route  # admitted in arrival order
+        routes = {key: cached(key) or admit(key) for key in dict.fromkeys(keys)}
         admitted = {key: route for key, route in routes.items() if type(route) is tuple}
         refused = None
         parts: list[tuple[str, Sequence[int]]]
@@ -217,25 +232,26 @@ class NodeCore:
                 refused[unroutable] = True
                 self._count_refused(Counter(keys[i] for i in unroutable), routes)
             parts = list(groups.items())
-        tl, vl, okl = t.tolist(), v.tolist(), ok.tolist()
-        received = None if recv is None else np.asarray(recv, dtype=np.int64).tolist()
         done: list[tuple[int, str, list[AlignedSample]]] = []
+        receipts: dict[str, int] = {}  # Batch.newest
         for name, idx in parts:
             bed = self.beds[name]
+            if received is not None:
+                receipts[name] = max(received) if len(idx) == len(keys) else max([received[i] for i in idx])
             good = [i for i in idx if okl[i]]
             bed.received += len(idx)
             bed.malformed += len(idx) - len(good)
             if not good:
                 continue
-            if len(good) == len(keys):
-                channels = [admitted[key][1] for key in keys]
-                tg, vg = (t, v) if len(good) >= SMALL_BATCH else (tl, vl)
+            whole = len(good) == len(keys)
+            channels = [admitted[key][1] for key in keys] if whole else [admitted[keys[i]][1] for i in good]
+            tg: Sequence[float] | np.ndarray
+            vg: Sequence[float] | np.ndarray
+            if len(good) >= SMALL_BATCH:  # (then the batch was decoded as arrays)
+                assert v is not None
+                tg, vg = (t, v) if whole else (t[good], v[good])
             else:
-                channels = [admitted[keys[i]][1] for i in good]
-                if len(good) >= SMALL_BATCH:
-                    tg, vg = t[good], v[good]
-                else:
-                    tg, vg = [tl[i] for i in good], [vl[i] for i in good]
+                tg, vg = (tl, vl) if whole else ([tl[i] for i in good], [vl[i] for i in good])
             if bed.aligner.clock is None:  # no confirmed clock yet (node.runtime.clock)
                 newest = max(tl[i] for i in good)
                 bed.latest_t = newest if bed.latest_t is None else max(bed.latest_t, newest)
@@ -259,7 +275,7 @@ class NodeCore:
                 bed.latest_t = bed.aligner.clock
         if len(parts) > 1:
             done.sort(key=lambda x: x[0])  # each bed's aligner is independent; outputs in message order
-        return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done], refused)
+        return Batch(t, [(i, self._run(name, samples)) for i, name, samples in done], refused, receipts)
 
     def _idle_cuts(self, bed: Bed, recv: list[int]) -> list[int]:
         """Where a bed's messages (receive times recv, ns, in arrival order) come ``idle_ns`` or

@@ -49,6 +49,9 @@ from node.runtime.runcurve import RUN_CURVE, RunCurve
 from node.runtime.transient_watch import TransientWatch
 
 _NAN = float("nan")
+_PHASE = {p: p.value for p in Phase}  # each phase's string (an enum's .value is a slow descriptor)
+# the members the per-sample step names, looked up once (an enum class attribute costs a descriptor call)
+_NO_MODEL, _OK, _STEADY, _OFF = Flag.NO_MODEL, Flag.OK, Phase.STEADY, Phase.OFF
 _NO_SLOW = (_NAN, _NAN, _NAN)
 
 
@@ -168,29 +171,29 @@ class MonitorPipeline:
         if self._uses_phase:
             phase_deg = values.get(self._phase_ch, _NAN)
             z = order_vector(measured, phase_deg)
-            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": phase.value,
-                   "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
+            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": _PHASE[phase],
+                   "measured": _num(measured), "predicted": None, "residual": None, "flag": _NO_MODEL,
                    "score": None, "band": None, "model": None, "reason": None,
                    "run_scale": None, "envelope": None, "measured_phase": _num(phase_deg),
                    "predicted_phase": None, "vector_residual": None, "vector_score": None}
         else:
             z = NAN_VECTOR
-            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": phase.value,
-                   "measured": _num(measured), "predicted": None, "residual": None, "flag": Flag.NO_MODEL,
+            msg = {"t": sample.t, "oc": None if oc is None else self._names[oc], "phase": _PHASE[phase],
+                   "measured": _num(measured), "predicted": None, "residual": None, "flag": _NO_MODEL,
                    "score": None, "band": None, "model": None, "reason": None,
                    "run_scale": None, "envelope": None}
         active = self._active
         if active is not None:
             self._predict(active, vals, measured, msg, z)
             active.since += 1
-        steady = phase is Phase.STEADY
+        steady = phase is _STEADY
         if self._jump is not None:
             self._jump.step(measured, steady)
             if self._jump.flagged:
                 msg["flag"], msg["reason"] = Flag.ALARM, Reason.STEP
         if self._vector:
             self._watch_vector(self._vector, z, steady, msg)
-        if self._flat is not None and self._flat.step(measured, phase is not Phase.OFF):
+        if self._flat is not None and self._flat.step(measured, phase is not _OFF):
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.FLATLINE
         self._hist.append(tuple(vals.values()))
         tw = self._transient
@@ -248,7 +251,7 @@ class MonitorPipeline:
         if raised:
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.RESIDUAL
         else:
-            msg["flag"] = Flag.OK
+            msg["flag"] = _OK
 
     @staticmethod
     def _watch_vector(checks: list[StepCheck], z: complex, steady: bool, msg: dict) -> None:
