@@ -85,6 +85,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="an anchored curve may learn that part of the run's deviation at the switch "
                         "fades (a rotor bowed by a hot shutdown straightens within minutes); "
                         "--no-fade: the anchor is held through the OC (default: learn it)")
+    p.add_argument("--chirp-rate", action=argparse.BooleanOptionalAction, default=D["chirp_rate"],
+                   help="offer the switch speed's rate (rpm/s over the last second, derived by the node: "
+                        "the chirp rate of section 3.3) to the cross-validation as a candidate input "
+                        "(default: not offered)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
     p.add_argument("--allow-empty", action="store_true",

@@ -42,6 +42,7 @@ from node.models.envelope import HELD, OUTSIDE, Envelope
 from node.models.ocmodel import OCRuntime
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
+from node.runtime.chirp import CHIRP_RATE, ChirpRate
 from node.runtime.guard import CURVE, guard_of
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
 from node.runtime.ocdetect import OCDetector, OCState
@@ -125,7 +126,7 @@ class MonitorPipeline:
         self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow, *phase,
                                 self._transient.speed})
         # what the test bed publishes: the derived inputs are computed here, never awaited
-        derived = {RUN_CURVE, *HISTORY_CHANNELS}
+        derived = {RUN_CURVE, CHIRP_RATE, *HISTORY_CHANNELS}
         self.sensor_channels = [c for c in self.channels if c not in derived]
         self.history = history or HistoryTracker(self.detector.off_level, cfg.history_cooling, engine)
         self._slow = slow
@@ -145,6 +146,8 @@ class MonitorPipeline:
         self._curve = None  # this run's own characteristic, when a model takes it as input
         if RUN_CURVE in self.channels and bundle.curve is not None:
             self._curve = RunCurve(*bundle.curve, cfg.run_curve_bin)
+        # the chirp rate (node.runtime.chirp), when a model takes it as input
+        self._chirp = ChirpRate() if CHIRP_RATE in self.channels else None
 
     def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
         self.transient = None
@@ -158,6 +161,8 @@ class MonitorPipeline:
         oc_changed = oc != self._state[0]
         if self._curve is not None:
             vals[RUN_CURVE] = self._curve.step(vals[self.switch], vals[self.target], oc_changed)
+        if self._chirp is not None:
+            vals[CHIRP_RATE] = self._chirp.step(vals[self.switch])
         # stepped with or without history inputs: the bed's engine history stays known
         known = self.history.step(sample.t, vals[self.switch],
                                   tuple([vals[c] for c in self._slow]) if self._slow else _NO_SLOW)
@@ -280,7 +285,7 @@ class MonitorPipeline:
         self.transient = self._transient.end()  # the last run's last transition (its coast-down)
         self._hist.clear()
         self._last = dict.fromkeys(self.channels, _NAN)
-        for rule in (self._flat, self._jump, *self._vector, self._runscale, self._curve):
+        for rule in (self._flat, self._jump, *self._vector, self._runscale, self._curve, self._chirp):
             if rule is not None:
                 rule.reset()
         self._active = None  # its segment is not this run's: RunScale never hears of it

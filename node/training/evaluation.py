@@ -15,6 +15,7 @@ from node.models.config import RuntimeConfig
 from node.models.envelope import OUTSIDE
 from node.models.ocmodel import Trajectory
 from node.models.result import OCResult
+from node.runtime.chirp import CHIRP_RATE, add_chirp_rate
 from node.runtime.guard import guard_of, guard_segment
 from node.runtime.history import HISTORY_CHANNELS
 from node.runtime.runcurve import RUN_CURVE, add_run_curve, hold_last
@@ -56,14 +57,16 @@ class OCEvaluation:
 def derived_runs(runs: list[Run], schedule: Schedule, target: str, channels: list[str],
                  fleet: tuple[np.ndarray, np.ndarray] | None, config: RuntimeConfig) -> list[Run]:
     """``runs`` with the derived channels among ``channels`` appended as the node derives them:
-    ``run_curve`` (needs the bundle's characteristic curve ``fleet``) and the engine history
-    (``HISTORY_CHANNELS``: ``runs`` are one engine's, see ``with_history``)."""
+    ``run_curve`` (needs the bundle's characteristic curve ``fleet``), the engine history
+    (``HISTORY_CHANNELS``: ``runs`` are one engine's, see ``with_history``) and ``chirp_rate``."""
     if RUN_CURVE in channels:
         if fleet is None:
             raise OrdervibError("the model takes run_curve but has no characteristic curve")
         runs = [add_run_curve(r, schedule, target, fleet) for r in runs]
     if any(c in HISTORY_CHANNELS for c in channels):
         runs = with_history(runs, schedule, config)
+    if CHIRP_RATE in channels:
+        runs = [add_chirp_rate(r, schedule.switch) for r in runs]
     return runs
 
 

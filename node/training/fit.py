@@ -52,6 +52,7 @@ DEFAULT_OPTIONS: dict[str, Any] = {
     "prom": True,
     "phase": True,
     "fade": True,
+    "chirp_rate": False,  # the switch speed's rate (``node.runtime.chirp``) among the candidate inputs
 }
 MODEL_OPTIONS = tuple(DEFAULT_OPTIONS)
 
@@ -228,6 +229,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
                 allow_empty: bool) -> tuple[Model, list[tuple[str, list[OCResult]]]]:
     """The model of ``runs`` with the model options ``o`` (``MODEL_OPTIONS``), and per target its
     OCs' results; training's provenance is left to the caller."""
+    from node.runtime.chirp import add_chirp_rate
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.training.dataset import label_runs
     from node.training.train import (
@@ -261,6 +263,8 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         config = history_config(runs, schedule, config)
     bundles: list[Bundle] = []
     trained: list[tuple[str, list[OCResult]]] = []
+    if o["chirp_rate"]:  # a derived candidate input, as the node derives it (section 3.3)
+        runs = [add_chirp_rate(r, schedule.switch) for r in runs]
     labels = label_runs(runs, schedule)  # once for every target: segments, run_curve, checks
     n_models = (_count(grid) if grid else 0) + (len(PROM_CANDIDATES) if use_prom else 0)
     for target in targets:
