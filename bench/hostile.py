@@ -872,11 +872,8 @@ def main(argv: list[str] | None = None) -> int:
     tmp.mkdir(parents=True, exist_ok=True)
     log.info("work folder %s", tmp)
     if not args.model:
-        args.model = str(tmp / "model")
-        recs = ROOT / "recordings"
         log.info("training a Lasso model on the sample runs")
-        make.train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", args.model,
-                   method="lasso", target="yB")
+        args.model = make.sample_model(tmp / "model")
     r = run(args, tmp)
     keyflood = {k: c for k, c in hostile_keys(args.keys) if c != "invalid"}
     rec = read_recording(tmp / "node.mcap", keyflood, set(r["siblings"]), {REAL, *CLOCK_BEDS, *r["siblings"]},

@@ -336,10 +336,7 @@ def main(argv: list[str] | None = None) -> int:
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-live-"))
     if not args.model:
-        args.model = str(tmp / "model")
-        recs = ROOT / "recordings"
-        make.train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", args.model,
-                   method="lasso", target="yB")
+        args.model = make.sample_model(tmp / "model")
     model = load_model(args.model)
     needed = {c for b in model.bundles for c in MonitorPipeline(b).sensor_channels}  # what a bed publishes
     target = model.targets[0]  # the latency and throughput parts time this target's messages

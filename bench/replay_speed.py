@@ -42,10 +42,7 @@ def main(argv: list[str] | None = None) -> int:
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-replay-"))
     if not args.model:
-        args.model = str(tmp / "model")
-        recs = ROOT / "recordings"
-        make.train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", args.model,
-                   method="lasso", target="yB")
+        args.model = make.sample_model(tmp / "model")
 
     def read_decode() -> float:
         t0 = time.perf_counter()

@@ -38,10 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     from node.console.table import print_table
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-soak-"))
     if not args.model:
-        args.model = str(tmp / "model")
-        recs = ROOT / "recordings"
-        make.train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", args.model,
-                   method="lasso", target="yB")
+        args.model = make.sample_model(tmp / "model")
     r = soak(args.model, args.recording, args.hours, args.speed, tmp)
     after_warmup = [m for s, m in r.rss_mb if s >= 60.0] or [m for _, m in r.rss_mb]
     growth = after_warmup[-1] - after_warmup[0]

@@ -150,10 +150,7 @@ def main(argv: list[str] | None = None) -> int:
 
     tmp = Path(tempfile.mkdtemp(prefix="ordervib-worker-"))
     if not args.model:
-        args.model = str(tmp / "model")
-        recs = ROOT / "recordings"
-        make.train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", args.model,
-                   method="lasso", target="yB")
+        args.model = make.sample_model(tmp / "model")
     model = load_model(args.model)
     needed = {c for b in model.bundles for c in (b.schedule.switch, b.target, *b.inputs)}
     work = batches(args.recording, needed, args.beds, args.seconds, args.offset, args.batch)

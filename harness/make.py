@@ -24,6 +24,14 @@ def simulate(out: str | os.PathLike, **settings: Any) -> dict:
     return json.loads(Path(out).with_suffix(".truth.json").read_text())
 
 
+def sample_model(out: str | os.PathLike) -> str:
+    """The benchmarks' default model: a Lasso bundle of yB trained on the committed sample runs
+    (``recordings/engine1_runs.mcap``), written to ``out``; its path."""
+    recs = Path(__file__).resolve().parent.parent / "recordings"
+    train([recs / "engine1_runs.mcap"], recs / "engine1_runs.schedule.toml", out, method="lasso", target="yB")
+    return os.fspath(out)
+
+
 def train(recordings: list[str | os.PathLike], schedule: str | os.PathLike, out: str | os.PathLike,
           workers: int | None = None, keep_runs: bool = True, **options: Any) -> Trained:
     """Train with the model options ``options`` (``node.training.fit.model_options``) on the
