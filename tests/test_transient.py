@@ -266,3 +266,17 @@ def test_ramp_analyser_sample_by_sample_matches_the_offline_analysis() -> None:
     found = [c.speed for t in streamed for c in t.criticals]
     truth = [c for c in run.truth["criticals"]["yB"] if abs(c["rate_rpm_s"]) > 20]
     assert found and all(min(abs(f / c["speed"] - 1) for c in truth) < 0.01 for f in found)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4])
+def test_a_ramp_of_few_bins_or_absurd_speeds_gives_no_critical_and_no_error(n: int) -> None:
+    """A speed of 1e300 on one sample (a hostile or broken bed) leaves a ramp of a few speed bins:
+    the smoothing keeps each array's length (np.convolve's "same" once gave the kernel's)."""
+    from node.runtime.transient import _moving_average
+
+    x = np.arange(n, dtype=float) + 1j
+    assert len(_moving_average(x, 5)) == n
+    speed = np.r_[np.linspace(1500.0, 1600.0, 40), 1e300, np.linspace(1600.0, 1700.0, 40)]
+    amp = np.full(speed.size, 2.0)
+    phase = np.full(speed.size, 30.0)
+    assert analyse(speed, amp, phase).criticals == []

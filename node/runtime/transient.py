@@ -144,7 +144,10 @@ def _filled(x: np.ndarray) -> np.ndarray:
 
 
 def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
-    """Centred moving average over n samples (n odd), NaN-aware, same length; works on complex."""
+    """Centred moving average over n samples (n odd; at most x's length), NaN-aware, same length;
+    works on complex."""
+    if n > len(x):  # np.convolve's "same" would give the kernel's length
+        n = len(x) if len(x) % 2 else len(x) - 1
     if n <= 1:
         return x.copy()
     ok = np.isfinite(x)
