@@ -19,7 +19,8 @@ congestion control (a message they count as sent is not dropped on their side):
   first of the model's channels in the recording, with a clock 2 s ahead); each publishes the
   model's channels. Expected (docs/clock.md): every far sample and every sample of the second
   publisher counted in ``clock_faults`` (or still ``clock_held``), the bed's clock never moved by
-  them; cf-jump's two jumps followed (``clock_jumps``), no fault;
+  them; cf-jump's two jumps followed (``clock_jumps``; with one more at each new run of the
+  stream, a minute of sensor time after a second of wall time, which every bed's clock follows), no fault;
 - floods: ``--beds`` distinct bed names (``hb0``..., one sample each in turn) and ``--keys``
   distinct sensor keys, ``--flood-rate`` messages/s each: half of the keys channels on four beds
   (``kf0``..``kf3``, admitted first), a tenth beds with odd but valid names, the rest keys the
@@ -307,6 +308,7 @@ def clock_client(conf: dict) -> tuple[Callable[[float, float], dict], list]:
         sent = Counter[str]()
         far = Counter[str]()
         jumps = 0
+        run_starts = set(runs.run_start[:-1].tolist())  # the slots that begin a run
         code = runs.code.tolist()
         for j, (wall, shift, s) in enumerate(runs.timeline(start, PAUSE_S)):
             if start + wall >= end:
@@ -314,6 +316,8 @@ def clock_client(conf: dict) -> tuple[Callable[[float, float], dict], list]:
             _sleep_until(start + wall)
             if j in jumps_at:
                 jumps += 1
+            if j > 0 and s in run_starts:  # a new run: PAUSE_S of wall time but a minute of sensor
+                jumps += 1  # time, a confirmed jump of every bed's clock (cf-future's counts it too)
             back = JUMP_S if jumps_at[0] <= j < jumps_at[1] else 0.0
             first: tuple[float, float] | None = None
             for i in range(runs.bounds[s], runs.bounds[s + 1]):
