@@ -160,6 +160,12 @@ def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def smoothed(x: np.ndarray, n: int) -> np.ndarray:
+    """x (K,) with gaps interpolated (ends held), then its centred moving average over n samples
+    (shorter at the ends; n at most K), same length."""
+    return _moving_average(_filled(x), n)
+
+
 def find_transitions(speed: np.ndarray, fs: float = FS, min_rate: float = 20.0,
                      min_span: float = 0.1, smooth_s: float = 1.0, gap_s: float = 1.0,
                      pad_s: float = 2.0) -> list[Span]:

@@ -31,24 +31,13 @@ import numpy as np
 from node.contract import CHANNEL_UNITS, Flag, Reason
 from node.contract.schedule import Schedule
 from node.models.transients import FleetTransients, Resonance, TransientSettings, transition_kind
-from node.runtime.transient import RampAnalyser, Transient
+from node.runtime.transient import RampAnalyser, Transient, smoothed
 
 VELOCITY_UNIT = "mm/s"  # a target in this unit is a velocity: divided by the speed (the displacement)
 
 
 def _num(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
-
-
-def _smooth(x: np.ndarray, n: int) -> np.ndarray:
-    """x (K,) with gaps interpolated, averaged over n samples (centred; shorter at the ends)."""
-    ok = np.isfinite(x)
-    if not ok.any():
-        return x
-    idx = np.arange(len(x))
-    f = np.interp(idx, idx[ok], x[ok]) if not ok.all() else x
-    k = np.ones(max(1, n))
-    return np.convolve(f, k, mode="same") / np.convolve(np.ones(len(f)), k, mode="same")
 
 
 class TransientWatch:
@@ -100,14 +89,14 @@ class TransientWatch:
         assert ramp is not None
         t = ramp[:, 3]
         if self._own:
-            sw = _smooth(ramp[:, 4], int(self.analyser.fs))
-            own = _smooth(ramp[:, 0], int(self.analyser.fs))
+            sw = smoothed(ramp[:, 4], int(self.analyser.fs))
+            own = smoothed(ramp[:, 0], int(self.analyser.fs))
             order = np.argsort(own, kind="stable")
             ok = np.isfinite(sw[order]) & np.isfinite(own[order])
 
             def to_switch(nc: float) -> float:
                 return float(np.interp(nc, own[order][ok], sw[order][ok])) if ok.any() else math.nan
-            raw = _smooth(ramp[:, 4], 1)  # gaps filled
+            raw = smoothed(ramp[:, 4], 1)  # gaps filled
             first, last = float(raw[0]), float(raw[-1])
         else:
             def to_switch(nc: float) -> float:

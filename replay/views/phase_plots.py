@@ -200,10 +200,9 @@ def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str,
     for k, r in enumerate(runs):
         color = f"C{k % 10}"
         last: float | None = None
-        top = max((float(np.nanmax(_compensated(v, idx, slow_roll)[0], initial=0.0)) for _, idx in ramps[r]),
-                  default=0.0)
-        for n, (sp, idx) in enumerate(ramps[r]):
-            amp, ph = _compensated(v, idx, slow_roll)
+        traces = [_compensated(v, idx, slow_roll) for _, idx in ramps[r]]
+        top = max((float(np.nanmax(amp, initial=0.0)) for amp, _ in traces), default=0.0)
+        for n, ((sp, idx), (amp, ph)) in enumerate(zip(ramps[r], traces)):
             ph = np.where(amp >= PHASE_FLOOR * top, ph, np.nan)  # a vector lost in the noise has no phase
             style = "-" if sp.direction == "up" else "--"
             amp_ax.plot(v.speed[idx], amp, style, lw=0.8, color=color, label=None if n else _run_label(v, r))
