@@ -55,9 +55,9 @@ from node.contract.errors import OrdervibError
 from node.models.bundle import Bundle, load_bundle
 from node.training.runs import Run, read_runs
 from replay.offline import ReplayReport
+from simulator.campaign import FAULTS
 from simulator.schedule import BUILT_IN_SCHEDULE, SimSchedule, load_sim_schedule
 
-FAULTS = ("imbalance", "imbalance-90", "stiffness", "stuck-sensor", "drift")
 DELAY_TARGET_S = 60.0
 FALSE_ALARM_TARGET_PER_H = 1.0
 

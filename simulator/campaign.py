@@ -35,8 +35,12 @@ from simulator.schedule import (
 )
 
 # "imbalance-90": the imbalance fault with its phase chosen so that the added order vector is at
-# right angles to the order's vector at the onset (the amplitude moves least for its size)
-FAULTS = ("imbalance", "imbalance-90", "stiffness", "stuck-sensor", "drift")
+# right angles to the order's vector at the onset (the amplitude moves least for its size).
+# "stiffness": yB's shaft loses stiffness (a crack or a loosened joint through the rotor, a softened
+# bearing support), so every one of its modes softens and each critical falls by sqrt(factor);
+# "stiffness-mode": the former fault, one mode alone (the 0.955 mode near the top speed).
+FAULTS = ("imbalance", "imbalance-90", "stiffness", "stiffness-mode", "stuck-sensor", "drift")
+STIFFNESS_FAULTS = ("stiffness", "stiffness-mode")
 CAMPAIGN_START = 1767600000.0  # 2026-01-05 08:00:00 UTC, epoch seconds
 OFF_FRACTION = 0.05  # contract: engine off when every shaft speed is below 5 % of its maximum
 MAX_SPEEDS = {"nA": gaspath.NA_TOP, "nB": gaspath.NB_TOP, "nC": gaspath.NC_TOP}
@@ -61,8 +65,8 @@ PHASE_SIGMA_CAP = 45.0  # degrees
 PHASE_DECIMALS = 1  # resolution 0.1 degree
 DROPOUT_RATE = 2e-4  # isolated dropouts per sample and channel
 BURSTS_PER_RUN = 0.5  # mean number of dropout bursts (5-60 samples) per channel and run
-STIFFNESS_FAULT = 0.90  # stiffness factor of the 0.95 mode after a stiffness fault
-STIFFNESS_MODE = 2  # index of that mode among yB's
+STIFFNESS_FAULT = 0.90  # stiffness factor of the softened modes after a stiffness fault
+STIFFNESS_MODE = 2  # index of the one mode "stiffness-mode" softens among yB's (the 0.955 mode)
 STIFFNESS_RAMP = 20.0  # s
 DRIFT_RATE = 0.5 / 60.0  # yB drift, mm/s per second
 IMBALANCE_FAULT = 0.9  # added imbalance, times the base imbalance of plane 1
@@ -271,9 +275,8 @@ def simulate_run(
                 extra = _right_angle(shaft, sig[shaft.speed], metal, unbalance, bow, after, abs(extra))
                 truth_run["fault"]["angle_deg"] = 90.0
             unbalance[after] += extra
-        if fault == "stiffness" and shaft.out == "yB":
-            ramp = np.clip((profile.t - onset) / STIFFNESS_RAMP, 0.0, 1.0)
-            stiffness = {STIFFNESS_MODE: 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size * ramp}
+        if fault in STIFFNESS_FAULTS and shaft.out == "yB":
+            stiffness = stiffness_loss(fault, len(shaft.modes), profile.t - onset, fault_size)
         steady = rotor.order(shaft, sig[shaft.speed], metal, unbalance, bow, stiffness)
         vector = rotor.tracked(steady)
         sig[shaft.out] = rotor.tracked_amplitude(vector)
@@ -290,6 +293,26 @@ def simulate_run(
         "slow": {name: float(sig[name][-1]) for name in gaspath.SLOW_TEMPS},
     }
     return sig, profile, truth_run, end_state
+
+
+def stiffness_loss(fault: str, n_modes: int, since_onset: np.ndarray, size: float = 1.0
+                   ) -> dict[int, np.ndarray]:
+    """Per-mode stiffness factor (K,) of a stiffness fault, by mode index: 1 before the onset,
+    then down to 1 - (1 - STIFFNESS_FAULT) x size over STIFFNESS_RAMP seconds; every mode of the
+    shaft for "stiffness", mode STIFFNESS_MODE alone for "stiffness-mode".
+
+    since_onset: (K,) s from the onset (negative before it).
+
+    >>> k = stiffness_loss("stiffness", 3, np.array([-1.0, 10.0, 60.0]))
+    >>> sorted(k), [round(float(v), 3) for v in k[0]]
+    ([0, 1, 2], [1.0, 0.95, 0.9])
+    >>> sorted(stiffness_loss("stiffness-mode", 3, np.array([60.0])))
+    [2]
+    """
+    ramp = np.clip(since_onset / STIFFNESS_RAMP, 0.0, 1.0)
+    factor = 1.0 - (1.0 - STIFFNESS_FAULT) * size * ramp
+    modes = range(n_modes) if fault == "stiffness" else (STIFFNESS_MODE,)
+    return {i: factor for i in modes}
 
 
 def _right_angle(shaft: rotor.Shaft, speed: np.ndarray, metal: np.ndarray, unbalance: np.ndarray,
@@ -393,7 +416,7 @@ def simulate_campaign(
         raise ValueError(f"unknown fault {fault!r}")
     if not (np.isfinite(fault_size) and fault_size > 0):
         raise ValueError(f"fault_size must be > 0 and finite, got {fault_size!r}")
-    if fault == "stiffness" and 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size <= 1e-9:
+    if fault in STIFFNESS_FAULTS and 1.0 - (1.0 - STIFFNESS_FAULT) * fault_size <= 1e-9:
         raise ValueError(
             f"fault_size {fault_size!r} leaves no stiffness (factor 1 - "
             f"{1.0 - STIFFNESS_FAULT:.2g} x size must be > 0)"

@@ -64,7 +64,7 @@ class Simulation:
             self.fault is None or not (math.isfinite(self.fault_size) and self.fault_size > 0)
         ):
             raise OrdervibError("--fault-size needs --fault and must be > 0 and finite")
-        if self.fault == "stiffness" and self.fault_size is not None and self.fault_size >= 10.0:
+        if self.fault in ("stiffness", "stiffness-mode") and self.fault_size is not None and self.fault_size >= 10.0:
             raise OrdervibError(
                 f"--fault-size must be < 10 for a stiffness fault (no stiffness left), "
                 f"got {self.fault_size:g}"

@@ -237,6 +237,31 @@ def test_stiffness_fault_moves_its_critical_by_the_square_root() -> None:
         np.sqrt(campaign.STIFFNESS_FAULT) * rotor.critical_rpm(mode, 200.0), rel=1e-12)
 
 
+@pytest.mark.parametrize("fault, softened", [("stiffness", {0, 1, 2}), ("stiffness-mode", {2})])
+def test_the_stiffness_fault_softens_the_shafts_modes(fault: str, softened: set[int]) -> None:
+    """A sweep of yB's shaft at a fixed metal temperature crosses each mode before the onset at
+    its critical and after it (the 20 s ramp done) at sqrt(0.9) of it: every mode for the
+    shaft's stiffness loss, the 0.955 mode alone for "stiffness-mode"."""
+    from simulator import campaign, rotor
+    from simulator.engine import SHAFTS
+
+    shaft = SHAFTS[1]
+    speed = np.concatenate([np.linspace(1000.0, 10000.0, 4000), np.linspace(10000.0, 1000.0, 4000),
+                            np.linspace(1000.0, 10000.0, 4000), np.linspace(10000.0, 1000.0, 4000)])
+    t = np.arange(len(speed)) * 0.025
+    metal = np.full(len(t), 150.0)
+    onset = t[8000] - 30.0  # before the second run-up, the ramp done when it starts
+    k = campaign.stiffness_loss(fault, len(shaft.modes), t - onset)
+    assert set(k) == softened
+    found = campaign.crossings(shaft, t, speed, metal, k)
+    for c in found:
+        cold = rotor.critical_rpm(shaft.modes[c["mode"]], 150.0)
+        after = c["t_s"] > onset and c["mode"] in softened
+        assert c["speed"] == pytest.approx(cold * (np.sqrt(campaign.STIFFNESS_FAULT) if after else 1.0),
+                                           rel=1e-6)  # the truth rounds to 1e-3 rpm
+    assert {c["mode"] for c in found if c["t_s"] > onset} == {0, 1, 2}  # each crossed after
+
+
 def test_ramp_analyser_sample_by_sample_matches_the_offline_analysis() -> None:
     """A simulated run (ramps through yB's criticals) fed one sample at a time: one result per
     ramp, the same criticals as the offline analysis of the ramps found in the whole run,
