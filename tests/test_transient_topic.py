@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections import defaultdict
 from pathlib import Path
 
 import jsonschema
@@ -248,3 +249,45 @@ def test_train_refuses_transient_as_a_target_in_one_line(fleet_case: Path, tmp_p
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--target transient: never a target's name" in err
     assert not (tmp_path / "m").exists()
+
+
+def test_train_undoes_the_trackers_lag_it_is_told(fleet_case: Path, tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """``train --tracker-s 1`` (the simulator's order tracker lags 1 s): the fleet's criticals move
+    down on run-ups and up on coast-downs by about the ramp rate x 1 s (80-100 rpm/s here), to
+    the simulator's own crossings; the setting is kept in the bundle; a bad value is one line."""
+    d = fleet_case
+    common = [str(d / "train.mcap"), "--schedule", str(d / "ramps.toml"), "--target", "yB", "--method",
+              "lasso", "--inputs", "nB", "--quiet", "--workers", "1"]
+    assert main(["train", *common, "--out", str(tmp_path / "lag"), "--tracker-s", "1"]) == 0
+    plain, undone = (load_model(p)["yB"].transients for p in (d / "m", tmp_path / "lag"))
+    assert plain is not None and undone is not None
+    assert plain.settings.tracker_s == 0.0 and undone.settings.tracker_s == 1.0
+    truth = json.loads((d / "train.truth.json").read_text())
+    # the simulator's crossings: direction (+1 up, -1 down) -> mode -> critical speeds, rpm
+    crossed: dict[int, defaultdict[int, list[float]]] = {+1: defaultdict(list), -1: defaultdict(list)}
+    for r in truth["runs"]:
+        for c in r["criticals"]["yB"]:
+            crossed[1 if c["rate_rpm_s"] > 0 else -1][c["mode"]].append(c["speed"])
+    true = {s: [float(np.mean(v)) for v in modes.values()] for s, modes in crossed.items()}
+
+    def errors(fleet: FleetTransients) -> list[float]:
+        """Each resonance's distance (rpm) to the truth's nearest mean crossing of its direction."""
+        return [min(abs(r.shaft.mean - c) for c in true[1 if name.startswith("up") else -1])
+                for name, kind in fleet.kinds.items() for r in kind.resonances]
+
+    near = errors(undone)
+    assert len(near) >= 5 and max(near) < 0.005 * 9000  # every one within 0.5 %
+    far = [e for e in errors(plain) if e < 150.0]  # (the lag can make a spurious one without it)
+    assert np.mean(far) > 2.0 * np.mean(near)
+    for name, kind in plain.kinds.items():  # moved by about the ramp rate x 1 s, each its own way
+        for a in kind.resonances:
+            shifts = [b.shaft.mean - a.shaft.mean for b in undone.kinds[name].resonances]
+            shift = min(shifts, key=abs)
+            if abs(shift) < 150.0:
+                assert (-150.0 < shift < -40.0) if name.startswith("up") else (40.0 < shift < 150.0)
+    capsys.readouterr()
+    assert main(["train", *common, "--out", str(tmp_path / "bad"), "--tracker-s", "-1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--tracker-s must be a number of seconds in [0, 60]" in err
+    assert not (tmp_path / "bad").exists()

@@ -99,6 +99,9 @@ class Kind:
     resonances: tuple[Resonance, ...]
 
 
+TRACKER_S_MAX = 60.0  # the longest order-tracker lag that can be undone, s
+
+
 @dataclass(frozen=True)
 class TransientSettings:
     """How the transitions are analysed and compared (stored with the fleet's figures).
@@ -136,8 +139,8 @@ class TransientSettings:
         if not isinstance(phase, bool):
             raise ValueError(f"transients.settings.phase must be true or false, got {phase!r}")
         nums = {}
-        for key, lo, hi in (("tracker_s", 0.0, 60.0), ("min_amplitude", 0.0, 1e6), ("k_sigma", 0.0, 1e3),
-                            ("floor_pct", 0.0, 100.0), ("match_pct", 0.0, 100.0)):
+        for key, lo, hi in (("tracker_s", 0.0, TRACKER_S_MAX), ("min_amplitude", 0.0, 1e6),
+                            ("k_sigma", 0.0, 1e3), ("floor_pct", 0.0, 100.0), ("match_pct", 0.0, 100.0)):
             v = d.get(key, getattr(cls(), key))
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                 raise ValueError(f"transients.settings.{key} must be a number in [{lo:g}, {hi:g}], got {v!r}")

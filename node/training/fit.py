@@ -29,6 +29,7 @@ from node.mcap import ReadStats, warn_unfinished
 from node.models.bundle import Bundle, Model, load_model, save_model
 from node.models.config import RuntimeConfig
 from node.models.result import OCResult
+from node.models.transients import TRACKER_S_MAX
 from node.runtime.history import COOLING_GRID
 from node.training.provenance import training_record
 from node.training.runs import Run, read_runs
@@ -53,6 +54,7 @@ DEFAULT_OPTIONS: dict[str, Any] = {
     "phase": True,
     "fade": True,
     "chirp_rate": False,  # the switch speed's rate (``node.runtime.chirp``) among the candidate inputs
+    "tracker_s": 0.0,  # the vibration unit's order-tracker lag (s) the transient analysis undoes; 0: none
 }
 MODEL_OPTIONS = tuple(DEFAULT_OPTIONS)
 
@@ -72,6 +74,9 @@ def check_options(o: dict) -> None:
         rconds = _rconds(o["rcond_grid"])
         if not all(0 < x < 1 for x in rconds):
             raise OrdervibError("--rcond-grid values must lie in (0, 1)")
+    lag = o["tracker_s"]
+    if isinstance(lag, bool) or not isinstance(lag, (int, float)) or not 0.0 <= lag <= TRACKER_S_MAX:
+        raise OrdervibError(f"--tracker-s must be a number of seconds in [0, {TRACKER_S_MAX:g}], got {lag!r}")
     try:
         Method(o["method"])
     except ValueError:
@@ -241,7 +246,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         history_config,
         train,
     )
-    from node.training.transients import fleet_transients
+    from node.training.transients import fleet_transients, transient_settings
 
     t0 = time.perf_counter()
     budget = FALSE_ALARMS_PER_HOUR if o["false_alarms_per_hour"] is None else o["false_alarms_per_hour"]
@@ -296,7 +301,8 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
                                 f"no-model)")
         checks = calibrate_checks(runs, schedule, target, per_rule, use_phase=o["phase"], labels=labels)
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
-        transients = fleet_transients(runs, schedule, target)
+        settings = transient_settings(runs, schedule, target, tracker_s=float(o["tracker_s"]))
+        transients = fleet_transients(runs, schedule, target, settings)
         bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks, transients))
         trained.append((target, results))
     if use_history:  # said once the model stands (a failure: one line)
