@@ -122,6 +122,35 @@ def test_the_queue_overflow_is_counted_per_bed_and_node_wide_and_bounded(tmp_pat
     node.writer.close()
 
 
+def test_hundreds_of_beds_health_is_spread_over_the_second(tmp_path):
+    """40 beds tracked: a tick publishes at most HEALTH_PER_PASS beds' health, the worker's next
+    passes the rest, each bed once a second (the last second's left-overs go out first at the next
+    tick); a bed expired before its turn is skipped. Before: all 40 in the tick's one pass."""
+    from node.live import node as live
+    node = live.LiveNode(_bundle(), str(tmp_path / "n.mcap"))
+    sent: list[list[str]] = []  # per call, the health topics' beds
+
+    def send(outs):
+        sent.append([k.split("/")[1] for k, _ in outs if k.endswith("/health") and k.startswith("testbed/")])
+        return [(k, 0, 0, orjson.dumps(m)) for k, m in outs]
+    node._send = send  # no Zenoh session: record what would be published
+    beds = [f"h{i:02d}" for i in range(40)]
+    node._handle([(f"testbed/{b}/sensor/nB", GOOD, time.time_ns()) for b in beds])
+    n = live.HEALTH_PER_PASS
+    node._tick()
+    assert sum(map(len, sent)) == n  # the tick's own pass: a slice
+    node._publish_health(n)
+    node.core.forget("h39")  # expires before its turn
+    node._tick()  # the rest of the first second first, then the second's first slice
+    first = [b for call in sent for b in call]
+    assert first[:39] == beds[:39] and first[39:] == beds[:n]
+    while node._health_due:
+        node._publish_health(n)
+    second = [b for call in sent for b in call][39:]
+    assert second == beds[:39] and max(map(len, sent)) <= 40 - n  # never all at once
+    node.writer.close()
+
+
 def test_the_recording_bounds_its_channels_and_goes_on(tmp_path):
     w = RecordingWriter(str(tmp_path / "r.mcap"), max_channels=3)
     w.write_ns("a/1", 1, b"{}", 1)

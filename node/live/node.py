@@ -109,6 +109,9 @@ IDLE_CHECK_S = 0.05  # how often silent beds' waiting slots are looked at, s (No
 # than a flush: a silent bed's waiting slots go out align_wait_s plus this after its last receipt
 IDLE_MARGIN_NS = 250_000_000
 SMALL_LOG = 64  # a batch's input log times in plain Python below this many messages, numpy above
+# Each bed's health goes out once a second, but at most this many a worker pass (a pass every 50 ms
+# at the least): hundreds of beds' health in one pass held every real bed's outputs behind them
+HEALTH_PER_PASS = 16
 
 
 @dataclass
@@ -178,6 +181,8 @@ class LiveNode:
         self._gc_start = 0.0
         self._cpu_mark = (0.0, 0)  # the worker's thread CPU time (s) and messages taken at its last tick
         self._cpu_us: float | None = None  # worker CPU per message over the last interval with any, us
+        self._health_due: deque[str] = deque()  # beds whose health of this second is still to go out
+        self._health_dropped: dict[str, int] = {}  # each bed's queue losses at this second's tick
 
     @property
     def recording(self) -> bool:
@@ -339,6 +344,8 @@ class LiveNode:
                 batch = self._drain()
                 if batch:
                     self._handle(batch)
+                if self._health_due:
+                    self._publish_health(HEALTH_PER_PASS)
                 if time.monotonic() >= next_idle:
                     now = self.queue.now_if_empty()  # behind, a silence is not known
                     if now is not None:  # (every message stamped before now is handled)
@@ -352,6 +359,7 @@ class LiveNode:
                     rest = took - spent["core"] - spent["put"] - spent["flush"]
                     log.warning("worker stalled %.2f s over %d messages (%s, recording and rest %.2f s)",
                                 took, len(batch), ", ".join(f"{k} {v:.2f} s" for k, v in spent.items()), rest)
+            self._publish_health(len(self._health_due))  # this second's last ones
             self._publish_many(self.core.finish())
         except BaseException as exc:  # the node is dead: say so at once, never look alive
             self.stats.worker_error = f"{type(exc).__name__}: {exc}"
@@ -441,9 +449,11 @@ class LiveNode:
         wall = time.time()
         dropped = self._dropped()
         self._expire(wall, dropped)
-        for bed, state in list(self.core.beds.items()):
-            if state.latest_t is not None:  # a bed of malformed messages only has no sensor time
-                self._publish(health_key(bed), self.health(bed, wall, dropped))
+        self._publish_health(len(self._health_due))  # the last second's not yet out: now
+        self._health_dropped = dropped
+        self._health_due.extend(bed for bed, state in self.core.beds.items()
+                                if state.latest_t is not None)  # (a bed of malformed messages has no time)
+        self._publish_health(HEALTH_PER_PASS)
         node = self.node_health(wall)
         counters = {k: v for k, v in node.items() if k not in ("t", "wall")}
         if counters != self._node_health:
@@ -455,6 +465,17 @@ class LiveNode:
             self._engine_next = time.monotonic() + SAVE_EVERY_S
             self._save_engines()
         self._spent["flush"] += time.perf_counter() - t0
+
+    def _publish_health(self, n: int) -> None:
+        """The health of the next ``n`` beds due this second (``_tick``), each still tracked."""
+        due, beds = self._health_due, self.core.beds
+        outs = []
+        for _ in range(min(n, len(due))):
+            bed = due.popleft()
+            if bed in beds:  # (not expired since the tick)
+                outs.append((health_key(bed), self.health(bed, time.time(), self._health_dropped)))
+        if outs:
+            self._publish_many(outs)
 
     def _expire(self, wall: float, dropped: dict[str, int]) -> None:
         """Free the beds silent (receive time) for ``bed_expiry_s``: their waiting samples run and
