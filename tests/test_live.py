@@ -153,13 +153,24 @@ def test_three_beds_at_40_hz_every_sample_gets_its_monitor_message(setup, tmp_pa
     assert seen == {b: n for b in beds}, f"monitor messages per bed {seen}, {n} samples each"
 
 
-def test_three_targets_live_equal_replay_for_each_target(tmp_path):
+def test_three_targets_live_equal_replay_for_each_target(tmp_path, monkeypatch):
     """One model of yA, yB and yC, with their phases: the live node's monitor messages of every
     target equal offline replay's to the last bit, vector fields included, and so do its
-    transient messages (each transition's criticals against the fleet's)."""
+    transient messages (each transition's criticals against the fleet's), which the live node
+    analyses on a thread of its own (never its worker: a ramp's analysis stalled every bed)."""
+    import threading
+
     from node.live.node import LiveNode
     from node.models.bundle import load_model
+    from node.runtime.transient_watch import TransientWatch
     from replay.publish import publish_recording
+    analysed_on: list[str] = []
+    message_of = TransientWatch.message_of
+
+    def spy(self, ramp):  # noqa: ANN001, ANN202
+        analysed_on.append(threading.current_thread().name)
+        return message_of(self, ramp)
+    monkeypatch.setattr(TransientWatch, "message_of", spy)
     chans = ["--channels", "nB,yA,yB,yC,tF,yA_ph,yB_ph,yC_ph", "--plateau-scale", "0.05", "--quiet"]
     train, test = str(tmp_path / "train.mcap"), str(tmp_path / "test.mcap")
     assert main(["simulate", "--runs", "2", "--seed", "7", "--out", train, *chans]) == 0
@@ -170,6 +181,7 @@ def test_three_targets_live_equal_replay_for_each_target(tmp_path):
     model = load_model(tmp_path / "m")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(model, str(tmp_path / "node.mcap"), listen=[endpoint])
+    analysed_on[:] = []  # (training analysed the fleet's inline)
     node.start()
     try:
         sent = publish_recording(test, endpoint, speed=20.0, quiet=True)  # flat out would test the load
@@ -179,6 +191,8 @@ def test_three_targets_live_equal_replay_for_each_target(tmp_path):
     finally:
         node.stop()
     assert node.stats.received == sent
+    live_threads, analysed_on[:] = set(analysed_on), []
+    assert live_threads and all(n.startswith("ordervib-transients") for n in live_threads), live_threads
     assert main(["replay", test, "--model", str(tmp_path / "m"),
                  "--out", str(tmp_path / "offline.mcap"), "--quiet"]) == 0
 

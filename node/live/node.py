@@ -9,7 +9,9 @@ publishes and records every output, emits the waiting slots of a bed that fell s
 ``IDLE_MARGIN_NS`` after the bed's last receipt, looked at with the inbox empty; replay does
 the same from the recorded receive times), flushes the recording once a second (a
 killed node loses at most the last second) and publishes a health message per
-bed once a second.
+bed once a second (``HEALTH_PER_PASS`` beds a pass, spread over the second). A transition's
+analysis (``monitor/transient``) runs on a thread of its own (``NodeCore(defer_transients=True)``,
+``PendingTransient``): its message goes out once done, in the order the transitions ended.
 
 Hostile and broken clients (issue 31): whatever arrives, the node's state stays bounded. The
 core admits a message only on a valid sensor key of a bed the ``beds`` pattern names, within
@@ -58,6 +60,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import compress
 from types import TracebackType
@@ -112,6 +115,10 @@ SMALL_LOG = 64  # a batch's input log times in plain Python below this many mess
 # Each bed's health goes out once a second, but at most this many a worker pass (a pass every 50 ms
 # at the least): hundreds of beds' health in one pass held every real bed's outputs behind them
 HEALTH_PER_PASS = 16
+# A transition's analysis (tens of ms per target and bed) runs on a thread of its own, its message
+# published by the worker once done, in the order the transitions ended: beyond this many waiting,
+# the worker analyses them itself (bounded memory; the worker slows down, nothing is lost)
+ANALYSES_WAITING = 1024
 
 
 @dataclass
@@ -159,7 +166,10 @@ class LiveNode:
         self.bed_expiry_s = bed_expiry_s
         self.engine_file = engine_file  # each bed's engine history (node.live.engine_file)
         self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None,
-                             beds=beds, max_beds=max_beds, max_channels=max_channels, clock=clock)
+                             beds=beds, max_beds=max_beds, max_channels=max_channels, clock=clock,
+                             defer_transients=True)
+        self._analyser: ThreadPoolExecutor | None = None  # the transitions' analyses (started on demand)
+        self._analyses: deque[tuple[str, Future[dict | None]]] = deque()  # in the order they ended
         self._engine_saved: dict = {}  # what the file holds now
         self._engine_next = 0.0  # monotonic time of the next save
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
@@ -296,6 +306,7 @@ class LiveNode:
         self.stats.received += len(batch)
         t0 = time.perf_counter()
         result = self.core.handle_batch(keys, payloads, recv)
+        self._submit_analyses()
         self._spent["core"] += time.perf_counter() - t0
         last = self._last_recv
         for bed, r in result.newest.items():  # each bed's newest receipt
@@ -346,6 +357,7 @@ class LiveNode:
                     self._handle(batch)
                 if self._health_due:
                     self._publish_health(HEALTH_PER_PASS)
+                self._publish_analysed()
                 if time.monotonic() >= next_idle:
                     now = self.queue.now_if_empty()  # behind, a silence is not known
                     if now is not None:  # (every message stamped before now is handled)
@@ -360,7 +372,11 @@ class LiveNode:
                     log.warning("worker stalled %.2f s over %d messages (%s, recording and rest %.2f s)",
                                 took, len(batch), ", ".join(f"{k} {v:.2f} s" for k, v in spent.items()), rest)
             self._publish_health(len(self._health_due))  # this second's last ones
+            self._publish_analysed(wait=True)  # every transition before the stream's end first
             self._publish_many(self.core.finish())
+            self._publish_analysed(wait=True)  # the runs' last ones
+            if self._analyser is not None:
+                self._analyser.shutdown()
         except BaseException as exc:  # the node is dead: say so at once, never look alive
             self.stats.worker_error = f"{type(exc).__name__}: {exc}"
             log.debug("the worker thread died", exc_info=True)
@@ -465,6 +481,36 @@ class LiveNode:
             self._engine_next = time.monotonic() + SAVE_EVERY_S
             self._save_engines()
         self._spent["flush"] += time.perf_counter() - t0
+
+    def _submit_analyses(self) -> None:
+        """The transitions the core left unanalysed (``NodeCore.pending``) to the analysis thread."""
+        pending = self.core.pending
+        if not pending:
+            return
+        if self._analyser is None:
+            self._analyser = ThreadPoolExecutor(1, thread_name_prefix="ordervib-transients")
+        for key, tr in pending:
+            if len(self._analyses) < ANALYSES_WAITING:
+                self._analyses.append((key, self._analyser.submit(tr.resolve)))
+            else:  # too many waiting: here and now (the same message)
+                done: Future[dict | None] = Future()
+                done.set_result(tr.resolve())
+                self._analyses.append((key, done))
+        pending.clear()
+
+    def _publish_analysed(self, wait: bool = False) -> None:
+        """The analysed transitions' messages, in the order they ended, as far as they are done
+        (``wait``: all, waiting for them). An analysis that failed fails the worker, as it would
+        have inline."""
+        self._submit_analyses()
+        waiting, outs = self._analyses, []
+        while waiting and (wait or waiting[0][1].done()):
+            key, future = waiting.popleft()
+            msg = future.result()
+            if msg is not None:
+                outs.append(self.core.resolved(key, msg))
+        if outs:
+            self._publish_many(outs)
 
     def _publish_health(self, n: int) -> None:
         """The health of the next ``n`` beds due this second (``_tick``), each still tracked."""

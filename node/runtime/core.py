@@ -53,6 +53,7 @@ from node.runtime.align import SMALL_BATCH, AlignedSample, Aligner
 from node.runtime.clock import ClockPolicy
 from node.runtime.history import HISTORY_CHANNELS, EngineState
 from node.runtime.pipeline import MonitorPipeline
+from node.runtime.transient_watch import PendingTransient
 
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
 Route = tuple[str, str]  # (bed, channel) of an admitted sensor key
@@ -149,11 +150,13 @@ class NodeCore:
 
     def __init__(self, model: Bundle | Model, engines: Mapping[str, EngineState] | None = None,
                  beds: str = "*", max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
-                 clock: ClockPolicy | None = None) -> None:
+                 clock: ClockPolicy | None = None, defer_transients: bool = False) -> None:
         """engines: each bed's engine history before (a state file's); others start unknown.
         beds: the pattern of the beds admitted (``sensor_subscription``'s); max_beds: beds tracked
         at once at most; max_channels: channels per bed at most (the model's always admitted);
-        clock: every bed's clock guard (``ClockPolicy``; default its defaults)."""
+        clock: every bed's clock guard (``ClockPolicy``; default its defaults); defer_transients:
+        a transition's end is not analysed in the outputs but left in ``pending`` (the live node
+        analyses it off its worker thread and hands the message back to ``resolved``)."""
         if max_beds < 1 or max_channels < 1:
             raise ValueError(f"max_beds and max_channels must be >= 1, got {max_beds}, {max_channels}")
         self.model = as_model(model)
@@ -167,6 +170,8 @@ class NodeCore:
         self.beds: dict[str, Bed] = {}
         self.refused: Counter[str] = Counter()  # messages refused, per reason (Refused), every bed
         self.published = 0  # outputs returned
+        self.defer_transients = defer_transients
+        self.pending: list[tuple[str, PendingTransient]] = []  # (key, transition) not yet analysed
         self.alarm_log = EpisodeLog(self.model.config.episode_gap_s)  # alarm episodes, every bed
         self._routes: dict[str, Route] = {}  # admitted key -> (bed, channel): the tracked beds' only
         # a bed silent this long on the node's clock (receive times) has its waiting slots emitted
@@ -333,12 +338,27 @@ class NodeCore:
         out: list[Output] = []
         for name, bed in self.beds.items():
             out += self._run(name, bed.aligner.end())
-            ended = [(transient_key(name), tr) for p in bed.pipelines if (tr := p.end_transient())]
-            for key, tr in ended:  # each target's last transition
-                self.alarm_log.add(key, tr)
+            ended: list[Output] = []
+            for p in bed.pipelines:  # each target's last transition
+                self._transient(transient_key(name), p.end_transient(), ended)
             out += ended
             self.published += len(ended)
         return out
+
+    def _transient(self, key: str, msg: dict | PendingTransient | None, out: list[Output]) -> None:
+        """A transition's message into ``out`` (deferred: into ``pending``)."""
+        if isinstance(msg, PendingTransient):
+            self.pending.append((key, msg))
+        elif msg is not None:
+            self.alarm_log.add(key, msg)
+            out.append((key, msg))
+
+    def resolved(self, key: str, msg: dict) -> Output:
+        """A deferred transition's message (``pending``'s, analysed): counted as an output, its
+        alarm in the episodes, as if it had gone out at once."""
+        self.alarm_log.add(key, msg)
+        self.published += 1
+        return key, msg
 
     def flush_bed(self, name: str) -> list[Output]:
         """One bed's samples still waiting for late channels, run now; their outputs in order."""
@@ -435,6 +455,9 @@ class NodeCore:
                                                slow_temperatures=self._slow_temperatures,
                                                detector=first.detector)  # one speed, one OC detector
                                for b in self.model.bundles[1:]]
+            if self.defer_transients:
+                for p in pipes:
+                    p.defer_transients()
             channels = sorted({c for p in pipes for c in p.sensor_channels})
             aligner = Aligner(channels, max_wait=self.model.config.align_wait_s, clock=self.clock)
             keys = [monitor_key(name, p.target) for p in pipes]
@@ -455,7 +478,6 @@ class NodeCore:
                     self.alarm_log.add(key, msg)
                 out.append((key, msg))
                 if pipe.transient is not None:  # the end of a transition: its criticals
-                    self.alarm_log.add(transient_key(name), pipe.transient)
-                    out.append((transient_key(name), pipe.transient))
+                    self._transient(transient_key(name), pipe.transient, out)
         self.published += len(out)
         return out

@@ -47,7 +47,7 @@ from node.runtime.guard import CURVE, guard_of
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
 from node.runtime.ocdetect import OCDetector, OCState
 from node.runtime.runcurve import RUN_CURVE, RunCurve
-from node.runtime.transient_watch import TransientWatch
+from node.runtime.transient_watch import PendingTransient, TransientWatch
 
 _NAN = float("nan")
 _PHASE = {p: p.value for p in Phase}  # each phase's string (an enum's .value is a slow descriptor)
@@ -120,7 +120,8 @@ class MonitorPipeline:
         # the switch speed, and the phase where the other rules read it)
         self._transient = TransientWatch(self.target, bundle.schedule, bundle.transients)
         self._tr_phase = self._uses_phase or self._transient.settings.phase
-        self.transient: dict | None = None  # the transient message of the last sample, if any
+        # the transient message of the last sample, if any (a PendingTransient when deferred)
+        self.transient: dict | PendingTransient | None = None
         if self._tr_phase:
             phase = (self._phase_ch,)
         self.channels = sorted({self.switch, self.target, *bundle.inputs, *slow, *phase,
@@ -208,9 +209,14 @@ class MonitorPipeline:
             self.transient = ended
         return msg, oc_msg
 
-    def end_transient(self) -> dict | None:
+    def end_transient(self) -> dict | PendingTransient | None:
         """The stream ended: the transition in progress analysed, its message (None: none)."""
         return self._transient.end()
+
+    def defer_transients(self) -> None:
+        """From now on a transition's end gives a ``PendingTransient`` (the live node analyses it
+        off its worker thread), not its message."""
+        self._transient.defer = True
 
     @property
     def transients_dropped(self) -> int:

@@ -732,6 +732,13 @@ class RampAnalyser:
              aux: tuple[float, ...] = ()) -> Transient | None:
         """Take one sample (rpm, amplitude, phase lag in degrees or None; NaN for missing; aux:
         values carried along, see the class docstring)."""
+        ramp = self.step_ramp(speed, amplitude, phase, aux)
+        return None if ramp is None else self.analysed(ramp)
+
+    def step_ramp(self, speed: float, amplitude: float, phase: float | None = None,
+                  aux: tuple[float, ...] = ()) -> np.ndarray | None:
+        """``step`` without the analysis: the ramp that ended with this sample, unanalysed
+        (``take``'s), else None."""
         sample = (float(speed), float(amplitude), math.nan if phase is None else float(phase), *aux)
         rate = self._rate(sample[0])
         if self._ramp is None:
@@ -748,24 +755,41 @@ class RampAnalyser:
             return None
         if self._quiet <= (self.gap_s + self.pad_s) * self.fs:
             return None
-        return self.end()
+        return self.take()
 
     def end(self) -> Transient | None:
         """The ramp in progress (if any) analysed now (None: none, too short, too few samples),
         and forgotten (``reset`` forgets the history before it too)."""
+        ramp = self.take()
+        return None if ramp is None else self.analysed(ramp)
+
+    def take(self) -> np.ndarray | None:
+        """The ramp in progress (if any) ended now, unanalysed: its samples (K, 3 + len(aux)) as
+        ``samples`` holds them, or None (none, too short); forgotten. ``analysed`` analyses it."""
         if self._ramp is None:
             return None
         ramp, self._ramp = np.asarray(self._ramp), None
         s = _filled(ramp[:, 0])
         if not np.isfinite(s).all() or abs(s[-1] - s[0]) < self.min_span * max(abs(s[0]), abs(s[-1]), 1e-9):
             return None
+        return ramp
+
+    def analysed(self, ramp: np.ndarray) -> Transient | None:
+        """A ramp ``take`` or ``step_ramp`` gave, analysed (``analysis_of``); kept as ``samples``."""
+        out = self.analysis_of(ramp)
+        if out is not None:
+            self.samples = ramp
+        return out
+
+    def analysis_of(self, ramp: np.ndarray) -> Transient | None:
+        """A ramp ``take`` or ``step_ramp`` gave, analysed (None: too few samples with speed and
+        amplitude). Reads the ramp and the settings alone, changes nothing: it may run later, in
+        another thread (the live node analyses off its worker thread)."""
         phases = None if np.isnan(ramp[:, 2]).all() else ramp[:, 2]
         try:
-            out = analyse(ramp[:, 0], ramp[:, 1], phases, fs=self.fs, **self.analysis)  # type: ignore[arg-type]
+            return analyse(ramp[:, 0], ramp[:, 1], phases, fs=self.fs, **self.analysis)  # type: ignore[arg-type]
         except ValueError:
             return None  # too few samples with speed and amplitude
-        self.samples = ramp
-        return out
 
     def reset(self) -> None:
         """Forget everything but the counters (a new run: its first ramp starts afresh)."""

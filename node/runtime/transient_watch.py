@@ -40,6 +40,22 @@ def _num(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
+class PendingTransient:
+    """A transition that ended, not yet analysed (a ``TransientWatch`` with ``defer``): ``resolve``
+    gives the very message the watch would have given at once (None: too few samples). The live
+    node resolves it off its worker thread, so that a ramp's analysis (tens of ms, per target and
+    bed) never stalls the other beds' monitoring."""
+
+    __slots__ = ("_watch", "ramp")
+
+    def __init__(self, watch: TransientWatch, ramp: np.ndarray) -> None:
+        self._watch = watch
+        self.ramp = ramp  # (K, 4 or 5): the transition's samples (RampAnalyser.take)
+
+    def resolve(self) -> dict | None:
+        return self._watch.message_of(self.ramp)
+
+
 class TransientWatch:
     """The transitions of one target (see the module docstring).
 
@@ -47,7 +63,8 @@ class TransientWatch:
     that name the kinds of transition); fleet: the model's fleet transients (None: a model
     trained without them: no expected speed, flag ``no-model``); settings: how to analyse
     (default the fleet's, else ``TransientSettings()``). ``speed``: the channel analysed on;
-    ``dropped``: ramps too long to analyse (bounded memory).
+    ``dropped``: ramps too long to analyse (bounded memory); ``defer``: False (default) analyses
+    a transition as it ends, True returns a ``PendingTransient`` instead.
     """
 
     def __init__(self, target: str, schedule: Schedule, fleet: FleetTransients | None,
@@ -62,31 +79,40 @@ class TransientWatch:
         self.analyser = RampAnalyser(tracker_tau=self.settings.tracker_s,
                                      velocity=CHANNEL_UNITS.get(target) == VELOCITY_UNIT,
                                      min_amplitude=self.settings.min_amplitude)
+        self.defer = False  # True: a transition's end gives a PendingTransient, analysed later
 
     @property
     def dropped(self) -> int:
         return self.analyser.dropped
 
     def step(self, t: float, speed: float, switch: float, amplitude: float,
-             phase: float | None) -> dict | None:
+             phase: float | None) -> dict | PendingTransient | None:
         """One aligned sample (t s; the analysed channel's and the switch channel's speeds, rpm;
         the target's amplitude; its phase lag, degrees, or None): the transient message of a
-        transition that ended with it, else None."""
-        tr = self.analyser.step(speed, amplitude, phase, (t, switch) if self._own else (t,))
-        return None if tr is None else self._message(tr)
+        transition that ended with it (with ``defer``: its ``PendingTransient``), else None."""
+        ramp = self.analyser.step_ramp(speed, amplitude, phase, (t, switch) if self._own else (t,))
+        return None if ramp is None else self._ended(ramp)
 
-    def end(self) -> dict | None:
+    def end(self) -> dict | PendingTransient | None:
         """The data ended (a new run, the end of the stream): the transition in progress analysed
-        now, its message (None: none, or too short); the watch then starts afresh."""
-        tr = self.analyser.end()
-        msg = None if tr is None else self._message(tr)
+        now (with ``defer``: its ``PendingTransient``), its message (None: none, or too short);
+        the watch then starts afresh."""
+        ramp = self.analyser.take()
         self.analyser.reset()
-        return msg
+        return None if ramp is None else self._ended(ramp)
 
-    def _message(self, tr: Transient) -> dict:
-        """The contract's message of a transition just analysed (``analyser.samples``)."""
-        ramp = self.analyser.samples
-        assert ramp is not None
+    def _ended(self, ramp: np.ndarray) -> dict | PendingTransient | None:
+        return PendingTransient(self, ramp) if self.defer else self.message_of(ramp)
+
+    def message_of(self, ramp: np.ndarray) -> dict | None:
+        """The message of a transition whose samples (``RampAnalyser.take``'s) are ``ramp``: it is
+        analysed now (None: too few samples). Reads the watch's settings and fleet, which never
+        change, and changes nothing: safe in another thread."""
+        tr = self.analyser.analysis_of(ramp)
+        return None if tr is None else self._message(tr, ramp)
+
+    def _message(self, tr: Transient, ramp: np.ndarray) -> dict:
+        """The contract's message of a transition analysed (``tr``) from its samples ``ramp``."""
         t = ramp[:, 3]
         if self._own:
             sw = smoothed(ramp[:, 4], int(self.analyser.fs))
