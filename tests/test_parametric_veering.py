@@ -68,8 +68,8 @@ def test_joint_block_smooths_what_per_sample_blocks_pass_through():
 
 @pytest.mark.parametrize("case", sorted(hv.CASES))
 def test_exact_library_models_give_the_exact_model_between_the_samples(case):
-    """With the true models as the library, the block interpolation reproduces the truth:
-    -A'^2 is the stiffness matrix in the common basis, linear in p."""
+    """With the true models as the library, the block reproduces the truth between the samples:
+    -A'^2 is the stiffness matrix in the common basis (plus a damping term), nearly linear in p."""
     k = hv.CASES[case]
     rom = ParametricROM(None, n_pairs=2).fit_models([hv.system(p, k) for p in hv.LIBRARY], hv.LIBRARY)
     for p in (0.0, 0.1, -0.3):
@@ -79,6 +79,27 @@ def test_exact_library_models_give_the_exact_model_between_the_samples(case):
     again = ParametricROM.from_arrays(rom.to_arrays())
     assert again.groups_ == rom.groups_
     np.testing.assert_allclose(again.at(0.1).model_.A, rom.at(0.1).model_.A, rtol=0, atol=1e-12)
+
+
+def test_joint_block_with_two_parameters_and_with_the_direct_scheme():
+    """Two parameters (p, and the coupling at two values: the block has no term in its square)
+    and the direct scheme (the joint block is in the modal variables whatever the scheme): exact
+    between the samples too."""
+    grid = [(p, c) for p in (-0.4, -0.1, 0.2, 0.4) for c in (0.15, 0.25)]
+    rom = ParametricROM(None, n_pairs=2).fit_models([hv.system(p, c) for p, c in grid], grid)
+    assert rom.groups_ == [[0, 1]] and rom._joints[0] is not None
+    assert [0, 2] not in rom._joints[0].exps.tolist() and [2, 0] in rom._joints[0].exps.tolist()
+    again = ParametricROM.from_arrays(rom.to_arrays())
+    for p, c in ((0.0, 0.2), (0.1, 0.18)):
+        truth = hv.system(p, c).frequency_response(FREQS)
+        assert eps_fd(truth, rom.at([p, c]).model_.frequency_response(FREQS)) < 1e-3, (p, c)
+        np.testing.assert_allclose(again.at([p, c]).model_.A, rom.at([p, c]).model_.A, rtol=0, atol=1e-12)
+    k = hv.CASES["near-crossing"]
+    direct = ParametricROM(None, n_pairs=2, scheme="direct").fit_models([hv.system(p, k) for p in hv.LIBRARY],
+                                                                        hv.LIBRARY)
+    assert direct.groups_ == [[0, 1]]
+    truth = hv.system(0.0, k).frequency_response(FREQS)
+    assert eps_fd(truth, direct.at(0.0).model_.frequency_response(FREQS)) < 1e-3
 
 
 def test_an_unmatched_group_falls_back_to_the_nearest_sample(caplog):

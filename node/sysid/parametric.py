@@ -363,14 +363,15 @@ class ParametricROM(BaseEstimator):
             it was matched up to that sample; ``"drop"``: it is left out.
         block: how a veering group's block (A'^2, A' B', C' in a basis common to the samples)
             varies with the parameter. ``"joint"`` (default): one model, A'^2 quadratic in the
-            parameter (linear when the samples do not determine a quadratic), A' B' and C'
-            fixed, fitted by least squares to all samples' frequency responses of the group at
-            once (:mod:`node.sysid.joint_block`); its poles and shapes are the eigenvalues and
-            eigenvectors at p. On the near-crossing of ``harness.veering`` (modes 3 % apart, 2 %
-            damping) eps_td at the crossing is 1.35 times the model fitted there (4.1 with
-            ``"interpolate"``). ``"interpolate"``: each sample's block interpolated with the
-            weights, the poles from the interpolated characteristic polynomial (passes through
-            every sample's group exactly, and through its identification errors).
+            parameter(s) (the monomials the samples determine), A' B' and C' fixed (in these modal
+            variables whatever the scheme), fitted by least squares to all samples' frequency
+            responses of the group at once (:mod:`node.sysid.joint_block`); its poles and shapes
+            are the eigenvalues and eigenvectors at p. On the near-crossing of ``harness.veering``
+            (modes 3 % apart, 2 % damping) eps_td at the crossing is 1.35 times the model fitted
+            there (4.1 with ``"interpolate"``). ``"interpolate"``: each sample's block
+            interpolated with the weights, the poles from the interpolated characteristic
+            polynomial (passes through every sample's group exactly, and through its
+            identification errors).
 
     Learned attributes: ``estimators_`` (the fitted copies), ``params_`` (n, q), ``poles_``
     (n, r) complex discrete-time poles of the matched modes (the pairs by their upper-half-plane
@@ -718,7 +719,7 @@ class ParametricROM(BaseEstimator):
         Re s < 0 (``clip``: within lo..hi)."""
         modal = self.scheme == "modal"
         if joint is not None:  # the weights reproduce linear functions: w @ params_ is p
-            s, R = joint_modes(*joint.at(w @ self.params_), modal)
+            s, R = joint_modes(*joint.at(w @ self.params_))
         else:
             X = np.einsum("i,ijk->jk", w, block.X)
             ev, V = np.linalg.eig(X)  # the modes' shapes
@@ -866,7 +867,7 @@ class ParametricROM(BaseEstimator):
                 raise ValueError("parametric model arrays hold joint fits that are not their groups'")
             ok = np.asarray(arrays["rom_joint_ok"], bool)
             rom._joints = [JointBlock(X[i][:, :len(g), :len(g)], Y[i, :len(g)], C[i, :, :len(g)], exps,
-                                      center, rom._scale, rom.scheme == "modal") if ok[i] else None
+                                      center, rom._scale) if ok[i] else None
                            for i, g in enumerate(rom._groups)]
         rom._set_discrete()
         return rom
