@@ -14,9 +14,12 @@ s-plane a stiffness-like parameter moves the physical quantities w^2 = |s|^2 and
 Where two modes veer or cross (their frequencies come close, their shapes rotate into each
 other), one-to-one matching has no right answer: such a group is interpolated as a block,
 its upper-half-plane realisation (A', B', C') put in a basis common to all samples (the one
-in which C' is the same, up to a least-squares projection) and A'^2, A' B', C' interpolated
-there (for a stiffness-like parameter -A'^2 is the stiffness matrix in that basis, linear in
-the parameter, and A' B' the force distribution); its modes at ``p`` are the eigenvectors.
+in which C' is the same, up to a least-squares projection); there A'^2 (for a stiffness-like
+parameter minus the stiffness matrix in that basis, nearly linear in the parameter), A' B' (the
+force distribution) and C' are fitted as one model of the parameter to all samples' frequency
+responses at once (:mod:`node.sysid.joint_block`: interpolating each sample's block passes
+through its identification errors, which the veering amplifies), or interpolated sample by
+sample (``block="interpolate"``); the group's modes at ``p`` are the block's eigenvectors.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ from scipy.linalg import subspace_angles
 from scipy.optimize import linear_sum_assignment
 from sklearn.base import BaseEstimator
 
+from node.sysid.joint_block import JointBlock, fit_joint
+from node.sysid.joint_block import modes as joint_modes
 from node.sysid.memo import ContentMemo
 from node.sysid.metrics import mac
 from node.sysid.observer import estimate_state
@@ -41,8 +46,10 @@ log = logging.getLogger(__name__)
 
 SCHEMES = ("modal", "direct")
 WEIGHTS = ("auto", "lagrange", "linear", "rbf", "regress", "mean")
-FORMAT = 2  # version of ``to_arrays`` (1: no groups nor fallback modes, still read)
+# version of ``to_arrays`` (1: no groups nor fallback modes; 2: groups interpolated per sample; still read)
+FORMAT = 3
 FALLBACKS = ("nearest", "drop")
+BLOCKS = ("joint", "interpolate")
 MATCHES = ("continuation", "assignment")
 # continuation's matching cost of a factor e between two modes' peak shares: a mode's peak gain
 # changes slowly along the parameter, a jump by 100 (a physical mode to a noise mode) costs 0.46
@@ -345,16 +352,26 @@ class ParametricROM(BaseEstimator):
             or come within ``veer_gap`` of each other while a shape turns (1 - MAC > 0.02), or
             that both turn at a link where as a set they cost less than apart, form a veering
             group, matched as a set (poles in frequency order, span of the directions) and
-            interpolated as a block (module docstring): its poles are the roots of the
-            interpolated characteristic polynomial, its shapes the eigenvectors of the
-            interpolated block. Needs as many outputs (or inputs) as modes in the group, else
-            the group is unmatched. ``"assignment"``: one-to-one on pole distance and MAC alone,
-            no groups (the matcher before veering groups).
+            modelled as a block (module docstring; see ``block``). Needs as many outputs (or
+            inputs) as modes in the group, else the group is unmatched. ``"assignment"``:
+            one-to-one on pole distance and MAC alone, no groups (the matcher before veering
+            groups).
         veer_gap: relative frequency gap |w_a - w_b| / max below which two tracks whose shapes
             turn are a veering group (0: only crossings).
         fallback: ``"nearest"`` (default): an unmatched mode enters the model at ``p`` as it is
             in the sample of largest weight (the nearest, for Lagrange or linear weights), when
             it was matched up to that sample; ``"drop"``: it is left out.
+        block: how a veering group's block (A'^2, A' B', C' in a basis common to the samples)
+            varies with the parameter. ``"joint"`` (default): one model, A'^2 quadratic in the
+            parameter(s) (the monomials the samples determine), A' B' and C' fixed (in these modal
+            variables whatever the scheme), fitted by least squares to all samples' frequency
+            responses of the group at once (:mod:`node.sysid.joint_block`); its poles and shapes
+            are the eigenvalues and eigenvectors at p. On the near-crossing of ``harness.veering``
+            (modes 3 % apart, 2 % damping) eps_td at the crossing is 1.35 times the model fitted
+            there (4.1 with ``"interpolate"``). ``"interpolate"``: each sample's block
+            interpolated with the weights, the poles from the interpolated characteristic
+            polynomial (passes through every sample's group exactly, and through its
+            identification errors).
 
     Learned attributes: ``estimators_`` (the fitted copies), ``params_`` (n, q), ``poles_``
     (n, r) complex discrete-time poles of the matched modes (the pairs by their upper-half-plane
@@ -362,7 +379,7 @@ class ParametricROM(BaseEstimator):
     ``dt_`` (s), ``unmatched_`` (list of (sample index, pole at the root sample, cost) of the
     first bad link; the root and inf when its group has no common basis),
     ``dc_`` (n, p, m) the samples' full static gains, ``groups_`` (lists of columns of
-    ``poles_``: the veering groups, interpolated as blocks). ``to_arrays`` / ``from_arrays`` store and
+    ``poles_``: the veering groups, modelled as blocks). ``to_arrays`` / ``from_arrays`` store and
     restore what ``at`` needs (no estimators, no pickle).
 
     Three oscillators seen through different mode shapes; the first one's stiffness grows
@@ -393,7 +410,8 @@ class ParametricROM(BaseEstimator):
     def __init__(self, base_estimator: Any, n_pairs: int = 4, n_real: int = 0, scheme: str = "modal",
                  weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5,
                  static: bool = False, clip: bool = False, verbose: bool = True,
-                 match: str = "continuation", veer_gap: float = 0.1, fallback: str = "nearest") -> None:
+                 match: str = "continuation", veer_gap: float = 0.1, fallback: str = "nearest",
+                 block: str = "joint") -> None:
         self.base_estimator = base_estimator
         self.n_pairs = n_pairs
         self.n_real = n_real
@@ -407,6 +425,7 @@ class ParametricROM(BaseEstimator):
         self.match = match
         self.veer_gap = veer_gap
         self.fallback = fallback
+        self.block = block
 
     # --- fit ------------------------------------------------------------------------------
     def _check_params(self) -> None:
@@ -422,6 +441,8 @@ class ParametricROM(BaseEstimator):
             raise ValueError(f"match must be one of {MATCHES}, got {self.match!r}")
         if self.fallback not in FALLBACKS:
             raise ValueError(f"fallback must be one of {FALLBACKS}, got {self.fallback!r}")
+        if self.block not in BLOCKS:
+            raise ValueError(f"block must be one of {BLOCKS}, got {self.block!r}")
         if not 0 <= float(self.veer_gap) < 1:
             raise ValueError(f"veer_gap must be in [0, 1), got {self.veer_gap!r}")
         if self.n_pairs + self.n_real < 1:
@@ -490,6 +511,9 @@ class ParametricROM(BaseEstimator):
         self._fb_pair = np.concatenate([np.full(f.fs.shape[1], i == 0 and self.n_pairs > 0)
                                         for i, f in enumerate(found)])
         self.D_ = np.stack([pr.D.real for pr in prs])
+        self._joints = [fit_joint(self._s[:, cols], self._R[:, cols], P, self._scale, b.X, b.Y, b.C,
+                                  self.scheme == "modal") if self.block == "joint" else None
+                        for cols, b in zip(self._groups, self._blocks)]
         self._set_discrete()
         return self
 
@@ -504,7 +528,7 @@ class ParametricROM(BaseEstimator):
         """Tracks from every mode of the root sample, linked along ``edges`` by assignment on the
         cost to the parent's mode or its continuation (``_predict``); the ``keep`` with the largest
         mean peak share; complex tracks that cross or come within ``veer_gap`` of each other
-        grouped (matched as sets, interpolated as blocks); tracks (groups) with a link above tol
+        grouped (matched as sets, modelled as blocks); tracks (groups) with a link above tol
         reported and kept aside for the fallback."""
         n = len(modes)
         k0 = len(modes[root].s)
@@ -686,31 +710,35 @@ class ParametricROM(BaseEstimator):
                 1j * np.clip(si.imag, s.imag.min(axis=0), s.imag.max(axis=0))
         return si, Ri
 
-    def _block_modes(self, block: _Block, w: np.ndarray, guess: np.ndarray,
+    def _block_modes(self, block: _Block, joint: JointBlock | None, w: np.ndarray, guess: np.ndarray,
                      lo: complex, hi: complex) -> tuple[np.ndarray, np.ndarray]:
         """A veering group's continuous poles (g,) and residues (g, p, m) for sample weights w:
-        its common-basis realisation interpolated and diagonalised; the modes in the order of
-        ``guess`` (their one-to-one interpolation), Re s < 0 (``clip``: within lo..hi)."""
-        X = np.einsum("i,ijk->jk", w, block.X)
-        Y = np.einsum("i,ijk->jk", w, block.Y)
-        C = np.einsum("i,ijk->jk", w, block.C)
+        its joint fit at the parameter value w @ params_ (``block="joint"``), else its common-basis
+        realisation interpolated (the poles from the interpolated characteristic polynomial);
+        diagonalised; the modes in the order of ``guess`` (their one-to-one interpolation),
+        Re s < 0 (``clip``: within lo..hi)."""
+        modal = self.scheme == "modal"
+        if joint is not None:  # the weights reproduce linear functions: w @ params_ is p
+            s, R = joint_modes(*joint.at(w @ self.params_))
+        else:
+            X = np.einsum("i,ijk->jk", w, block.X)
+            ev, V = np.linalg.eig(X)  # the modes' shapes
+            roots = np.roots(w @ block.poly)  # their eigenvalues, from the interpolated polynomial
+            r, c = linear_sum_assignment(np.abs(ev[:, None] - roots[None, :]))
+            ev = roots[c[np.argsort(r)]]
+            # modal: X = A'^2, A' = i sqrt(-X), the upper half plane's branch; Y = A' B'
+            s = 1j * np.sqrt(-ev) if modal else ev
+            # (a defective interpolated block: least squares, not an error)
+            Bm = np.linalg.pinv(V) @ np.einsum("i,ijk->jk", w, block.Y)
+            Bm = Bm / s[:, None] if modal else Bm
+            R = np.einsum("pj,jm->jpm", np.einsum("i,ijk->jk", w, block.C) @ V, Bm)
         tiny = 1e-9 / self.dt_
-        ev, V = np.linalg.eig(X)  # the modes' shapes
-        roots = np.roots(w @ block.poly)  # their eigenvalues, from the interpolated polynomial
-        r, c = linear_sum_assignment(np.abs(ev[:, None] - roots[None, :]))
-        ev = roots[c[np.argsort(r)]]
-        # modal: X = A'^2, A' = i sqrt(-X), the upper half plane's branch
-        s = 1j * np.sqrt(-ev) if self.scheme == "modal" else ev
-        Bm = np.linalg.pinv(V) @ Y  # (a defective interpolated block: least squares, not an error)
-        if self.scheme == "modal":  # Y = A' B'
-            Bm = Bm / s[:, None]
         s = np.minimum(s.real, -tiny) + 1j * np.maximum(s.imag, tiny)
         if self.clip:
             s = np.clip(s.real, lo.real, hi.real) + 1j * np.clip(s.imag, lo.imag, hi.imag)
-        Cm = C @ V
         r, c = linear_sum_assignment(np.abs(guess[:, None] - s[None, :]))
         order = c[np.argsort(r)]
-        return s[order], np.einsum("pj,jm->jpm", Cm[:, order], Bm[order])
+        return s[order], R[order]
 
     def _statespace(self, s: np.ndarray, R: np.ndarray, D: np.ndarray,
                     pair: np.ndarray | None = None) -> StateSpace:
@@ -728,10 +756,10 @@ class ParametricROM(BaseEstimator):
         sample weights w: matched modes interpolated (groups as blocks), then the fallback
         modes of the sample of largest weight (the nearest) that has them."""
         s, R = self._interpolate(w)
-        for grp, block in zip(self._groups, self._blocks):
+        for grp, block, joint in zip(self._groups, self._blocks, self._joints):
             lo = complex(self._s[:, grp].real.min(), self._s[:, grp].imag.min())
             hi = complex(self._s[:, grp].real.max(), self._s[:, grp].imag.max())
-            s[grp], R[grp] = self._block_modes(block, w, s[grp], lo, hi)
+            s[grp], R[grp] = self._block_modes(block, joint, w, s[grp], lo, hi)
         pair = np.arange(len(s)) < self._n_pairs_kept
         if self._fb_s.shape[1]:
             i = int(np.argmax(w))
@@ -766,14 +794,38 @@ class ParametricROM(BaseEstimator):
                 "rom_params": self.params_, "rom_scale": self._scale,
                 "rom_meta": np.array([self.dt_, float(self._n_pairs_kept)]), "rom_group": group,
                 "rom_fb_s_re": self._fb_s.real, "rom_fb_s_im": self._fb_s.imag,
-                "rom_fb_R_re": self._fb_R.real, "rom_fb_R_im": self._fb_R.imag, "rom_fb_pair": self._fb_pair}
+                "rom_fb_R_re": self._fb_R.real, "rom_fb_R_im": self._fb_R.imag, "rom_fb_pair": self._fb_pair,
+                **self._joint_arrays()}
+
+    def _joint_arrays(self) -> dict[str, np.ndarray]:
+        """The groups' joint fits (format 3), zero-padded to the largest group: X (G, k, g, g),
+        Y (G, g, m), C (G, p, g) as real and imaginary parts, ok (G,) (False: that group is
+        interpolated per sample), exps (k, q), center (q,); G = 0 when no group has a joint fit."""
+        joints = self._joints if any(j is not None for j in self._joints) else []
+        (p, m), q = self.D_.shape[1:], self.params_.shape[1]
+        first = next((j for j in joints if j is not None), None)
+        g = max((len(cols) for cols in self._groups), default=0) if joints else 0
+        exps = first.exps if first is not None else np.zeros((0, q), int)
+        X = np.zeros((len(joints), len(exps), g, g), complex)
+        Y = np.zeros((len(joints), g, m), complex)
+        C = np.zeros((len(joints), p, g), complex)
+        for i, j in enumerate(joints):
+            if j is not None:
+                h = j.X.shape[1]
+                X[i, :, :h, :h], Y[i, :h], C[i, :, :h] = j.X, j.Y, j.C
+        center = first.center if first is not None else self.params_.mean(axis=0)
+        return {"rom_joint_X_re": X.real, "rom_joint_X_im": X.imag, "rom_joint_Y_re": Y.real,
+                "rom_joint_Y_im": Y.imag, "rom_joint_C_re": C.real, "rom_joint_C_im": C.imag,
+                "rom_joint_ok": np.array([j is not None for j in joints], bool),
+                "rom_joint_exps": exps, "rom_joint_center": center}
 
     @classmethod
     def from_arrays(cls, arrays: Any, **params: Any) -> ParametricROM:
         """A fitted ROM from ``to_arrays``' output and the constructor's parameters (no base
-        estimator: it cannot be refitted, only evaluated). Reads formats 1 and 2."""
+        estimator: it cannot be refitted, only evaluated). Reads formats 1 to 3 (1 and 2: the
+        groups interpolated per sample, as they were fitted)."""
         version = int(np.asarray(arrays["rom_format"])[0])
-        if version not in (1, FORMAT):
+        if version not in (1, 2, FORMAT):
             raise ValueError(f"parametric model arrays of format {version}; this version reads 1 to {FORMAT}")
         rom = cls(None, **params)
         rom._s = np.asarray(arrays["rom_s_re"]) + 1j * np.asarray(arrays["rom_s_im"])
@@ -802,12 +854,28 @@ class ParametricROM(BaseEstimator):
         if any(b is None for b in blocks):
             raise ValueError("parametric model arrays hold a group without a common basis")
         rom._blocks = [b for b in blocks if b is not None]
+        rom._joints = [None] * len(rom._groups)
+        if version >= 3 and len(arrays["rom_joint_X_re"]):
+            X = np.asarray(arrays["rom_joint_X_re"]) + 1j * np.asarray(arrays["rom_joint_X_im"])
+            Y = np.asarray(arrays["rom_joint_Y_re"]) + 1j * np.asarray(arrays["rom_joint_Y_im"])
+            C = np.asarray(arrays["rom_joint_C_re"]) + 1j * np.asarray(arrays["rom_joint_C_im"])
+            exps = np.asarray(arrays["rom_joint_exps"], int)
+            center = np.asarray(arrays["rom_joint_center"], float)
+            q = rom.params_.shape[1]
+            if len(X) != len(rom._groups) or len(arrays["rom_joint_ok"]) != len(X) or \
+                    exps.shape != (X.shape[1], q) or center.shape != (q,):
+                raise ValueError("parametric model arrays hold joint fits that are not their groups'")
+            ok = np.asarray(arrays["rom_joint_ok"], bool)
+            rom._joints = [JointBlock(X[i][:, :len(g), :len(g)], Y[i, :len(g)], C[i, :, :len(g)], exps,
+                                      center, rom._scale) if ok[i] else None
+                           for i, g in enumerate(rom._groups)]
         rom._set_discrete()
         return rom
 
     def library_model(self, i: int) -> StateSpace:
         """The matched modes of sample ``i`` alone, and the fallback modes it has, as a state
-        space (what ``at`` reproduces there)."""
+        space (what ``at`` reproduces there; a veering group's joint fit only approximately,
+        within the samples' identification errors)."""
         self._require_fit()
         have = np.isfinite(self._fb_s[i])
         pair = np.r_[np.arange(self._s.shape[1]) < self._n_pairs_kept, self._fb_pair[have]]
