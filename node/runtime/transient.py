@@ -224,10 +224,13 @@ def lagged(x: np.ndarray, tau: float, fs: float = FS) -> np.ndarray:
     return np.asarray(y)
 
 
-def untracked(x: np.ndarray, tau: float, fs: float = FS, window_s: float = 0.5) -> np.ndarray:
+def untracked(x: np.ndarray, tau: float, fs: float = FS, window_s: float = 0.5,
+              max_gap_s: float = 0.1) -> np.ndarray:
     """The input of a first-order lag of ``tau`` s from its output x (K,), real or complex:
     x + tau dx/dt, the derivative a Savitzky-Golay fit (quadratic, ``window_s`` long) to x
-    with its gaps interpolated; NaN stays NaN. tau <= 0: a copy.
+    with its gaps interpolated; NaN stays NaN, and so does every sample whose window reaches
+    into a gap longer than ``max_gap_s`` (a straight fill across a turning vector is no
+    signal to differentiate). tau <= 0: a copy.
 
     Undoes an order tracker that smooths the complex 1x vector exactly; on an amplitude alone
     it is exact only while the phase stands still (an approximation through a resonance).
@@ -252,8 +255,22 @@ def untracked(x: np.ndarray, tau: float, fs: float = FS, window_s: float = 0.5) 
             return np.full(x.shape, np.nan, dtype=x.dtype)
         out.append(f + tau * savgol_filter(f, n, 2, deriv=1, delta=1.0 / fs))
     y = out[0] + 1j * out[1] if len(out) == 2 else out[0]
-    y[bad] = np.nan
+    y[_near_gaps(bad, max_gap_s * fs, n // 2)] = np.nan
     return y
+
+
+def _near_gaps(bad: np.ndarray, longest: float, reach: int) -> np.ndarray:
+    """The samples (K,) bool that are missing (``bad``, K,) or lie within ``reach`` samples of
+    a run of more than ``longest`` missing ones (whose interpolated fill a derivative over
+    ``reach`` either side would read as the signal)."""
+    out = bad.copy()
+    if not bad.any():
+        return out
+    edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        if b - a > longest:
+            out[max(0, a - reach):b + reach] = True
+    return out
 
 
 def vectors(amplitude: np.ndarray, phase: np.ndarray) -> np.ndarray:
@@ -609,7 +626,7 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
                 continue
             for k, (nc, zeta) in enumerate(best.modes):
                 if not (ZETA_RANGE[0] <= zeta <= ZETA_RANGE[1]
-                        and x[0] <= nc * (1 - 1.5 * zeta) and nc * (1 + 1.5 * zeta) <= x[-1]):
+                        and x[0] <= nc * (1 - zeta) and nc * (1 + zeta) <= x[-1]):
                     continue  # damped past a critical, or its band not inside the ramp
                 amp = _max(np.where(np.abs(x - nc) <= max(zeta * nc, x[1] - x[0]), raw, np.nan))
                 if not (amp >= min_amplitude and 1.0 / (2.0 * zeta) >= min_af):
