@@ -257,7 +257,7 @@ def untracked(x: np.ndarray, tau: float, fs: float = FS, window_s: float = 0.5,
     parts = [x.real, x.imag] if np.iscomplexobj(x) else [x]
     out = []
     for p in parts:
-        f = _filled(p)
+        f = _filled(np.where(bad, np.nan, p))  # (a complex NaN may carry a finite part)
         if not np.isfinite(f).all():
             return np.full(x.shape, np.nan, dtype=x.dtype)
         out.append(f + tau * savgol_filter(f, n, 2, deriv=1, delta=1.0 / fs))
