@@ -133,7 +133,8 @@ class TransientCritical(TypedDict):
     shift_rpm: NotRequired[Annotated[float | None, "speed - expected_speed, rpm"]]
     limit: NotRequired[Annotated[float | None, "the |shift| beyond which the critical is an alarm, %"]]
     expected_af: NotRequired[Annotated[float | None, "the fleet's mean AF of this resonance"]]
-    af_method: NotRequired[Annotated[str, "how af was read: modal fit (with phase) or half-power (amplitude only)"]]
+    af_method: NotRequired[Annotated[str, "how af was read: modal fit (with phase) or half-power "
+                                          "(amplitude only)"]]
     zeta: NotRequired[Annotated[float, "the damping ratio af implies"]]
     shaft_speed: NotRequired[Annotated[float, "the critical in rpm of the channel analysed (the "
                                               "target's own shaft where the model has it)"]]

@@ -58,9 +58,9 @@ from node.contract import FS
 
 HALF_POWER = 1.0 / math.sqrt(2.0)
 NOISE_DROP = 6.0  # a peak's drop to half power must be this many noise sigmas
-BIC_MARGIN = 10.0  # how much lower a fit with one mode more must bring the BIC
-ZETA_RANGE = (0.01, 0.4)
-WIDE = 4  # the second pass of the phase-roll search averages the slope over WIDE x smooth + 1 bins  # damping ratios a fitted mode may have (AF 1.25-50)
+BIC_MARGIN = 10.0  # how much lower a fit with one mode more (or with modes, than none) must bring the BIC
+ZETA_RANGE = (0.01, 0.4)  # damping ratios a fitted mode may have (AF 1.25-50)
+WIDE = 4  # the phase-roll search's second pass averages the slope over WIDE x smooth + 1 bins
 
 
 @dataclass(frozen=True)
@@ -656,8 +656,9 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
     speed and damping, counted with its half-power points inside the ramp. Its AF is the
     half-power AF of the fitted mode's own response (``af_method`` "modal fit"); that of the
     measured vectors less the other fitted modes, where that has a clean peak at the mode
-    (both half-power points inside the fitted band), beside it (``af_hp``). Without phase: each clean amplitude peak
-    (half-power method, critical and damping read through the single-mode response).
+    (both half-power points inside the fitted band), beside it (``af_hp``). Without phase:
+    each clean amplitude peak (half-power method, critical and damping read through the
+    single-mode response).
     Resonances below ``min_amplitude`` (input units) at their peak are left out; power: the
     exponent of r in the single-mode response (2: an unbalance response in displacement,
     which ``bode`` makes of velocities).
