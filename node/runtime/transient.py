@@ -571,9 +571,9 @@ def _phase_candidates(x: np.ndarray, vs: np.ndarray, smooth: int, min_af: float,
         return []
     lag = np.unwrap(-np.angle(vs[ok]))
     out: list[list[list[tuple[float, float]]]] = []
-    taken: list[tuple[float, float]] = []
-    found: list[tuple[float, float]] = []
+    taken: list[tuple[float, float]] = []  # the speeds of the stretches a finer pass found
     for n in (smooth, wide) if wide > smooth and len(xs) >= 4 * wide else (smooth,):
+        found = []
         slope = _moving_average(np.gradient(lag, xs), n)  # rad/rpm
         for a, b in _rolling(0.5 * xs * slope, n, min_af):
             if any(lo <= xs[a] <= hi or xs[a] <= lo <= xs[b] for lo, hi in taken):
@@ -595,7 +595,6 @@ def _phase_candidates(x: np.ndarray, vs: np.ndarray, smooth: int, min_af: float,
             out.append(options)
             found.append((float(xs[a]), float(xs[b])))
         taken += found
-        found = []
     return out
 
 
