@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from node.runtime.transient import (
+    af_of_zeta,
     analyse,
     bode,
     find_transitions,
@@ -58,9 +59,10 @@ def test_single_mode_recovered_noise_free(zeta: float) -> None:
     assert out.direction == "up"
     assert c.speed == pytest.approx(6000.0, rel=2e-4)
     assert c.af_phase == pytest.approx(1 / (2 * zeta), rel=0.01)  # the modal fit: exact
-    assert c.af == pytest.approx(1 / (2 * zeta), rel=0.06)  # API half-power: a few % low
-    assert c.zeta == pytest.approx(zeta, rel=0.06)  # read through the single-mode response
-    assert c.af_method == "half-power" and c.phase_change is not None and c.phase_change > 120
+    # API half-power on the fitted mode's own response: a few % below 1 / (2 zeta), exactly
+    assert c.af == pytest.approx(af_of_zeta(zeta), rel=0.01) and c.zeta == pytest.approx(zeta, rel=0.01)
+    assert c.af_hp is not None and c.af_hp == pytest.approx(1 / (2 * zeta), rel=0.06)  # the measured peak's
+    assert c.af_method == "modal fit" and c.phase_change is not None and c.phase_change > 120
     # the amplitude alone: the half-power method, the critical from the peak's offset
     (a,) = analyse(speed, np.abs(v)).criticals
     assert a.speed == pytest.approx(6000.0, rel=2e-3) and a.speed_phase is None
@@ -114,6 +116,61 @@ def test_noisy_ramp_within_the_targets() -> None:
         assert c.speed == pytest.approx(nc, rel=0.005)
         assert c.af == pytest.approx(1 / (2 * zeta), rel=0.2)
         assert c.af_phase == pytest.approx(1 / (2 * zeta), rel=0.2)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_weak_first_mode_on_the_flank_of_a_stronger_one(seed: int) -> None:
+    """The simulator's LP rotor (its mass line and a weak, well-damped first mode, AF 5, on
+    the flank of the second) on a decel at its rate, with its sensor noise: the first mode's
+    noisy lag breaks up at the fine scale of the roll search; found at every seed within the
+    bench's targets (1 %, 20 %)."""
+    from simulator import rotor
+    from simulator.campaign import phase_sigma
+    from simulator.engine import LP_SHAFT
+
+    rng = np.random.default_rng(seed)
+    speed = _ramp(400.0, 1750.0, -53.0)
+    k = len(speed)
+    v = rotor.tracked(rotor.order(LP_SHAFT, speed, np.full(k, 15.0), np.full(k, 3e-3 * np.exp(1j)),
+                                  np.zeros(k, dtype=complex)))
+    amp, ph = _amp_phase(v)
+    amp_m = np.round(np.clip(amp + (0.03 + 0.02 * amp) * rng.standard_normal(k), 0, None), 2)
+    ph_m = np.round(ph + phase_sigma(amp) * rng.standard_normal(k), 1)
+    ph_m[amp < 0.1] = np.nan  # the unit gives no phase below 0.1 mm/s
+    speed_m = np.round(speed + (1 + 3e-4 * speed) * rng.standard_normal(k))
+    out = analyse(speed_m, amp_m, ph_m, tracker_tau=1.0, min_amplitude=0.2)
+    mode = LP_SHAFT.modes[0]
+    (c,) = out.criticals
+    assert c.speed == pytest.approx(mode.rpm, rel=0.01)
+    assert c.af == pytest.approx(1 / (2 * mode.zeta), rel=0.2)
+
+
+def test_a_mode_near_the_top_of_a_coast_down_counts_with_its_half_power_band_inside() -> None:
+    """yB's 0.955 mode just below the top plateau: its half-power points lie inside the
+    coast-down (API 684's need) but not 1.5 half-widths of margin; found, next to the 0.83
+    one, within the bench's targets."""
+    speed = _ramp(6500.0, 9800.0, -110.0)
+    modes = [(8280.0, 0.044, -1.0), (9400.0, 0.03, 0.5)]
+    v = _tracked(_response(speed, modes), 1.0)
+    got = analyse(speed, *_amp_phase(v), tracker_tau=1.0).criticals
+    assert len(got) == 2
+    for c, (nc, zeta, _) in zip(got, modes, strict=True):
+        assert c.speed == pytest.approx(nc, rel=0.01) and c.n2 < 9800.0
+        assert c.af == pytest.approx(1 / (2 * zeta), rel=0.2)
+
+
+def test_long_gap_leaves_no_outlier_after_the_lag_is_undone() -> None:
+    """A dropout burst in a turning vector: the straight fill across it is no signal, so the
+    samples whose derivative window reaches into it are left out (they were outliers)."""
+    t = np.arange(0, 30, 1 / FS)
+    u = np.exp(1j * 0.8 * t)
+    y = _tracked(u, 1.0)
+    y[400:440] = np.nan  # a 1 s burst: the vector turns 46 degrees meanwhile
+    y[600] = np.nan  # an isolated dropout: filled, its neighbours kept
+    got = untracked(y, 1.0)
+    assert np.isnan(got[390:450]).all() and np.isfinite(got[599]) and np.isfinite(got[601])
+    ok = np.isfinite(got)
+    np.testing.assert_allclose(got[ok][20:-20], u[ok][20:-20], atol=2e-2)
 
 
 def test_flat_noise_has_no_critical() -> None:

@@ -123,8 +123,9 @@ class TransientCritical(TypedDict):
     amplitude: Annotated[float, "peak 1x amplitude there (the target's unit)"]
     phase_change: Annotated[float | None, "change of the phase lag across the resonance, degrees; "
                                           "null without phase"]
-    af: Annotated[float, "amplification factor, API 684's half-power Nc / (N2 - N1) (where the "
-                         "amplitude has no clean peak, that of the fitted mode: af_method)"]
+    af: Annotated[float, "amplification factor, API 684's half-power Nc / (N2 - N1): with phase, "
+                         "of the fitted mode's own response (af_method modal fit), else of the "
+                         "measured amplitude (half-power)"]
     expected_speed: Annotated[float | None, "the fleet's mean critical of this resonance in this kind "
                                             "of transition (rpm of the switch channel); null: none "
                                             "matches or the model has no fleet transients"]
@@ -132,7 +133,8 @@ class TransientCritical(TypedDict):
     shift_rpm: NotRequired[Annotated[float | None, "speed - expected_speed, rpm"]]
     limit: NotRequired[Annotated[float | None, "the |shift| beyond which the critical is an alarm, %"]]
     expected_af: NotRequired[Annotated[float | None, "the fleet's mean AF of this resonance"]]
-    af_method: NotRequired[Annotated[str, "how af was read: half-power or modal fit"]]
+    af_method: NotRequired[Annotated[str, "how af was read: modal fit (with phase) or half-power "
+                                          "(amplitude only)"]]
     zeta: NotRequired[Annotated[float, "the damping ratio af implies"]]
     shaft_speed: NotRequired[Annotated[float, "the critical in rpm of the channel analysed (the "
                                               "target's own shaft where the model has it)"]]

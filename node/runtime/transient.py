@@ -18,14 +18,17 @@ Steps (pure numerics, no I/O; arrays time-major, one sample per 1 / fs s):
   half-power band the corrections below assume. Where a phase exists the bins average the
   complex 1x vector A exp(-j phase) (``node.contract.vector``), less the slow-roll vector
   when one is given.
-* ``criticals``: each amplitude peak whose two half-power points lie inside the ramp. The
-  half-power AF is API 684's; the damping ratio and the critical speed are read from it
-  through the single-mode unbalance response (its peak lies at Nc / sqrt(1 - 2 zeta^2) and
-  its half-power AF is slightly below 1 / (2 zeta)). Where a phase exists the criticals are
-  found where the phase lag turns as a mode's does, and the modes there (one, or neighbours
-  together: close modes merge into one hump of amplitude) are fitted to the complex vector:
-  each critical is where its mode's lag has turned 90 degrees, its AF the phase slope there,
-  (Nc / 2) dphi/dN.
+* ``criticals``: where a phase exists, where the phase lag turns as a mode's does (the slope
+  read at two scales: a weak, well-damped mode's noisy lag breaks up at the fine one), the
+  modes there (one, or neighbours together: close modes merge into one hump of amplitude)
+  fitted to the complex vector, kept where they explain it better than a background alone:
+  each critical is where its mode's lag has turned 90 degrees, its AF API 684's half-power
+  AF of the fitted mode's own response (the other modes, the background and the noise
+  removed; slightly below 1 / (2 zeta)), ``af_phase`` = 1 / (2 zeta) the phase slope there,
+  (Nc / 2) dphi/dN. Without phase: each amplitude peak whose two half-power points lie
+  inside the ramp, the half-power AF read on it and the critical and damping through the
+  single-mode unbalance response (its peak lies at Nc / sqrt(1 - 2 zeta^2) and its
+  half-power AF is slightly below 1 / (2 zeta)).
 * ``analyse``: the three for one ramp; ``RampAnalyser``: the same sample by sample (the
   node drives one per bed and target: ``node.runtime.transient_watch``).
 
@@ -37,7 +40,7 @@ Steps (pure numerics, no I/O; arrays time-major, one sample per 1 / fs s):
 >>> v = speed * z * 1e-3                            # velocity-like 1x vector
 >>> out = analyse(speed, np.abs(v), -np.degrees(np.angle(v)))
 >>> [(round(c.speed), round(c.af, 1), round(c.af_phase, 1)) for c in out.criticals]
-[(6000, 9.8, 10.0)]
+[(6000, 9.9, 10.0)]
 """
 
 from __future__ import annotations
@@ -55,8 +58,9 @@ from node.contract import FS
 
 HALF_POWER = 1.0 / math.sqrt(2.0)
 NOISE_DROP = 6.0  # a peak's drop to half power must be this many noise sigmas
-BIC_MARGIN = 10.0  # how much lower a fit with one mode more must bring the BIC
+BIC_MARGIN = 10.0  # how much lower a fit with one mode more (or with modes, than none) must bring the BIC
 ZETA_RANGE = (0.01, 0.4)  # damping ratios a fitted mode may have (AF 1.25-50)
+WIDE = 4  # the phase-roll search's second pass averages the slope over WIDE x smooth + 1 bins
 
 
 @dataclass(frozen=True)
@@ -94,16 +98,18 @@ class Critical:
     """One resonance crossed (speeds in rpm; ``None`` where the ramp has no phase).
 
     speed: the critical speed (the modal fit's where there is phase, else the half-power
-    estimate); speed_peak: the speed of the amplitude peak (tracker lag undone); speed_hp:
-    the critical from the peak and the half-power band (the peak less the single-mode
-    offset; None without a clean peak); n1, n2: the half-power speeds; amplitude: the peak
-    amplitude (input units); af: API 684's Nc / (N2 - N1) with Nc the peak's speed, or where
-    the amplitude has no clean peak at the mode, that of the fitted mode's own response
-    (``af_method`` "half-power" or "modal fit"); zeta: the damping ratio that AF implies;
-    phase_change: the change of the phase lag across the resonance (degrees, + as the lag
-    grows with speed; over the critical -/+ 3 half-widths, within the ramp); speed_phase,
+    estimate); speed_peak: the speed of the amplitude peak (tracker lag undone; the fitted
+    mode's where the measured one is not clean); speed_hp: the critical from the measured peak
+    and its half-power band (the peak less the single-mode offset; None without a clean peak);
+    n1, n2: the half-power speeds; amplitude: the peak amplitude (input units); af: API 684's
+    Nc / (N2 - N1), with phase that of the fitted mode's own response (``af_method`` "modal
+    fit"), else of the measured amplitude ("half-power"); zeta: the damping ratio that AF
+    implies; phase_change: the change of the phase lag across the resonance (degrees, + as the
+    lag grows with speed; over the critical -/+ 3 half-widths, within the ramp); speed_phase,
     af_phase, zeta_phase: the modal fit to the complex vector (its AF, 1 / (2 zeta), is the
-    phase slope at the critical, (Nc / 2) dphi/dN).
+    phase slope at the critical, (Nc / 2) dphi/dN); af_hp: with phase, the half-power AF of the
+    measured vectors less the other fitted modes where that has a clean peak at the mode (the
+    background and the noise left in: a check, biased on a wide band), else None.
     """
 
     speed: float
@@ -119,6 +125,7 @@ class Critical:
     af_phase: float | None = None
     zeta_phase: float | None = None
     af_method: str = "half-power"
+    af_hp: float | None = None
 
 
 @dataclass(frozen=True)
@@ -224,10 +231,13 @@ def lagged(x: np.ndarray, tau: float, fs: float = FS) -> np.ndarray:
     return np.asarray(y)
 
 
-def untracked(x: np.ndarray, tau: float, fs: float = FS, window_s: float = 0.5) -> np.ndarray:
+def untracked(x: np.ndarray, tau: float, fs: float = FS, window_s: float = 0.5,
+              max_gap_s: float = 0.1) -> np.ndarray:
     """The input of a first-order lag of ``tau`` s from its output x (K,), real or complex:
     x + tau dx/dt, the derivative a Savitzky-Golay fit (quadratic, ``window_s`` long) to x
-    with its gaps interpolated; NaN stays NaN. tau <= 0: a copy.
+    with its gaps interpolated; NaN stays NaN, and so does every sample whose window reaches
+    into a gap longer than ``max_gap_s`` (a straight fill across a turning vector is no
+    signal to differentiate). tau <= 0: a copy.
 
     Undoes an order tracker that smooths the complex 1x vector exactly; on an amplitude alone
     it is exact only while the phase stands still (an approximation through a resonance).
@@ -247,13 +257,27 @@ def untracked(x: np.ndarray, tau: float, fs: float = FS, window_s: float = 0.5) 
     parts = [x.real, x.imag] if np.iscomplexobj(x) else [x]
     out = []
     for p in parts:
-        f = _filled(p)
+        f = _filled(np.where(bad, np.nan, p))  # (a complex NaN may carry a finite part)
         if not np.isfinite(f).all():
             return np.full(x.shape, np.nan, dtype=x.dtype)
         out.append(f + tau * savgol_filter(f, n, 2, deriv=1, delta=1.0 / fs))
     y = out[0] + 1j * out[1] if len(out) == 2 else out[0]
-    y[bad] = np.nan
+    y[_near_gaps(bad, max_gap_s * fs, n // 2)] = np.nan
     return y
+
+
+def _near_gaps(bad: np.ndarray, longest: float, reach: int) -> np.ndarray:
+    """The samples (K,) bool that are missing (``bad``, K,) or lie within ``reach`` samples of
+    a run of more than ``longest`` missing ones (whose interpolated fill a derivative over
+    ``reach`` either side would read as the signal)."""
+    out = bad.copy()
+    if not bad.any():
+        return out
+    edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
+    for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        if b - a > longest:
+            out[max(0, a - reach):b + reach] = True
+    return out
 
 
 def vectors(amplitude: np.ndarray, phase: np.ndarray) -> np.ndarray:
@@ -330,12 +354,12 @@ def slow_roll_vector(speed: np.ndarray, amplitude: np.ndarray, phase: np.ndarray
 
 
 @functools.lru_cache(maxsize=4)
-def _single_mode_table(power: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For zeta on a grid: the half-power AF (peak speed over the band) and the peak's r of the
-    response r^power / |1 - r^2 + 2j zeta r| (ascending AF)."""
+def _single_mode_table(power: float) -> tuple[np.ndarray, ...]:
+    """For zeta on a grid: the half-power AF (peak speed over the band), the peak's r and the
+    half-power points r1, r2 of the response r^power / |1 - r^2 + 2j zeta r| (ascending AF)."""
     zetas = np.geomspace(0.004, 0.3, 160)
     r = np.linspace(0.2, 3.0, 60001)
-    af, rp = [], []
+    af, rp, r1s, r2s = [], [], [], []
     for z in zetas:
         a = r**power / np.abs(1 - r**2 + 2j * z * r)
         i = int(np.argmax(a))
@@ -346,8 +370,26 @@ def _single_mode_table(power: float) -> tuple[np.ndarray, np.ndarray, np.ndarray
         r2 = np.interp(hp, [a[right], a[right - 1]], [r[right], r[right - 1]])
         af.append(r[i] / (r2 - r1))
         rp.append(r[i])
+        r1s.append(r1)
+        r2s.append(r2)
     order = np.argsort(af)
-    return np.asarray(af)[order], zetas[order], np.asarray(rp)[order]
+    return (np.asarray(af)[order], zetas[order], np.asarray(rp)[order], np.asarray(r1s)[order],
+            np.asarray(r2s)[order])
+
+
+def half_power_band(zeta: float, power: float = 2.0) -> tuple[float, float, float]:
+    """(r1, r2, peak r) of the single-mode unbalance response r^power / |1 - r^2 + 2j zeta r|:
+    its half-power points and its peak as fractions of the critical (zeta clipped to 0.004-0.3).
+
+    >>> r1, r2, rp = half_power_band(0.05)
+    >>> round(rp / (r2 - r1), 2), round(rp, 4)
+    (9.9, 1.0025)
+    """
+    _, zetas, rps, r1s, r2s = _single_mode_table(float(power))
+    order = np.argsort(zetas)
+    return (float(np.interp(zeta, zetas[order], r1s[order])),
+            float(np.interp(zeta, zetas[order], r2s[order])),
+            float(np.interp(zeta, zetas[order], rps[order])))
 
 
 def zeta_from_af(af: float, power: float = 2.0) -> tuple[float, float]:
@@ -358,7 +400,7 @@ def zeta_from_af(af: float, power: float = 2.0) -> tuple[float, float]:
     >>> round(z, 3), round(rp, 4)
     (0.05, 1.0025)
     """
-    afs, zetas, rps = _single_mode_table(float(power))
+    afs, zetas, rps, *_ = _single_mode_table(float(power))
     return float(np.interp(af, afs, zetas)), float(np.interp(af, afs, rps))
 
 
@@ -471,6 +513,20 @@ def _fit_modes(x: np.ndarray, v: np.ndarray, start: list[tuple[float, float]]) -
                      mid, span)
 
 
+def _background_bic(x: np.ndarray, v: np.ndarray) -> float:
+    """The BIC of ``_fit_modes``' background alone (c0 + c1 N, no mode) fitted to the complex
+    vectors v (B,) at speeds x (B,): what a fit with modes must beat."""
+    ok = np.isfinite(v)
+    x, v = x[ok], v[ok]
+    if len(x) < 3:
+        return math.inf
+    basis = np.column_stack([np.ones(len(x)), (x - np.mean(x)) / (float(np.ptp(x)) or 1.0)])
+    coef, *_ = np.linalg.lstsq(basis, v, rcond=None)
+    k = 2 * len(x)
+    rss = float(np.sum(np.abs(basis @ coef - v) ** 2)) + 1e-300
+    return k * math.log(rss / k) + 4 * math.log(k)
+
+
 def _max(a: np.ndarray) -> float:
     """The largest finite value of a, -inf if none."""
     f = a[np.isfinite(a)]
@@ -497,52 +553,67 @@ def _amplitude_peaks(x: np.ndarray, a: np.ndarray, smooth: int, noise: float = 0
     return out
 
 
-def _phase_candidates(x: np.ndarray, vs: np.ndarray, smooth: int, min_af: float
-                      ) -> list[list[list[tuple[float, float]]]]:
-    """Where the phase lag of the smoothed vectors vs (B,) rolls as modes' do: per stretch of
-    speed where the lag grows with (N / 2) dphi/dN (the AF a single mode would have there)
-    of 1 or more, two options of (speed, half-width ~ zeta Nc) starting guesses: m =
-    round(roll / 180 degrees) modes (one if it rolls 90 degrees or more) and m + 1 (a mode
-    hidden in its neighbour's roll), each at the middle of its share of the roll; a stretch
-    must have its steepest point at ``min_af`` or more. Close modes roll as one stretch:
-    fitted together. (A stretch may run off the data: the modes fitted there count only with
-    their band inside.)"""
+def _phase_candidates(x: np.ndarray, vs: np.ndarray, smooth: int, min_af: float,
+                      wide: int = 0) -> list[list[list[tuple[float, float]]]]:
+    """Where the phase lag of the vectors vs (B,) rolls as modes' do: per stretch of speed
+    where the lag grows with (N / 2) dphi/dN (the AF a single mode would have there; the slope
+    averaged over ``smooth`` bins) of 1 or more, two options of (speed, half-width ~ zeta Nc)
+    starting guesses: m = round(roll / 180 degrees) modes (one if it rolls 90 degrees or
+    more) and m + 1 (a mode hidden in its neighbour's roll), each at the middle of its share
+    of the roll; a stretch must have its steepest point at ``min_af`` or more. Close modes
+    roll as one stretch: fitted together. (A stretch may run off the data: the modes fitted
+    there count only with their band inside.) ``wide`` > ``smooth``: the same again with the
+    slope averaged over ``wide`` bins, for the stretches the first pass has none inside (a
+    weak, well-damped mode whose noisy lag breaks into pieces at ``smooth``)."""
     ok = np.isfinite(vs)
     xs = x[ok]
     if len(xs) < 4 * smooth:
         return []
     lag = np.unwrap(-np.angle(vs[ok]))
-    slope = _moving_average(np.gradient(lag, xs), smooth)  # rad/rpm
-    af_local = 0.5 * xs * slope
+    out: list[list[list[tuple[float, float]]]] = []
+    taken: list[tuple[float, float]] = []  # the speeds of the stretches a finer pass found
+    for n in (smooth, wide) if wide > smooth and len(xs) >= 4 * wide else (smooth,):
+        found = []
+        slope = _moving_average(np.gradient(lag, xs), n)  # rad/rpm
+        for a, b in _rolling(0.5 * xs * slope, n, min_af):
+            if any(lo <= xs[a] <= hi or xs[a] <= lo <= xs[b] for lo, hi in taken):
+                continue  # a stretch already found at a finer scale
+            roll = lag[b] - lag[a]
+            m0 = max(int(round(roll / math.pi)), 0) or (1 if roll >= math.pi / 2 else 0)  # (a
+            # net roll backwards, a lag that grows in a stretch but falls more over it: no mode)
+            if not m0:
+                continue
+            options = []
+            for m in (m0, m0 + 1):
+                group = []
+                for k in range(m):
+                    at = lag[a] + (k + 0.5) * roll / m
+                    c = float(np.interp(at, lag[a:b + 1], xs[a:b + 1]))
+                    sl = float(np.interp(c, xs, slope))
+                    group.append((c, min(1.0 / sl, 0.1 * c) if sl > 0 else 0.05 * c))
+                options.append(group)
+            out.append(options)
+            found.append((float(xs[a]), float(xs[b])))
+        taken += found
+    return out
+
+
+def _rolling(af_local: np.ndarray, n: int, min_af: float) -> list[tuple[int, int]]:
+    """The stretches [a, b] (bins, inclusive) where af_local (B,) is 1 or more (gaps shorter
+    than n bins bridged) whose largest value is ``min_af`` or more."""
     active = np.nan_to_num(af_local) >= 1.0
     out = []
     i = 0
-    while i < len(xs):
+    while i < len(af_local):
         if not active[i]:
             i += 1
             continue
         j = i
-        while j < len(xs) and (active[j] or active[j:j + smooth].any()):
+        while j < len(af_local) and (active[j] or active[j:j + n].any()):
             j += 1
-        a, b = i, j - 1
+        if np.nanmax(af_local[i:j]) >= min_af:
+            out.append((i, j - 1))
         i = j
-        if np.nanmax(af_local[a:b + 1]) < min_af:
-            continue  # too slow a roll for a critical
-        roll = lag[b] - lag[a]
-        m0 = max(int(round(roll / math.pi)), 0) or (1 if roll >= math.pi / 2 else 0)  # (a net
-        # roll backwards, a lag that grows in a stretch but falls more over it: no mode)
-        if not m0:
-            continue
-        options = []
-        for m in (m0, m0 + 1):
-            group = []
-            for k in range(m):
-                at = lag[a] + (k + 0.5) * roll / m
-                c = float(np.interp(at, lag[a:b + 1], xs[a:b + 1]))
-                sl = float(np.interp(c, xs, slope))
-                group.append((c, min(1.0 / sl, 0.1 * c) if sl > 0 else 0.05 * c))
-            options.append(group)
-        out.append(options)
     return out
 
 
@@ -560,7 +631,7 @@ def af_of_zeta(zeta: float, power: float = 2.0) -> float:
     >>> round(af_of_zeta(0.05), 2)
     9.9
     """
-    afs, zetas, _ = _single_mode_table(float(power))
+    afs, zetas, *_ = _single_mode_table(float(power))
     order = np.argsort(zetas)
     return float(np.interp(zeta, zetas[order], afs[order]))
 
@@ -580,11 +651,13 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
     With phase: where the phase lag turns as a mode's does (``_phase_candidates``, AF at least
     ``min_af``); neighbouring ones are fitted together (a sum of modes and a background to
     the complex vectors over their bands; with one mode more where that fits better by the
-    BIC): each mode's critical speed and damping. Its AF is the half-power one of the
+    BIC; none unless the modes beat the background alone by the BIC): each mode's critical
+    speed and damping, counted with its half-power points inside the ramp. Its AF is the
+    half-power AF of the fitted mode's own response (``af_method`` "modal fit"); that of the
     measured vectors less the other fitted modes, where that has a clean peak at the mode
-    (both half-power points inside the fitted band), else the half-power AF of the fitted
-    mode's own response (``af_method``). Without phase: each clean amplitude peak
-    (half-power method, critical and damping read through the single-mode response).
+    (both half-power points inside the fitted band), beside it (``af_hp``). Without phase:
+    each clean amplitude peak (half-power method, critical and damping read through the
+    single-mode response).
     Resonances below ``min_amplitude`` (input units) at their peak are left out; power: the
     exponent of r in the single-mode response (2: an unbalance response in displacement,
     which ``bode`` makes of velocities).
@@ -594,7 +667,7 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
     found: list[Critical] = []
     if b.vector is not None and np.isfinite(b.vector).sum() >= len(x) // 2:
         vs = _moving_average(b.vector, smooth)
-        for options in _phase_candidates(x, vs, smooth, min_af):
+        for options in _phase_candidates(x, vs, smooth, min_af, WIDE * smooth + 1):
             best = None
             lo = min(g[0][0] - 3 * g[0][1] for g in options)
             hi = max(g[-1][0] + 3 * g[-1][1] for g in options)
@@ -605,11 +678,11 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
                     continue
                 if best is None or fitted.bic < best.bic - BIC_MARGIN:  # a mode more must pay
                     best = fitted
-            if best is None:
-                continue
+            if best is None or best.bic > _background_bic(x[band], b.vector[band]) - BIC_MARGIN:
+                continue  # no fit, or modes the noise explains as well (a roll of the noise)
             for k, (nc, zeta) in enumerate(best.modes):
                 if not (ZETA_RANGE[0] <= zeta <= ZETA_RANGE[1]
-                        and x[0] <= nc * (1 - 1.5 * zeta) and nc * (1 + 1.5 * zeta) <= x[-1]):
+                        and x[0] <= nc * (1 - zeta) and nc * (1 + zeta) <= x[-1]):
                     continue  # damped past a critical, or its band not inside the ramp
                 amp = _max(np.where(np.abs(x - nc) <= max(zeta * nc, x[1] - x[0]), raw, np.nan))
                 if not (amp >= min_amplitude and 1.0 / (2.0 * zeta) >= min_af):
@@ -635,17 +708,18 @@ def criticals(b: Bode, *, smooth: int = 5, min_amplitude: float = 0.0, power: fl
 
 def _critical_with_phase(x: np.ndarray, vs: np.ndarray, nc: float, zeta: float, amp: float,
                          peak: tuple[int, float, float, float] | None, power: float) -> Critical:
-    """A fitted mode as a ``Critical``: its half-power figures from ``peak`` if the amplitude
-    has a clean one there, else from the fitted mode's own response; its phase change."""
+    """A fitted mode (Nc rpm, zeta) as a ``Critical``: its AF and half-power band those of the
+    mode's own response (the half-power method on the fitted mode: the other modes, the
+    background and the noise removed); the measured peak's figures beside them where the
+    mode isolated has a clean ``peak``; its phase change."""
+    r1, r2, rp = half_power_band(zeta, power)
+    n1, n2 = nc * r1, nc * r2
+    af = rp / (r2 - r1)
+    npk, speed_hp, af_hp = nc * rp, None, None
     if peak is not None:
-        _, n1, n2, npk = peak
-        af = npk / (n2 - n1)
-        z_hp, rp = zeta_from_af(af, power)
-        speed_hp: float | None = npk / rp
-        method = "half-power"
-    else:
-        af, z_hp, speed_hp, npk, method = af_of_zeta(zeta, power), zeta, None, nc, "modal fit"
-        n1, n2 = nc * (1 - zeta), nc * (1 + zeta)
+        _, p1, p2, npk = peak
+        af_hp = npk / (p2 - p1)
+        speed_hp = npk / zeta_from_af(af_hp, power)[1]
     half = 0.5 * (n2 - n1)
     near = np.isfinite(vs) & (x >= nc - 3 * half) & (x <= nc + 3 * half)
     change = None
@@ -653,8 +727,8 @@ def _critical_with_phase(x: np.ndarray, vs: np.ndarray, nc: float, zeta: float, 
         lag = np.unwrap(-np.angle(vs[near]))
         change = float(np.degrees(lag[-1] - lag[0]))
     return Critical(speed=nc, speed_peak=npk, speed_hp=speed_hp, n1=n1, n2=n2, amplitude=amp,
-                    af=af, zeta=z_hp, phase_change=change, speed_phase=nc,
-                    af_phase=1.0 / (2.0 * zeta), zeta_phase=zeta, af_method=method)
+                    af=af, zeta=zeta, phase_change=change, speed_phase=nc,
+                    af_phase=1.0 / (2.0 * zeta), zeta_phase=zeta, af_method="modal fit", af_hp=af_hp)
 
 
 def analyse(speed: np.ndarray, amplitude: np.ndarray, phase: np.ndarray | None = None, *,
