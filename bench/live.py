@@ -353,10 +353,12 @@ def main(argv: list[str] | None = None) -> int:
         lat = run_latency(args, stream, channels, needed, target, tmp)
     if args.only in (None, "throughput"):
         thr = run_throughput(args, stream, channels, target, tmp)
-    # what the aligner counts missing in one bed's stream offline (the cut at --offset may
-    # split a sample): the live node must count the same, bed by bed
+    # what the aligner counts missing in one bed's stream offline (the cut at --offset and at the
+    # end may split a sample; the live node emits the last one after the alignment wait, as
+    # finish does): the live node must count the same, bed by bed
     offline = NodeCore(model)
     offline.handle_batch(*zip(*((sensor_key("bed", c), p) for s in stream.slots for c, p in s), strict=True))
+    offline.finish()
     gaps = sum(offline.beds["bed"].aligner.stats.missing.values())
     ok = report(lat, thr, len(channels), gaps)
     if args.only in (None, "fleet"):
