@@ -49,9 +49,9 @@ def run_transients(run: Run, schedule: Schedule, target: str, settings: Transien
     speed, switch, amp = col[watch.speed].tolist(), col[schedule.switch].tolist(), col[target].tolist()
     t = run.t.tolist()
     phases = phase.tolist() if phase is not None else [None] * len(t)
-    out = [m for k in range(len(t)) if (m := watch.step(t[k], speed[k], switch[k], amp[k], phases[k]))]
-    last = watch.end()
-    return out + ([last] if last is not None else [])
+    ended = [watch.step(t[k], speed[k], switch[k], amp[k], phases[k]) for k in range(len(t))]
+    ended.append(watch.end())
+    return [m for m in ended if isinstance(m, dict)]  # (the watch analyses at once: never deferred)
 
 
 def group(criticals: Sequence[tuple[float, ...]],
