@@ -243,9 +243,10 @@ def report_fleet(f: dict, nchan: int) -> bool:
     return all(checks.values())
 
 
-def report(lat: dict | None, thr: dict | None, nchan: int, gaps: int = 0) -> bool:
+def report(lat: dict | None, thr: dict | None, nchan: int, gaps: int = 0, aligned: int | None = None) -> bool:
     """Print the latency and throughput tables; gaps: the channel values missing from one
-    bed's samples when its stream goes through the node's logic offline."""
+    bed's samples when its stream goes through the node's logic offline; aligned: the samples
+    it aligns there (default: the stream's slots)."""
     from node.console.table import print_table
     ok = True
     if lat is not None:
@@ -283,7 +284,8 @@ def report(lat: dict | None, thr: dict | None, nchan: int, gaps: int = 0) -> boo
             "offered": kept_up,
             "received": received == thr["offered"],
             "dropped": dropped == 0,
-            "missing": missing == nb * gaps and late == 0 and len(health) == nb and min(samples) == slots,
+            "missing": (missing == nb * gaps and late == 0 and len(health) == nb
+                        and min(samples) == max(samples) == (slots if aligned is None else aligned)),
             "monitor": min(seen) == slots and max(seen) == slots,
         }
         ok &= all(checks.values())
@@ -299,7 +301,8 @@ def report(lat: dict | None, thr: dict | None, nchan: int, gaps: int = 0) -> boo
              res("received")],
             ["queue overflow", str(dropped), "0", res("dropped")],
             ["missing from cadence / late (all beds)", f"{missing} / {late}",
-             f"{nb * gaps} / 0 (offline: {gaps} per bed); {nb} beds x {slots} samples", res("missing")],
+             f"{nb * gaps} / 0 (offline: {gaps} per bed); {nb} beds x {slots} samples "
+             f"({min(samples)}-{max(samples)} aligned per bed; offline {aligned})", res("missing")],
             ["monitor messages per bed (min-max)", f"{min(seen)}-{max(seen)}", f"{slots} each",
              res("monitor")],
             ["node CPU", f"{thr['cpu'] * 100:.0f} % of a core = {us(thr['cpu'], rate)} per message",
@@ -360,7 +363,7 @@ def main(argv: list[str] | None = None) -> int:
     offline.handle_batch(*zip(*((sensor_key("bed", c), p) for s in stream.slots for c, p in s), strict=True))
     offline.finish()
     gaps = sum(offline.beds["bed"].aligner.stats.missing.values())
-    ok = report(lat, thr, len(channels), gaps)
+    ok = report(lat, thr, len(channels), gaps, offline.beds["bed"].aligner.stats.samples)
     if args.only in (None, "fleet"):
         ok &= report_fleet(run_fleet(args, stream, channels, model.targets, tmp), len(channels))
     return 0 if ok else 1
