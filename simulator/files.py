@@ -50,7 +50,7 @@ class Simulation:
 
     def check(self) -> None:
         """One-line ``OrdervibError`` for the first setting out of its range."""
-        from simulator.campaign import FAULTS
+        from simulator.campaign import FAULTS, STIFFNESS_FAULTS
 
         if not 1 <= self.runs <= MAX_RUNS:
             raise OrdervibError(f"--runs must be between 1 and {MAX_RUNS}, got {self.runs}")
@@ -64,7 +64,7 @@ class Simulation:
             self.fault is None or not (math.isfinite(self.fault_size) and self.fault_size > 0)
         ):
             raise OrdervibError("--fault-size needs --fault and must be > 0 and finite")
-        if self.fault in ("stiffness", "stiffness-mode") and self.fault_size is not None and self.fault_size >= 10.0:
+        if self.fault in STIFFNESS_FAULTS and self.fault_size is not None and self.fault_size >= 10.0:
             raise OrdervibError(
                 f"--fault-size must be < 10 for a stiffness fault (no stiffness left), "
                 f"got {self.fault_size:g}"
