@@ -306,7 +306,6 @@ class LiveNode:
         self.stats.received += len(batch)
         t0 = time.perf_counter()
         result = self.core.handle_batch(keys, payloads, recv)
-        self._submit_analyses()
         self._spent["core"] += time.perf_counter() - t0
         last = self._last_recv
         for bed, r in result.newest.items():  # each bed's newest receipt

@@ -757,7 +757,8 @@ class RampAnalyser:
     dropped (bounded memory) and counted (``dropped``). ``analysis``: ``analyse``'s keywords
     (tracker_tau, velocity, min_amplitude, ...). State: a few seconds of samples and the ramp's
     own. ``aux``: further values carried with each sample (a time, another channel's speed);
-    ``samples`` holds the ramp last analysed, (K, 3 + len(aux)): speed, amplitude, phase, aux.
+    ``take`` and ``step_ramp`` give a ramp's samples unanalysed, (K, 3 + len(aux)): speed,
+    amplitude, phase, aux; ``analysis_of`` analyses them.
     ``end()``: the ramp in progress analysed now (the data ended: a run's last coast-down).
 
     >>> speed = np.concatenate([np.full(200, 3000.0), np.linspace(3000, 9000, 2400),
@@ -789,7 +790,6 @@ class RampAnalyser:
         self._sign = 0
         self._quiet = 0
         self.dropped = 0  # ramps longer than max_s, dropped
-        self.samples: np.ndarray | None = None  # the ramp last analysed (see the class docstring)
 
     def _rate(self, speed: float) -> float:
         """rpm/s of the moving average over the last ``smooth_s`` (0 until it has that history)."""
@@ -807,7 +807,7 @@ class RampAnalyser:
         """Take one sample (rpm, amplitude, phase lag in degrees or None; NaN for missing; aux:
         values carried along, see the class docstring)."""
         ramp = self.step_ramp(speed, amplitude, phase, aux)
-        return None if ramp is None else self.analysed(ramp)
+        return None if ramp is None else self.analysis_of(ramp)
 
     def step_ramp(self, speed: float, amplitude: float, phase: float | None = None,
                   aux: tuple[float, ...] = ()) -> np.ndarray | None:
@@ -835,11 +835,11 @@ class RampAnalyser:
         """The ramp in progress (if any) analysed now (None: none, too short, too few samples),
         and forgotten (``reset`` forgets the history before it too)."""
         ramp = self.take()
-        return None if ramp is None else self.analysed(ramp)
+        return None if ramp is None else self.analysis_of(ramp)
 
     def take(self) -> np.ndarray | None:
-        """The ramp in progress (if any) ended now, unanalysed: its samples (K, 3 + len(aux)) as
-        ``samples`` holds them, or None (none, too short); forgotten. ``analysed`` analyses it."""
+        """The ramp in progress (if any) ended now, unanalysed: its samples (K, 3 + len(aux)), or
+        None (none, too short); forgotten. ``analysis_of`` analyses it."""
         if self._ramp is None:
             return None
         ramp, self._ramp = np.asarray(self._ramp), None
@@ -847,13 +847,6 @@ class RampAnalyser:
         if not np.isfinite(s).all() or abs(s[-1] - s[0]) < self.min_span * max(abs(s[0]), abs(s[-1]), 1e-9):
             return None
         return ramp
-
-    def analysed(self, ramp: np.ndarray) -> Transient | None:
-        """A ramp ``take`` or ``step_ramp`` gave, analysed (``analysis_of``); kept as ``samples``."""
-        out = self.analysis_of(ramp)
-        if out is not None:
-            self.samples = ramp
-        return out
 
     def analysis_of(self, ramp: np.ndarray) -> Transient | None:
         """A ramp ``take`` or ``step_ramp`` gave, analysed (None: too few samples with speed and
@@ -870,4 +863,4 @@ class RampAnalyser:
         self._recent.clear()
         self._window.clear()
         self._means.clear()
-        self._ramp, self._sign, self._quiet, self.samples = None, 0, 0, None
+        self._ramp, self._sign, self._quiet = None, 0, 0

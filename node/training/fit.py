@@ -29,7 +29,7 @@ from node.mcap import ReadStats, warn_unfinished
 from node.models.bundle import Bundle, Model, load_model, save_model
 from node.models.config import RuntimeConfig
 from node.models.result import OCResult
-from node.models.transients import TRACKER_S_MAX
+from node.models.transients import TRACKER_S_MAX, TransientSettings
 from node.runtime.history import COOLING_GRID
 from node.training.provenance import training_record
 from node.training.runs import Run, read_runs
@@ -74,9 +74,11 @@ def check_options(o: dict) -> None:
         rconds = _rconds(o["rcond_grid"])
         if not all(0 < x < 1 for x in rconds):
             raise OrdervibError("--rcond-grid values must lie in (0, 1)")
-    lag = o["tracker_s"]
-    if isinstance(lag, bool) or not isinstance(lag, (int, float)) or not 0.0 <= lag <= TRACKER_S_MAX:
-        raise OrdervibError(f"--tracker-s must be a number of seconds in [0, {TRACKER_S_MAX:g}], got {lag!r}")
+    try:  # the bundle's own rule for the setting (TransientSettings)
+        TransientSettings.from_dict({"tracker_s": o["tracker_s"]})
+    except ValueError:
+        raise OrdervibError(f"--tracker-s must be a number of seconds in [0, {TRACKER_S_MAX:g}], "
+                            f"got {o['tracker_s']!r}") from None
     try:
         Method(o["method"])
     except ValueError:
