@@ -100,26 +100,40 @@ def test_the_core_refuses_without_creating_state():
         NodeCore(_bundle(), max_beds=0)
 
 
-def test_the_queue_overflow_is_counted_per_bed_and_node_wide_and_bounded(tmp_path, monkeypatch):
-    from node.live import node as live
-    monkeypatch.setattr(live, "OVERFLOW_KEYS", 8)
-    node = live.LiveNode(_bundle(), str(tmp_path / "n.mcap"), queue_size=1)
+def test_a_full_intake_holds_the_links_back_and_loses_nothing(setup, tmp_path, monkeypatch):
+    """The worker held up while 400 messages arrive at a node whose intake holds 16: none is
+    lost (Zenoh holds the publisher back until the worker takes more), the worker's lag shows
+    the hold-up, and once going the node takes all 400 (held in Zenoh's and the sockets' buffers
+    meanwhile). Before (a callback into a bounded queue): 384 lost, counted as dropped."""
+    from node.live.node import LiveNode
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint], queue_size=16)
+    held, handle = threading.Event(), node._handle
 
-    def sample(key: str):
-        return SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: GOOD))
+    def slow(batch):
+        held.wait(30)
+        handle(batch)
 
-    node._on_sample(sample("testbed/b1/sensor/nB"))  # taken
-    for _ in range(3):
-        node._on_sample(sample("testbed/b1/sensor/yB"))  # lost: the queue is full
-    for i in range(100):
-        node._on_sample(sample(f"testbed/h{i}/sensor/nB"))
-    assert node.stats.overflow == 103 and len(node._overflow) == 8  # the keys counted apart: bounded
-    node._handle(node.queue.take(10, 0.0))
-    wall = time.time()
-    assert node.health("b1", wall)["dropped"] == 3
-    health = node.node_health(wall)
-    assert health["dropped"] == 103 and health["tracked"] == 1 and health["refused"]["key"] == 0
-    node.writer.close()
+    monkeypatch.setattr(node, "_handle", slow)
+    node.start()
+    client = _client(endpoint)
+    keys = [sensor_key("b1", "nB")] * 400
+    thread = threading.Thread(target=_put_all, args=(client, keys))
+    try:
+        _wait_matched(client, keys[0])
+        thread.start()
+        assert wait_for(lambda: node._worker_lag() > 0.3, 20)  # behind, and saying so
+        held.set()
+        thread.join(30)
+        assert wait_for(lambda: node.stats.received == 400, 30), node.stats.received
+    finally:
+        held.set()
+        client.close()
+        node.stop()
+    assert node.stats.received == 400 and node.stats.overflow == 0
+    assert node.node_health(time.time())["dropped"] == 0 and node._worker_lag() < 0.3
+    with pytest.raises(ValueError, match="queue_size"):
+        LiveNode(load_bundle(setup / "m"), str(tmp_path / "m.mcap"), queue_size=0)
 
 
 def test_hundreds_of_beds_health_is_spread_over_the_second(tmp_path):

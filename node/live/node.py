@@ -1,12 +1,13 @@
 """The live edges: Zenoh in and out, MCAP recording. The logic is ``NodeCore``'s.
 
-The subscriber callback only stamps and enqueues (a bounded ``Inbox``; overflow
-counted, per key for the first ``OVERFLOW_KEYS`` keys); one worker thread drains the inbox in
-batches (everything waiting, up to ``BATCH_MAX``), runs the node logic once per batch
+The subscriber hands its samples to a bounded FIFO inside Zenoh (``FifoChannel`` of
+``queue_size``; no Python runs per message on Zenoh's side); one worker thread drains it in
+batches (everything waiting, up to ``BATCH_MAX``; each message stamped with its receive time as it
+is taken), runs the node logic once per batch
 (``NodeCore.handle_batch``, as offline replay does), records every input it admitted,
 publishes and records every output, emits the waiting slots of a bed that fell silent
 (``NodeCore.flush_idle``: the alignment wait on the node's clock, ``align_wait_s`` plus
-``IDLE_MARGIN_NS`` after the bed's last receipt, looked at with the inbox empty; replay does
+``IDLE_MARGIN_NS`` after the bed's last receipt, looked at with the intake empty; replay does
 the same from the recorded receive times), flushes the recording once a second (a
 killed node loses at most the last second) and publishes a health message per
 bed once a second (``HEALTH_PER_PASS`` beds a pass, spread over the second). A transition's
@@ -20,11 +21,18 @@ never recorded, never a bed, a topic or an MCAP channel (``NodeCore.route``). A 
 for ``bed_expiry_s`` (receive time) is freed: its waiting samples run, a last health message
 says ``expired: true``, its publishers are undeclared. The recording's channel table is
 bounded too (``RecordingWriter.max_channels``): a topic beyond it is refused and counted, the
-recording goes on. What belongs to no bed (refusals, queue losses of any key, beds tracked and
-expired) goes to the node's own health, ``ordervib/node/<id>/health``
+recording goes on. What belongs to no bed (refusals, beds tracked and expired, the worker's
+lag) goes to the node's own health, ``ordervib/node/<id>/health``
 (``NodeHealthMessage``), once a second while it changes.
 
 Failures (docs/deployment.md, "What the node does when things go wrong"):
+
+- more than ``queue_size`` messages waiting (the worker behind): the node loses none; Zenoh
+  holds the links back (TCP flow control) until the worker takes more, so the publishers wait
+  (``BLOCK``) or drop at their side (``DROP``, counted there). Health shows it as the worker's
+  lag: how long the intake has not been found empty (``worker_lag_s``). With a Python callback
+  per message the node cost 48 us a message at 20 beds, 10 of them the callback thread and its
+  contention with the worker (issue 35);
 
 - a malformed payload is counted and recorded at its receive time; it never
   reaches code that can throw;
@@ -80,13 +88,10 @@ from node.contract import (
     log_times_ns,
     node_health_key,
     oc_key,
-    parse_sensor_key,
-    sensor_key,
     sensor_subscription,
     transient_key,
 )
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
-from node.live.inbox import Inbox
 from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
@@ -97,6 +102,7 @@ from node.runtime.core import MAX_BEDS, MAX_CHANNELS, NodeCore, recording_order
 log = logging.getLogger(__name__)
 
 BATCH_MAX = 4096  # messages handled at once at most
+QUEUE_MAX = 10_000_000  # the intake's bound (queue_size) at most
 LAG_KEPT = 4000  # latencies (per bed) the health message's percentiles are taken over
 WATCHDOG_S = 0.5  # how often run_node checks the worker thread, s
 # gc.set_threshold: a young collection every 50,000 net container allocations, not 700 (the
@@ -105,11 +111,13 @@ WATCHDOG_S = 0.5  # how often run_node checks the worker thread, s
 GC_THRESHOLD = (50_000, 10, 10)
 STALL_S = 0.5  # a worker pass longer than this is logged as a warning with its breakdown, s
 BED_EXPIRY_S = 300.0  # a bed silent this long (receive time) is freed, by default, s (--bed-expiry)
-OVERFLOW_KEYS = 4096  # keys whose queue losses are counted apart (per bed's health) at most
+# The worker's wait for input when the intake was empty: short while messages flow, longer after
+# IDLE_POLLS empty looks (a silent node wakes 200 times a second, not 1,000)
+POLL_S, IDLE_POLL_S, IDLE_POLLS = 0.001, 0.005, 200
 IDLE_CHECK_S = 0.05  # how often silent beds' waiting slots are looked at, s (NodeCore.flush_idle)
-# Silent beds are looked at only with the inbox empty (a node behind its inputs cannot tell a
-# silence), and a message stamped on receipt but not yet in the inbox must not count as later
-# than a flush: a silent bed's waiting slots go out align_wait_s plus this after its last receipt
+# Silent beds are looked at only with the intake found empty (a node behind its inputs cannot tell
+# a silence), at the time it was found so: a silent bed's waiting slots go out align_wait_s plus
+# this after its last receipt
 IDLE_MARGIN_NS = 250_000_000
 SMALL_LOG = 64  # a batch's input log times in plain Python below this many messages, numpy above
 # Each bed's health goes out once a second, but at most this many a worker pass (a pass every 50 ms
@@ -121,10 +129,26 @@ HEALTH_PER_PASS = 16
 ANALYSES_WAITING = 1024
 
 
+def receive_ns(stamp: Any, floor: int, now: int) -> int:
+    """A sample's receive time, ns since the epoch: its Zenoh timestamp (``stamp``; None: ``now``)
+    within [floor, now] (a publisher's own timestamp, or the session's clock pushed ahead by one,
+    is not trusted beyond that).
+
+    >>> from types import SimpleNamespace as S
+    >>> stamp = S(get_time_as_ntp64=lambda: S(as_nanos=lambda: 1_700_000_000_500_000_000))
+    >>> receive_ns(stamp, 0, 2 * 10**18), receive_ns(stamp, 0, 5), receive_ns(None, 5, 9)
+    (1700000000500000000, 5, 9)
+    """
+    if stamp is None:
+        return now
+    ns: int = stamp.get_time_as_ntp64().as_nanos()
+    return floor if ns < floor else now if ns > now else ns
+
+
 @dataclass
 class LiveStats:
     received: int = 0
-    overflow: int = 0  # dropped because the queue was full
+    overflow: int = 0  # lost in the node: none (a full intake holds Zenoh's links back); health "dropped"
     published: int = 0
     expired: int = 0  # beds freed after a silence
     unrecorded: int = 0  # messages not in the recording because it failed
@@ -174,7 +198,15 @@ class LiveNode:
         self._engine_next = 0.0  # monotonic time of the next save
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
         self.conf = zenoh_config(listen, connect, config_file)
-        self.queue: Inbox[tuple[str, bytes, int]] = Inbox(maxsize=queue_size)
+        # each sample stamped by the session's clock as it arrives (Zenoh's HLC, in its receive
+        # path): the receive time, though the worker takes it later from the intake
+        self.conf.insert_json5("timestamping/enabled", '{"router": true, "peer": true, "client": true}')
+        if not 1 <= queue_size <= QUEUE_MAX:
+            raise ValueError(f"queue_size must be 1-{QUEUE_MAX}, got {queue_size}")
+        self.queue_size = queue_size  # messages the intake holds at most
+        self._empty_ns: int | None = None  # when the last drain found the intake empty (None: it did not)
+        self._last_empty_ns = time.time_ns()  # when a drain last found it empty, ns
+        self._empty_polls = 0  # drains in a row that found nothing
         self.stats = LiveStats()
         self.token: Any = None
         self._stop = threading.Event()
@@ -182,7 +214,6 @@ class LiveNode:
         self._lag: dict[str, deque[float]] = {}  # bed -> receive-to-publish latencies, ms
         self._lag_max: dict[str, float] = {}  # bed -> the largest latency since its last health, ms
         self._last_recv: dict[str, int] = {}  # bed -> receive time of its newest message, ns
-        self._overflow: dict[str, int] = {}  # key -> messages lost in the queue (OVERFLOW_KEYS keys)
         self._node_health: dict = {}  # the last node health published, less its clock
         self._name = str(record)  # a path, or a recorder that names its file(s)
         self._written = 0  # messages the recorder took
@@ -192,7 +223,6 @@ class LiveNode:
         self._cpu_mark = (0.0, 0)  # the worker's thread CPU time (s) and messages taken at its last tick
         self._cpu_us: float | None = None  # worker CPU per message over the last interval with any, us
         self._health_due: deque[str] = deque()  # beds whose health of this second is still to go out
-        self._health_dropped: dict[str, int] = {}  # each bed's queue losses at this second's tick
 
     @property
     def recording(self) -> bool:
@@ -207,15 +237,6 @@ class LiveNode:
                  tb: TracebackType | None) -> None:
         self.stop()
 
-    def _on_sample(self, sample: Any) -> None:  # Zenoh thread: stamp and enqueue only
-        key = str(sample.key_expr)
-        payload = sample.payload.to_bytes()
-        if not self.queue.put_stamped(lambda now: (key, payload, now)):
-            self.stats.overflow += 1
-            lost = self._overflow
-            if key in lost or len(lost) < OVERFLOW_KEYS:  # bounded whatever keys arrive
-                lost[key] = lost.get(key, 0) + 1
-
     def start(self) -> None:
         import zenoh
         self.session = open_session(self.conf)
@@ -223,7 +244,8 @@ class LiveNode:
         self._congestion = zenoh.CongestionControl.DROP  # see the module: never BLOCK on a subscriber
         self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
         quiet_gc()  # set up: what lives on is frozen before the first message
-        self.sub = self.session.declare_subscriber(self.subscription, self._on_sample)
+        intake: Any = zenoh.handlers.FifoChannel(self.queue_size)  # full: Zenoh holds the links back
+        self.sub = self.session.declare_subscriber(self.subscription, intake)
         self.thread = threading.Thread(target=self._work, name="ordervib-node", daemon=True)
         self.thread.start()
 
@@ -291,8 +313,31 @@ class LiveNode:
         return rows
 
     def _drain(self) -> list[tuple[str, bytes, int]]:
-        """The messages waiting (at most ``BATCH_MAX``); waits a little for the first."""
-        return self.queue.take(BATCH_MAX, timeout=0.05)
+        """The messages waiting (at most ``BATCH_MAX``), each as (key, payload, receive time ns);
+        none waiting: sleeps ``POLL_S`` (``IDLE_POLL_S`` once ``IDLE_POLLS`` looks found nothing).
+
+        A message's receive time is its Zenoh timestamp (the session's clock as it arrived; see
+        ``receive_ns``), within [the last time the intake was found empty, now]: a pass of the
+        worker that takes long makes no silence of the beds whose messages waited meanwhile."""
+        take, now = self.sub.try_recv, time.time_ns()
+        floor = self._last_empty_ns
+        out: list[tuple[str, bytes, int]] = []
+        append = out.append
+        for _ in range(BATCH_MAX):
+            sample = take()
+            if sample is None:
+                self._empty_ns = self._last_empty_ns = time.time_ns()
+                break
+            append((str(sample.key_expr), sample.payload.to_bytes(),
+                    receive_ns(sample.timestamp, floor, now)))
+        else:
+            self._empty_ns = None  # more wait: behind
+        if out:
+            self._empty_polls = 0
+        else:
+            self._empty_polls += 1
+            time.sleep(POLL_S if self._empty_polls < IDLE_POLLS else IDLE_POLL_S)
+        return out
 
     def _bed(self, key: str) -> str | None:
         """The bed of an admitted sensor key, None for any other key (the core's one parse)."""
@@ -348,7 +393,7 @@ class LiveNode:
         try:
             next_tick = time.monotonic() + 1.0
             next_idle = time.monotonic()
-            while not (self._stop.is_set() and not self.queue):
+            while not (self._stop.is_set() and self._empty_ns is not None):
                 t0 = time.perf_counter()
                 spent = self._spent = dict.fromkeys(self._spent, 0.0)
                 batch = self._drain()
@@ -358,8 +403,8 @@ class LiveNode:
                     self._publish_health(HEALTH_PER_PASS)
                 self._publish_analysed()
                 if time.monotonic() >= next_idle:
-                    now = self.queue.now_if_empty()  # behind, a silence is not known
-                    if now is not None:  # (every message stamped before now is handled)
+                    now = self._empty_ns  # behind, a silence is not known
+                    if now is not None:  # (every message received before now is handled)
                         next_idle = time.monotonic() + IDLE_CHECK_S
                         self._publish_many(self.core.flush_idle(now, IDLE_MARGIN_NS))
                 if time.monotonic() >= next_tick:
@@ -392,27 +437,18 @@ class LiveNode:
             except Exception:  # noqa: BLE001 - the session may be gone already
                 pass
 
-    def _dropped(self) -> dict[str, int]:
-        """Each tracked bed's messages lost in the queue (of the keys counted apart)."""
-        out: dict[str, int] = {}
-        for key, n in list(self._overflow.items()):
-            parsed = parse_sensor_key(key)
-            if parsed is not None and parsed[0] in self.core.beds:
-                out[parsed[0]] = out.get(parsed[0], 0) + n
-        return out
-
     @property
     def unrecorded(self) -> int:
         """Messages not in the recording: since it failed, or refused by its channel table."""
         return self.stats.unrecorded + self.writer.refused
 
-    def health(self, bed: str, wall: float, dropped: dict[str, int] | None = None) -> HealthMessage:
+    def health(self, bed: str, wall: float) -> HealthMessage:
         """``bed``'s health message: the core's counters, with this node's clock, staleness,
-        queue losses, latency and recording state (docs/deployment.md, "Health and liveliness").
-        dropped: each bed's queue losses (``_dropped``; computed when not given)."""
+        latency and recording state (docs/deployment.md, "Health and liveliness"); ``dropped``
+        is 0: the node loses no message (see the module)."""
         lags = sorted(self._lag.get(bed, ()))
         lag = (lags[len(lags) // 2], lags[int(0.99 * (len(lags) - 1))]) if lags else (None, None)
-        msg = self.core.health(bed, wall, (self._dropped() if dropped is None else dropped).get(bed, 0), lag)
+        msg = self.core.health(bed, wall, 0, lag)
         last = self._last_recv.get(bed)
         msg["staleness"] = None if last is None else round(wall - last / 1e9, 6)
         msg["lag_ms_max"] = self._lag_max.pop(bed, None)
@@ -442,14 +478,14 @@ class LiveNode:
                 "clock": self.core.clock.settings()}
 
     def _worker_lag(self) -> float:
-        """The age of the oldest message waiting in the queue (s; 0 when none waits)."""
-        oldest = self.queue.oldest()
-        return 0.0 if oldest is None else round(max(0, time.time_ns() - oldest[2]) / 1e9, 6)
+        """How long ago the worker last found the intake empty, s: at least the wait of any message
+        waiting now (a worker that keeps up finds it empty every pass, a few ms apart)."""
+        return round(max(0, time.time_ns() - self._last_empty_ns) / 1e9, 6)
 
     def _measure_cpu(self) -> None:
         """In the worker: its CPU time per message taken since the last call (kept as it was
         when none was taken). ``time.thread_time``: the worker is the node's one thread that
-        must keep up (the callback only stamps and enqueues); process time would add Zenoh's
+        must keep up (it also takes the messages from Zenoh's FIFO); process time would add Zenoh's
         own threads and anything else running in the process (tests, a second node)."""
         cpu, taken = time.thread_time(), self.stats.received
         last_cpu, last_taken = self._cpu_mark
@@ -462,10 +498,8 @@ class LiveNode:
         changed, and the recording flushed."""
         self._measure_cpu()
         wall = time.time()
-        dropped = self._dropped()
-        self._expire(wall, dropped)
+        self._expire(wall)
         self._publish_health(len(self._health_due))  # the last second's not yet out: now
-        self._health_dropped = dropped
         self._health_due.extend(bed for bed, state in self.core.beds.items()
                                 if state.latest_t is not None)  # (a bed of malformed messages has no time)
         self._publish_health(HEALTH_PER_PASS)
@@ -518,11 +552,11 @@ class LiveNode:
         for _ in range(min(n, len(due))):
             bed = due.popleft()
             if bed in beds:  # (not expired since the tick)
-                outs.append((health_key(bed), self.health(bed, time.time(), self._health_dropped)))
+                outs.append((health_key(bed), self.health(bed, time.time())))
         if outs:
             self._publish_many(outs)
 
-    def _expire(self, wall: float, dropped: dict[str, int]) -> None:
+    def _expire(self, wall: float) -> None:
         """Free the beds silent (receive time) for ``bed_expiry_s``: their waiting samples run and
         go out, a last health message says ``expired: true``, their publishers are undeclared."""
         now = time.time_ns()
@@ -533,7 +567,7 @@ class LiveNode:
                 self._publish(key, msg)
             state = self.core.beds[name]
             if state.latest_t is not None:
-                last = self.health(name, wall, dropped)
+                last = self.health(name, wall)
                 last["expired"] = True
                 self._publish(health_key(name), last)
             self.core.forget(name)
@@ -541,8 +575,6 @@ class LiveNode:
                 pub = self._publishers.pop(key, None)
                 if pub is not None:
                     pub.undeclare()
-            for channel in state.needed | state.extra:
-                self._overflow.pop(sensor_key(name, channel), None)
             for per_bed in (self._lag, self._lag_max, self._last_recv):
                 per_bed.pop(name, None)
         if gone:
@@ -569,7 +601,7 @@ class LiveNode:
             self.stats.engine_file_error = f"{type(exc).__name__}: {exc}"
 
     def stop(self) -> None:
-        """Stop receiving, drain the queue, finish the recording (unless it failed), close the session."""
+        """Stop receiving, drain the intake, finish the recording (unless it failed), close the session."""
         self._stop.set()
         try:
             self.sub.undeclare()
