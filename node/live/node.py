@@ -2,8 +2,8 @@
 
 The subscriber hands its samples to a bounded FIFO inside Zenoh (``FifoChannel`` of
 ``queue_size``; no Python runs per message on Zenoh's side); one worker thread drains it in
-batches (everything waiting, up to ``BATCH_MAX``; each message stamped with its receive time as it
-is taken), runs the node logic once per batch
+batches (everything waiting, up to ``BATCH_MAX``; each message's receive time is Zenoh's
+timestamp as it arrived, ``receive_ns``), runs the node logic once per batch
 (``NodeCore.handle_batch``, as offline replay does), records every input it admitted,
 publishes and records every output, emits the waiting slots of a bed that fell silent
 (``NodeCore.flush_idle``: the alignment wait on the node's clock, ``align_wait_s`` plus
@@ -33,7 +33,6 @@ Failures (docs/deployment.md, "What the node does when things go wrong"):
   lag: how long the intake has not been found empty (``worker_lag_s``). With a Python callback
   per message the node cost 48 us a message at 20 beds, 10 of them the callback thread and its
   contention with the worker (issue 35);
-
 - a malformed payload is counted and recorded at its receive time; it never
   reaches code that can throw;
 - a recording that fails (disk full, I/O error) stops being written: the node
@@ -116,8 +115,9 @@ BED_EXPIRY_S = 300.0  # a bed silent this long (receive time) is freed, by defau
 POLL_S, IDLE_POLL_S, IDLE_POLLS = 0.001, 0.005, 200
 IDLE_CHECK_S = 0.05  # how often silent beds' waiting slots are looked at, s (NodeCore.flush_idle)
 # Silent beds are looked at only with the intake found empty (a node behind its inputs cannot tell
-# a silence), at the time it was found so: a silent bed's waiting slots go out align_wait_s plus
-# this after its last receipt
+# a silence), as of the time it was found so, and a message stamped on arrival but not yet in the
+# intake must not count as later than a flush: a silent bed's waiting slots go out align_wait_s
+# plus this after its last receipt
 IDLE_MARGIN_NS = 250_000_000
 SMALL_LOG = 64  # a batch's input log times in plain Python below this many messages, numpy above
 # Each bed's health goes out once a second, but at most this many a worker pass (a pass every 50 ms
