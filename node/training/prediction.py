@@ -922,6 +922,8 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
                 raw[k, j] = v = p
                 if ph is not None and mean_modulus and seed == "chain" and level[k, j] == level[k, j]:
                     v, code[k, j] = float(level[k, j]), MEAN_MODULUS  # no level: the mean modulus
+                    if v < 0.0:  # (the runs' mean level regressed on speed can dip below 0)
+                        v, code[k, j] = 0.0, RAISED
                 elif v < 0.0:  # a model of the 1x vector: the amplitude is its modulus
                     v, code[k, j] = (-v, MODULUS) if ph is not None else (0.0, RAISED)
                 cap = caps[j]
