@@ -287,7 +287,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def pooled(results: list[EngineResult], n_train: int, n_held: int) -> bool:
     """Prints each engine's held-out coverage and the pool's per target, beside what a calibrated
-    interval gives; True when every target's pooled share lies within ``COVERAGE``."""
+    interval gives, and the plans' bound over every engine; True when every target's pooled share
+    lies within ``COVERAGE`` and every engine's plans within the bound."""
     targets = results[0].targets
     one = calibrated_spread(n_train, n_held, SPREAD_ENGINES)
     pool = calibrated_spread(n_train, n_held, SPREAD_ENGINES // len(results), pooled=len(results))
@@ -312,7 +313,14 @@ def pooled(results: list[EngineResult], n_train: int, n_held: int) -> bool:
     for j, tg in enumerate(targets):
         print(f"{_verdict(bool(ok[j]))}  {tg} held-out, pooled: {int(inside[j])} of {int(measured[j])} "
               f"measured samples ({share[j]:.1%}) inside the 90 % interval (target {band})")
-    return bool(ok.all())
+    bounded = True
+    for j, tg in enumerate(targets):  # the bound, every engine (each engine's lines above say which)
+        w, n = sum(int(r.within[j]) for r in results), sum(int(r.total[j]) for r in results)
+        bad = [r.seed for r in results if r.within[j] != r.total[j]]
+        bounded &= not bad
+        print(f"{_verdict(not bad)}  {tg} plans, every engine: {w} of {n} predicted samples within the bound"
+              + (f"; outside on seed(s) {', '.join(map(str, bad))}" if bad else ""))
+    return bool(ok.all()) and bounded
 
 
 def engine(args: argparse.Namespace, seed: int, work: Path) -> EngineResult:
