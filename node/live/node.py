@@ -204,8 +204,8 @@ class LiveNode:
         if not 1 <= queue_size <= QUEUE_MAX:
             raise ValueError(f"queue_size must be 1-{QUEUE_MAX}, got {queue_size}")
         self.queue_size = queue_size  # messages the intake holds at most
-        self._empty_ns: int | None = None  # when the last drain found the intake empty (None: it did not)
-        self._last_empty_ns = time.time_ns()  # when a drain last found it empty, ns
+        self._behind = True  # the last drain left messages waiting (or none ran yet)
+        self._last_empty_ns = time.time_ns()  # when a drain last found the intake empty, ns
         self._empty_polls = 0  # drains in a row that found nothing
         self.stats = LiveStats()
         self.token: Any = None
@@ -326,12 +326,12 @@ class LiveNode:
         for _ in range(BATCH_MAX):
             sample = take()
             if sample is None:
-                self._empty_ns = self._last_empty_ns = time.time_ns()
+                self._behind, self._last_empty_ns = False, time.time_ns()
                 break
             append((str(sample.key_expr), sample.payload.to_bytes(),
                     receive_ns(sample.timestamp, floor, now)))
         else:
-            self._empty_ns = None  # more wait: behind
+            self._behind = True  # more wait
         if out:
             self._empty_polls = 0
         else:
@@ -393,7 +393,7 @@ class LiveNode:
         try:
             next_tick = time.monotonic() + 1.0
             next_idle = time.monotonic()
-            while not (self._stop.is_set() and self._empty_ns is not None):
+            while not (self._stop.is_set() and not self._behind):
                 t0 = time.perf_counter()
                 spent = self._spent = dict.fromkeys(self._spent, 0.0)
                 batch = self._drain()
@@ -403,7 +403,7 @@ class LiveNode:
                     self._publish_health(HEALTH_PER_PASS)
                 self._publish_analysed()
                 if time.monotonic() >= next_idle:
-                    now = self._empty_ns  # behind, a silence is not known
+                    now = None if self._behind else self._last_empty_ns  # behind, a silence is not known
                     if now is not None:  # (every message received before now is handled)
                         next_idle = time.monotonic() + IDLE_CHECK_S
                         self._publish_many(self.core.flush_idle(now, IDLE_MARGIN_NS))
