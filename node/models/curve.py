@@ -18,12 +18,13 @@ from __future__ import annotations
 import bisect
 import cmath
 import dataclasses
+import functools
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -145,6 +146,17 @@ def _binned_means(sums: np.ndarray, counts: np.ndarray, min_count: int) -> np.nd
     enough = (n > 0) & (n >= min_count)
     means[enough] = s[enough] / n[enough]
     return means
+
+
+class LookupTables(NamedTuple):
+    """A curve's lookup tables (``CurveModel.tables``): Python lists and the same as arrays."""
+
+    xs: list[float]  # (B,) the bins' centres, rpm
+    rows: list[list[complex]]  # (R, B) the curve's rows
+    slopes: list[list[complex]]  # (R, B - 1) per rpm between centres
+    xa: np.ndarray  # xs as (B,) float
+    ra: np.ndarray  # rows as (R, B) complex
+    sa: np.ndarray  # slopes as (R, B - 1) complex
 
 
 @dataclass(frozen=True, eq=False)
@@ -402,6 +414,20 @@ class CurveModel:
     def runtime(self) -> CurveRuntime:
         return CurveRuntime(self)
 
+    @functools.cached_property
+    def tables(self) -> LookupTables:
+        """The runtime's lookup tables, built on first use and shared by every runtime (read
+        only): the centres, the rows (``means``' three, and influence's gains as a fourth,
+        ``GAINS``) and their slopes between centres, as Python lists (a sample's lookup) and as
+        arrays (the vectorised lookups: speeds_ahead, the anchor)."""
+        xs = [float(x) for x in self.centres]
+        rows: list[list[complex]] = [row.tolist() for row in self.means]
+        if self.variant is Variant.INFLUENCE:
+            rows.append(self.gains.tolist())
+        slopes = [[(r[i + 1] - r[i]) / (xs[i + 1] - xs[i]) for i in range(len(r) - 1)] for r in rows]
+        return LookupTables(xs, rows, slopes, np.array(xs), np.array(rows, complex),
+                            np.array(slopes, complex).reshape(len(rows), -1))
+
     def arrays(self) -> dict[str, np.ndarray]:
         out = {"centres": self.centres, "means": self.means.real}
         if self.variant.on_vector:
@@ -466,16 +492,8 @@ class CurveRuntime:
         self._shift: complex = 0.0
         self._gain: complex = 0.0
         self.vector: complex = math.nan  # the last predicted 1x vector (vector curves)
-        self._xs = [float(x) for x in model.centres]
-        self._rows: list[list[complex]] = [row.tolist() for row in model.means]
-        if self._influence:  # the gains, looked up as a fourth row (GAINS)
-            self._rows.append(model.gains.tolist())
-        self._slopes = [[(r[i + 1] - r[i]) / (self._xs[i + 1] - self._xs[i]) for i in range(len(r) - 1)]
-                        for r in self._rows]
-        # the same tables as arrays, for the vectorised lookups (speeds_ahead, the anchor)
-        self._xa = np.array(self._xs)
-        self._ra = np.array(self._rows, complex)
-        self._sa = np.array(self._slopes, complex).reshape(len(self._rows), -1)
+        # the lookup tables, read only (built once per model: an OC switch builds a runtime)
+        self._xs, self._rows, self._slopes, self._xa, self._ra, self._sa = model.tables
         window = int(model.params.get("window", 0))
         self._deadband = float(model.params.get("deadband", 0.0))
         self._past: deque[float] | None = deque(maxlen=window) if window > 0 else None

@@ -28,7 +28,6 @@ the next run or the end of the stream, ``end_transient``) ``transient`` holds it
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,6 +45,7 @@ from node.runtime.chirp import CHIRP_RATE, ChirpRate
 from node.runtime.guard import CURVE, guard_of
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
 from node.runtime.ocdetect import OCDetector, OCState
+from node.runtime.rows import RecentRows
 from node.runtime.runcurve import RUN_CURVE, RunCurve
 from node.runtime.transient_watch import PendingTransient, TransientWatch
 
@@ -131,7 +131,7 @@ class MonitorPipeline:
         self.sensor_channels = [c for c in self.channels if c not in derived]
         self.history = history or HistoryTracker(self.detector.off_level, cfg.history_cooling, engine)
         self._slow = slow
-        self._hist: deque[tuple[float, ...]] = deque(maxlen=int(cfg.history_s * FS))
+        self._hist = RecentRows(maxlen=int(cfg.history_s * FS))  # the measured past
         self._last: dict[str, float] = dict.fromkeys(self.channels, _NAN)  # in channel order
         self._state: tuple[int | None, Phase] = (None, Phase.OFF)
         self._active: _Active | None = None
@@ -201,7 +201,7 @@ class MonitorPipeline:
             self._watch_vector(self._vector, z, steady, msg)
         if self._flat is not None and self._flat.step(measured, phase is not _OFF):
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.FLATLINE
-        self._hist.append(tuple(vals.values()))
+        self._hist.push(tuple(vals.values()))
         tw = self._transient
         ended = tw.step(sample.t, values.get(tw.speed, _NAN), values.get(self.switch, _NAN), measured,
                         values.get(self._phase_ch) if self._tr_phase else None)
@@ -330,7 +330,7 @@ class MonitorPipeline:
         vector = rt if isinstance(rt, (CurveRuntime, AverageRuntime)) and predicts_vector(res.model) else None
         cols = [self.channels.index(c) for c in [self.target, *res.inputs]]
         if self._hist:
-            full = np.asarray(self._hist)
+            full = self._hist.array()
             H = full[:, cols]
             ok = np.all(np.isfinite(H), axis=1)
             first = int(np.argmax(ok)) if ok.any() else len(H)  # history from the first complete row
