@@ -11,8 +11,9 @@ publishes and records every output, emits the waiting slots of a bed that fell s
 the same from the recorded receive times), flushes the recording once a second (a
 killed node loses at most the last second) and publishes a health message per
 bed once a second (``HEALTH_PER_PASS`` beds a pass, spread over the second). A transition's
-analysis (``monitor/transient``) runs on a thread of its own (``NodeCore(defer_transients=True)``,
-``PendingTransient``): its message goes out once done, in the order the transitions ended.
+analysis (``monitor/transient``) runs in a process of its own at the lowest priority
+(``NodeCore(defer_transients=True)``, ``PendingTransient``, ``node.live.analyses``): its message
+goes out once done, in the order the transitions ended.
 
 Hostile and broken clients (issue 31): whatever arrives, the node's state stays bounded. The
 core admits a message only on a valid sensor key of a bed the ``beds`` pattern names, within
@@ -67,7 +68,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from itertools import compress
 from types import TracebackType
@@ -90,6 +90,7 @@ from node.contract import (
     sensor_subscription,
     transient_key,
 )
+from node.live.analyses import TransientAnalyses
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
 from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
@@ -127,10 +128,6 @@ SMALL_LOG = 64  # a batch's input log times in plain Python below this many mess
 # Each bed's health goes out once a second, but at most this many a worker pass (a pass every 50 ms
 # at the least): hundreds of beds' health in one pass held every real bed's outputs behind them
 HEALTH_PER_PASS = 16
-# A transition's analysis (tens of ms per target and bed) runs on a thread of its own, its message
-# published by the worker once done, in the order the transitions ended: beyond this many waiting,
-# the worker analyses them itself (bounded memory; the worker slows down, nothing is lost)
-ANALYSES_WAITING = 1024
 
 
 def receive_ns(stamp: Any, floor: int, now: int) -> int:
@@ -196,8 +193,7 @@ class LiveNode:
         self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None,
                              beds=beds, max_beds=max_beds, max_channels=max_channels, clock=clock,
                              defer_transients=True)
-        self._analyser: ThreadPoolExecutor | None = None  # the transitions' analyses (started on demand)
-        self._analyses: deque[tuple[str, Future[dict | None]]] = deque()  # in the order they ended
+        self._analyses = TransientAnalyses()  # the transitions', in a process (started on demand)
         self._engine_saved: dict = {}  # what the file holds now
         self._engine_next = 0.0  # monotonic time of the next save
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
@@ -423,13 +419,12 @@ class LiveNode:
             self._publish_analysed(wait=True)  # every transition before the stream's end first
             self._publish_many(self.core.finish())
             self._publish_analysed(wait=True)  # the runs' last ones
-            if self._analyser is not None:
-                self._analyser.shutdown()
         except BaseException as exc:  # the node is dead: say so at once, never look alive
             self.stats.worker_error = f"{type(exc).__name__}: {exc}"
             log.debug("the worker thread died", exc_info=True)
             self._withdraw()
         finally:
+            self._analyses.close()
             gc.callbacks.remove(self._on_gc)
 
     def _withdraw(self) -> None:
@@ -520,19 +515,10 @@ class LiveNode:
         self._spent["flush"] += time.perf_counter() - t0
 
     def _submit_analyses(self) -> None:
-        """The transitions the core left unanalysed (``NodeCore.pending``) to the analysis thread."""
+        """The transitions the core left unanalysed (``NodeCore.pending``) to their process."""
         pending = self.core.pending
-        if not pending:
-            return
-        if self._analyser is None:
-            self._analyser = ThreadPoolExecutor(1, thread_name_prefix="ordervib-transients")
         for key, tr in pending:
-            if len(self._analyses) < ANALYSES_WAITING:
-                self._analyses.append((key, self._analyser.submit(tr.resolve)))
-            else:  # too many waiting: here and now (the same message)
-                done: Future[dict | None] = Future()
-                done.set_result(tr.resolve())
-                self._analyses.append((key, done))
+            self._analyses.submit(key, tr)
         pending.clear()
 
     def _publish_analysed(self, wait: bool = False) -> None:
@@ -540,12 +526,7 @@ class LiveNode:
         (``wait``: all, waiting for them). An analysis that failed fails the worker, as it would
         have inline."""
         self._submit_analyses()
-        waiting, outs = self._analyses, []
-        while waiting and (wait or waiting[0][1].done()):
-            key, future = waiting.popleft()
-            msg = future.result()
-            if msg is not None:
-                outs.append(self.core.resolved(key, msg))
+        outs = [self.core.resolved(key, msg) for key, msg in self._analyses.done(wait)]
         if outs:
             self._publish_many(outs)
 

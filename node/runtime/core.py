@@ -156,7 +156,7 @@ class NodeCore:
         at once at most; max_channels: channels per bed at most (the model's always admitted);
         clock: every bed's clock guard (``ClockPolicy``; default its defaults); defer_transients:
         a transition's end is not analysed in the outputs but left in ``pending`` (the live node
-        analyses it off its worker thread and hands the message back to ``resolved``)."""
+        analyses it in another process and hands the message back to ``resolved``)."""
         if max_beds < 1 or max_channels < 1:
             raise ValueError(f"max_beds and max_channels must be >= 1, got {max_beds}, {max_channels}")
         self.model = as_model(model)

@@ -851,7 +851,7 @@ class RampAnalyser:
     def analysis_of(self, ramp: np.ndarray) -> Transient | None:
         """A ramp ``take`` or ``step_ramp`` gave, analysed (None: too few samples with speed and
         amplitude). Reads the ramp and the settings alone, changes nothing: it may run later, in
-        another thread (the live node analyses off its worker thread)."""
+        another thread or process (the live node analyses in a process of its own)."""
         phases = None if np.isnan(ramp[:, 2]).all() else ramp[:, 2]
         try:
             return analyse(ramp[:, 0], ramp[:, 1], phases, fs=self.fs, **self.analysis)  # type: ignore[arg-type]

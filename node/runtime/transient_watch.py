@@ -43,8 +43,8 @@ def _num(x: float | None) -> float | None:
 class PendingTransient:
     """A transition that ended, not yet analysed (a ``TransientWatch`` with ``defer``): ``resolve``
     gives the very message the watch would have given at once (None: too few samples). The live
-    node resolves it off its worker thread, so that a ramp's analysis (tens of ms, per target and
-    bed) never stalls the other beds' monitoring."""
+    node resolves it in another process (``job``, ``message_of_job``), so that a ramp's analysis
+    (tens of ms, per target and bed) never stalls the other beds' monitoring."""
 
     __slots__ = ("_watch", "ramp")
 
@@ -54,6 +54,19 @@ class PendingTransient:
 
     def resolve(self) -> dict | None:
         return self._watch.message_of(self.ramp)
+
+    def job(self) -> tuple[str, Schedule, FleetTransients | None, TransientSettings, np.ndarray]:
+        """What ``message_of_job`` needs to give ``resolve``'s message in another process: plain
+        data (the watch's target, schedule, fleet and settings, and the ramp)."""
+        w = self._watch
+        return w.target, w.schedule, w.fleet, w.settings, self.ramp
+
+
+def message_of_job(target: str, schedule: Schedule, fleet: FleetTransients | None,
+                   settings: TransientSettings, ramp: np.ndarray) -> dict | None:
+    """A ``PendingTransient``'s message from its ``job`` (a watch of the same target, schedule,
+    fleet and settings: the same analysis, the same message to the last bit)."""
+    return TransientWatch(target, schedule, fleet, settings).message_of(ramp)
 
 
 class TransientWatch:
@@ -72,6 +85,7 @@ class TransientWatch:
         self.target = target
         self.fleet = fleet
         self.settings = settings or (fleet.settings if fleet is not None else TransientSettings())
+        self.schedule = schedule
         self.switch = schedule.switch
         self.speed = self.settings.speed or schedule.switch
         self._plateaus = [(oc.name, oc.speed) for oc in schedule.ocs]
