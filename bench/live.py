@@ -1,7 +1,7 @@
 """The live node over Zenoh on loopback, each figure beside its ceiling measured in the same run.
 
     python -m bench live [--seconds 60] [--beds 20] [--fleet-beds 40] [--ceiling-seconds 15]
-                         [--only latency|throughput|fleet] [--model MODEL] [REC.mcap]
+                         [--only latency|throughput|fleet] [--loop] [--model MODEL] [REC.mcap]
 
 1. Latency, one test bed: the recording's channels published at 40 Hz in real time
    (a sample's messages back to back at its due time) into ``ordervib run``;
@@ -23,6 +23,10 @@
    connected to it. PASS when every message reaches a node, every bed is served by
    exactly one node (its health messages name one node, the two nodes' beds are the
    two halves) and every sample of every bed has its monitor message for every target.
+
+``--loop``: a first run shorter than ``--offset`` + ``--seconds`` is repeated, each pass re-timed to
+follow the last (``harness.live.looped``): a soak of any length, e.g. ``--only throughput --seconds
+600 --loop``.
 
 Without ``--model`` a Lasso bundle is trained on the committed sample runs
 first. The stream is the first run of the recording from ``--offset`` seconds
@@ -330,6 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--offset", type=float, default=30.0, help="s into the recording's first run")
     ap.add_argument("--fleet-beds", type=int, default=40, help="beds of the fleet part (default 40)")
     ap.add_argument("--only", choices=["latency", "throughput", "fleet"])
+    ap.add_argument("--loop", action="store_true",
+                    help="a first run shorter than --offset + --seconds is repeated, re-timed (a soak)")
     args = ap.parse_args(argv)
     from harness import make
     from node.contract import sensor_key
@@ -343,13 +349,14 @@ def main(argv: list[str] | None = None) -> int:
     model = load_model(args.model)
     needed = {c for b in model.bundles for c in MonitorPipeline(b).sensor_channels}  # what a bed publishes
     target = model.targets[0]  # the latency and throughput parts time this target's messages
-    stream = load_stream(args.recording, args.seconds, args.offset, needed)
+    stream = load_stream(args.recording, args.seconds, args.offset, needed, loop=args.loop)
     channels = sorted({c for s in stream.slots for c, _ in s})
     if needed - set(channels):  # a node would wait out every sample for them: not a measurement
         raise SystemExit(f"the model needs {', '.join(sorted(needed - set(channels)))}, which "
                          f"{args.recording} does not hold: give a recording of the model's channels")
     print(f"{args.recording}: {len(stream.slots)} samples of {len(channels)} channels per bed "
-          f"({len(needed)} needed by the model), from {args.offset:g} s into the first run; "
+          f"({len(needed)} needed by the model), from {args.offset:g} s into the first run"
+          f"{' (repeated, re-timed: --loop)' if args.loop else ''}; "
           f"node recordings in {tmp}")
     lat = thr = None
     if args.only in (None, "latency"):

@@ -59,8 +59,9 @@ class Stream:
         return round((t - self.t0) * FS)
 
 
-def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> Stream:
-    """``seconds`` of the first run of a recording, starting ``offset`` seconds into it."""
+def load_stream(path: str, seconds: float, offset: float, needed: set[str], loop: bool = False) -> Stream:
+    """``seconds`` of the first run of a recording, starting ``offset`` seconds into it; ``loop``:
+    a run shorter than that is repeated (``looped``)."""
     from node.mcap import iter_messages_fast
     n = int(round(seconds * FS))
     last_t: float | None = None
@@ -86,10 +87,36 @@ def load_stream(path: str, seconds: float, offset: float, needed: set[str]) -> S
             break
         slots.setdefault(k, []).append((parsed[1], bytes(m.payload)))
     got = [slots.get(k, []) for k in range(n)]
+    if loop and t0 is not None and not got[-1]:
+        got = looped(got[:max(k for k in slots if k < n) + 1], n)
     if t0 is None or not got[-1]:
-        raise SystemExit(f"{path}: its first run holds less than {offset:g} + {seconds:g} s")
+        raise SystemExit(f"{path}: its first run holds less than {offset:g} + {seconds:g} s"
+                         + ("" if loop else " (--loop repeats it)"))
     last = [max((i for i, (c, _) in enumerate(s) if c in needed), default=-1) for s in got]
     return Stream(got, t0, last)
+
+
+def looped(slots: list[list[tuple[str, bytes]]], n: int) -> list[list[tuple[str, bytes]]]:
+    """``n`` slots: ``slots`` over and over, each pass's payloads re-timed to follow the last
+    without a gap (its ``t`` moved by the passes before, ``len(slots)`` / FS s each): one run of
+    sensor time, its data jumping back at each pass's start as at an operating condition's switch.
+
+    >>> s = looped([[("nB", b'{"t":0.0,"v":1.0}')], [("nB", b'{"t":0.025,"v":2.0}')]], 5)
+    >>> [(round(d["t"], 6), d["v"]) for d in (orjson.loads(p) for (_, p), in s)]
+    [(0.0, 1.0), (0.025, 2.0), (0.05, 1.0), (0.075, 2.0), (0.1, 1.0)]
+    """
+    out = list(slots[:n])
+    period = len(slots)
+    while len(out) < n:
+        shift = len(out) // period * period / FS
+        for slot in slots[:n - len(out)]:
+            moved = []
+            for channel, payload in slot:
+                doc = orjson.loads(payload)
+                doc["t"] = doc["t"] + shift
+                moved.append((channel, orjson.dumps(doc)))
+            out.append(moved)
+    return out
 
 
 def free_port() -> int:
