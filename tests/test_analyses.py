@@ -74,3 +74,36 @@ def test_beyond_the_bound_the_caller_analyses_at_once(ramps):
     bounded = TransientAnalyses(waiting_max=0)  # never more than 0 waiting in the process
     bounded.submit("b", ramps[1])
     assert bounded._pool is None and bounded.done() == [("b", ramps[1].resolve())]
+
+
+def test_the_analysis_process_ends_with_a_node_killed_outright(tmp_path):
+    """A node that dies without stopping (SIGKILL, os._exit) leaves no analysis process behind."""
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "node_that_dies.py"
+    script.write_text(
+        "import os, sys\n"
+        f"sys.path[:0] = [{str(__import__('pathlib').Path(__file__).parent)!r}]\n"
+        "from test_analyses import _pending\n"
+        "from node.live.analyses import TransientAnalyses\n"
+        "if __name__ == '__main__':\n"
+        "    a = TransientAnalyses()\n"
+        "    a.submit('k', _pending(6000.0))\n"
+        "    assert a.done(wait=True)[0][0] == 'k'\n"
+        "    print(*a._pool._processes, flush=True)\n"
+        "    os._exit(0)\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    (child,) = map(int, out.stdout.split())
+
+    def alive() -> bool:
+        try:
+            with open(f"/proc/{child}/stat") as f:
+                return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+        except OSError:
+            return False
+    deadline = time.monotonic() + 30  # (a bound on the wait, not a timing assertion)
+    while alive() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not alive(), f"analysis process {child} outlived its node"

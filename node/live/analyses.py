@@ -7,8 +7,10 @@ analyses, 1.3 s of CPU spread over 3 s of the lock, and the worker fell behind b
 second (bench live, 280 s, issue 35). Here each ``PendingTransient``'s ``job`` goes to one spawned
 process at the lowest priority (``os.nice(19)``; ``message_of_job``: the same code, the same
 message to the last bit), started at the first transition; the messages come back in the order
-the transitions ended. If that process cannot be started or dies, one warning is logged and the
-worker analyses the rest itself (the same messages, later); nothing is lost.
+the transitions ended; it ends with the node, or within ``ORPHAN_CHECK_S`` of a node killed
+outright (the bench's killed nodes had left theirs running). If that process cannot be started
+or dies, one warning is logged and the worker analyses the rest itself (the same messages,
+later); nothing is lost.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import logging
 import multiprocessing
 import os
 import signal
+import threading
+import time
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -27,15 +31,25 @@ log = logging.getLogger(__name__)
 
 WAITING_MAX = 1024  # analyses waiting at most; beyond, the worker analyses them itself (bounded memory)
 NICE = 19  # the analysis process's priority: below the node's worker and Zenoh's threads
+ORPHAN_CHECK_S = 0.5  # how often the analysis process looks whether its node still lives, s
 
 
 def _child_start() -> None:
-    """The analysis process: the lowest priority, deaf to Ctrl-C (the node's stop ends it)."""
+    """The analysis process: the lowest priority, deaf to Ctrl-C (the node's stop ends it), and
+    gone within ``ORPHAN_CHECK_S`` of its node's death (a node killed outright left it running)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         os.nice(NICE)
     except OSError:  # (not allowed here: it runs at the node's priority)
         pass
+    threading.Thread(target=_exit_with, args=(os.getppid(),), daemon=True, name="orphan-check").start()
+
+
+def _exit_with(parent: int) -> None:
+    """Ends this process once its parent is gone (it is then another process's child)."""
+    while os.getppid() == parent:
+        time.sleep(ORPHAN_CHECK_S)
+    os._exit(0)
 
 
 class TransientAnalyses:
