@@ -8,7 +8,7 @@ second (bench live, 280 s, issue 35). Here each ``PendingTransient``'s ``job`` g
 process at the lowest priority (``os.nice(19)``; ``message_of_job``: the same code, the same
 message to the last bit), started at the first transition; the messages come back in the order
 the transitions ended; it ends with the node, or within ``ORPHAN_CHECK_S`` of a node killed
-outright (the bench's killed nodes had left theirs running). If that process cannot be started
+outright (nodes that ended without stopping had left theirs running). If that process cannot be started
 or dies, one warning is logged and the worker analyses the rest itself (the same messages,
 later); nothing is lost.
 """
