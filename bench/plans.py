@@ -323,9 +323,10 @@ def pooled(results: list[EngineResult], n_train: int, n_held: int) -> bool:
     for j, tg in enumerate(targets):
         print(f"{_verdict(bool(ok[j]))}  {tg} held-out, pooled: {int(inside[j])} of {int(measured[j])} "
               f"measured samples ({share[j]:.1%}) inside the 90 % interval (target {band})")
+    bounded = [_bounded(r.within, r.total) for r in results]
     for j, tg in enumerate(targets):  # the bound, every engine (each engine's lines above say which)
         w, n = sum(int(r.within[j]) for r in results), sum(int(r.total[j]) for r in results)
-        bad = [r.seed for r in results if not _bounded(r.within, r.total)[j]]
+        bad = [r.seed for r, b in zip(results, bounded, strict=True) if not b[j]]
         print(f"{_verdict(not bad)}  {tg} plans, every engine: {w} of {n} predicted samples within the bound"
               + (f"; outside on seed(s) {', '.join(map(str, bad))}" if bad else ""))
     return bool(ok.all())

@@ -107,15 +107,11 @@ def looped(slots: list[list[tuple[str, bytes]]], n: int) -> list[list[tuple[str,
     """
     out = list(slots[:n])
     period = len(slots)
+    docs = [[(channel, orjson.loads(payload)) for channel, payload in slot] for slot in slots]  # once
     while len(out) < n:
         shift = len(out) // period * period / FS
-        for slot in slots[:n - len(out)]:
-            moved = []
-            for channel, payload in slot:
-                doc = orjson.loads(payload)
-                doc["t"] = doc["t"] + shift
-                moved.append((channel, orjson.dumps(doc)))
-            out.append(moved)
+        out += [[(channel, orjson.dumps({**doc, "t": doc["t"] + shift})) for channel, doc in slot]
+                for slot in docs[:n - len(out)]]
     return out
 
 
@@ -134,7 +130,11 @@ def cpu_seconds(pid: int) -> float:
     except OSError:  # (a child that ended meanwhile: counted in its parent's, once reaped)
         return 0.0
     total = sum(int(x) for x in fields[11:15]) / os.sysconf("SC_CLK_TCK")  # own, and reaped children's
-    for task in os.listdir(f"/proc/{pid}/task") if os.path.isdir(f"/proc/{pid}/task") else []:
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:  # (ended since)
+        return total
+    for task in tasks:
         try:
             with open(f"/proc/{pid}/task/{task}/children") as f:
                 total += sum(cpu_seconds(int(child)) for child in f.read().split())
