@@ -396,3 +396,44 @@ def test_the_recording_survives_more_keys_than_mcap_channels(setup, tmp_path):
     assert summary is not None and len(summary.channels) == 65_535
     recorded = sum(1 for m in iter_messages(tmp_path / "n.mcap") if "/sensor/" in m.topic)
     assert recorded < 65_535 and len(keys) - recorded <= refused  # refused: the inputs beyond, outputs too
+
+
+def test_a_bed_behind_a_siblings_backlog_is_handled_first(setup, tmp_path, monkeypatch):
+    """A sibling bed's 3,000-message backlog arrives while the worker is held, then one slot of a
+    real bed: once going, the worker handles the real bed's messages in its first batches, not
+    after the backlog (before the fair intake: after all 3,000); every message once, each bed's in
+    the order sent."""
+    from node.live.node import BATCH_MAX, DRAIN_MAX, LiveNode
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint])
+    held, handle, seen = threading.Event(), node._handle, []
+
+    def slow(batch):
+        held.wait(30)
+        seen.extend((k.split("/")[1], orjson.loads(p)["t"]) for k, p, _ in batch)
+        handle(batch)
+
+    monkeypatch.setattr(node, "_handle", slow)
+    node.start()
+    client = _client(endpoint)
+    t0 = 1_700_000_000.0
+    try:
+        _wait_matched(client, sensor_key("sib", "nB"))
+        for i in range(3000):
+            client.put(sensor_key("sib", "nB"), orjson.dumps({"t": t0 + i / 40, "v": 1.0}))
+        assert wait_for(lambda: node._worker_lag() > 0.2, 20)  # the worker held, the backlog waits
+        for i in range(3):
+            client.put(sensor_key("real", "nB"), orjson.dumps({"t": t0 + i / 40, "v": 2.0}))
+        time.sleep(0.3)
+        held.set()
+        assert wait_for(lambda: node.stats.received == 3003, 30), node.stats.received
+    finally:
+        held.set()
+        client.close()
+        node.stop()
+    real = [i for i, (bed, _) in enumerate(seen) if bed == "real"]
+    # found once the worker has taken the backlog from the FIFO (DRAIN_MAX a pass), then first
+    assert len(real) == 3 and real[-1] < (1 + -(-3000 // DRAIN_MAX) + 1) * BATCH_MAX, real
+    for bed in ("sib", "real"):
+        stamps = [t for b, t in seen if b == bed]
+        assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)

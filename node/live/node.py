@@ -92,6 +92,7 @@ from node.contract import (
 )
 from node.live.analyses import TransientAnalyses
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
+from node.live.intake import FairIntake
 from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
@@ -107,6 +108,9 @@ log = logging.getLogger(__name__)
 # CPU per message (a batch's own cost, about 40 us, is 0.3 us a message at 128)
 BATCH_MAX = 128
 QUEUE_MAX = 10_000_000  # the intake's bound (queue_size) at most
+# Behind, the worker takes up to DRAIN_MAX messages a pass from Zenoh's FIFO into the fair intake
+# (node.live.intake), which holds INTAKE_MAX at most (beyond, Zenoh's FIFO holds them, then the links)
+DRAIN_MAX, INTAKE_MAX = 1024, 65_536
 LAG_KEPT = 4000  # latencies (per bed) the health message's percentiles are taken over
 WATCHDOG_S = 0.5  # how often run_node checks the worker thread, s
 # gc.set_threshold: a young collection every 50,000 net container allocations, not 700 (the
@@ -207,6 +211,7 @@ class LiveNode:
         self._behind = True  # the last drain left messages waiting (or none ran yet)
         self._last_empty_ns = time.time_ns()  # when a drain last found the intake empty, ns
         self._empty_polls = 0  # drains in a row that found nothing
+        self._fair = FairIntake()  # messages taken from Zenoh's FIFO while behind, not yet handled
         self.stats = LiveStats()
         self.token: Any = None
         self._stop = threading.Event()
@@ -313,31 +318,46 @@ class LiveNode:
         return rows
 
     def _drain(self) -> list[tuple[str, bytes, int]]:
-        """The messages waiting (at most ``BATCH_MAX``), each as (key, payload, receive time ns);
-        none waiting: sleeps ``POLL_S`` (``IDLE_POLL_S`` once ``IDLE_POLLS`` looks found nothing).
+        """The messages to handle now (at most ``BATCH_MAX``), each as (key, payload, receive time
+        ns); none waiting: sleeps ``POLL_S`` (``IDLE_POLL_S`` once ``IDLE_POLLS`` looks found nothing).
+
+        Keeping up (all that waited fits in a batch), they come in the order they arrived. Behind,
+        the worker takes up to ``DRAIN_MAX`` more from Zenoh's FIFO into the fair intake (at most
+        ``INTAKE_MAX`` held) and the batch comes from it: the beds with the fewest messages waiting
+        first (``node.live.intake``), so a bed catching up on a backlog does not delay the others.
 
         A message's receive time is its Zenoh timestamp (the session's clock as it arrived; see
         ``receive_ns``), within [the last time the intake was found empty, now]: a pass of the
         worker that takes long makes no silence of the beds whose messages waited meanwhile."""
-        take, now = self.sub.try_recv, time.time_ns()
-        floor = self._last_empty_ns
+        now, fair = time.time_ns(), self._fair
         out: list[tuple[str, bytes, int]] = []
-        append = out.append
-        for _ in range(BATCH_MAX):
-            sample = take()
-            if sample is None:
-                self._behind, self._last_empty_ns = False, time.time_ns()
-                break
-            append((str(sample.key_expr), sample.payload.to_bytes(),
-                    receive_ns(sample.timestamp, floor, now)))
-        else:
-            self._behind = True  # more wait
+        emptied = self._pull(out, BATCH_MAX if not fair else min(DRAIN_MAX, INTAKE_MAX - len(fair)), now)
+        if fair or not emptied:  # behind: more from the FIFO, the batch from the fair intake
+            if not fair:
+                emptied = self._pull(out, DRAIN_MAX - len(out), now)
+            fair.extend(out)
+            out = fair.take(BATCH_MAX)
+        self._behind = not emptied or bool(fair)  # more wait
+        if not self._behind:
+            self._last_empty_ns = time.time_ns()
         if out:
             self._empty_polls = 0
         else:
             self._empty_polls += 1
             time.sleep(POLL_S if self._empty_polls < IDLE_POLLS else IDLE_POLL_S)
         return out
+
+    def _pull(self, out: list[tuple[str, bytes, int]], n: int, now: int) -> bool:
+        """Up to n messages from Zenoh's FIFO appended to ``out`` (``_drain``'s tuples); whether
+        the FIFO was found empty."""
+        take, append, floor = self.sub.try_recv, out.append, self._last_empty_ns
+        for _ in range(n):
+            sample = take()
+            if sample is None:
+                return True
+            append((str(sample.key_expr), sample.payload.to_bytes(),
+                    receive_ns(sample.timestamp, floor, now)))
+        return False
 
     def _bed(self, key: str) -> str | None:
         """The bed of an admitted sensor key, None for any other key (the core's one parse)."""
