@@ -1,15 +1,16 @@
 """The live worker's fair intake: a bed catching up on a backlog does not hold the others back.
 
-When the node falls behind (more messages waiting than one worker pass takes), the worker takes
-what waits in Zenoh's FIFO into ``FairIntake``'s lanes, a lane per bed name's hash
-(``LANES``): a bed's messages always go to the same lane, so each bed's messages keep their order;
-the order between beds is free (the core keeps each bed's state apart, and the recording is
-written in the order the worker handled them). Each pass then takes the lanes with the fewest
-messages waiting first, whole, and the rest of the batch from the next: a test bed sending at its
-nominal rate waits one pass, not behind a sibling bed that sends an hour of backlog at 20x
-(issue 31), and beds at the same rate are handled bed by bed as they came (their slots complete
-early, not all at the end as round robin would). The lane with the most waiting gets at least
-1/``FULLEST_SHARE`` of every batch, so it is never starved. Pure data, no I/O, no clock.
+When the node falls behind (more messages waiting than one worker pass takes), the worker takes what
+waits in Zenoh's FIFO into ``FairIntake``'s lanes, a lane per bed name (the key's second chunk,
+``bed_of``; at most ``LANES_MAX``, the rest in one overflow lane): a bed's waiting messages are all
+in one lane, so each bed's messages keep their order; the order between beds is free (the core keeps
+each bed's state apart, and the recording is written in the order the worker handled them). Each
+pass takes the lanes whole in the order their oldest messages arrived, but the big ones (more than
+half a batch and ``BIG_RATIO`` x the median lane waiting) after the others: a test bed sending at
+its nominal rate waits one pass, not behind a sibling bed that sends an hour of backlog at 20x
+(issue 31), while beds at the same rate, all behind alike, go oldest first, as they came. The big
+lanes get at least 1/``FULLEST_SHARE`` of every batch, so a backlog is never starved. Pure data,
+no I/O, no clock.
 
 >>> fi = FairIntake()
 >>> fi.extend([("testbed/big/sensor/a", b"", i) for i in range(6)] + [("testbed/small/sensor/a", b"", 9)])
@@ -21,80 +22,94 @@ early, not all at the end as round robin would). The lane with the most waiting 
 
 from __future__ import annotations
 
-import zlib
 from collections import deque
 from collections.abc import Iterable
 
 Message = tuple[str, bytes, int]  # (key, payload, receive time ns), as the worker drains them
 
-LANES = 64  # lanes the beds are hashed to: a few beds share one, any number of beds fit
-FULLEST_SHARE = 8  # the fullest lane gets at least 1/8 of a batch (if it has so many waiting)
+LANES_MAX = 256  # lanes of their own (the node's --max-beds by default); more beds share one
+OVERFLOW = "\x00overflow"  # the lane of beds beyond LANES_MAX (no bed name holds a NUL)
+# A lane is big (taken after the others) with more than 1/SMALL_SHARE of a batch and more than
+# BIG_RATIO x the median lane waiting: beds at one rate, all behind alike, go oldest first
+SMALL_SHARE, BIG_RATIO = 2, 4
+FULLEST_SHARE = 8  # the others get at least 1/8 of a batch (if they have so many waiting)
 _PREFIX = "testbed/"
-LANE_CACHE = 4096  # keys whose lane is remembered (the cache is cleared when it holds more)
+NAME_CACHE = 4096  # keys whose bed name is remembered (the cache is cleared when it holds more)
 
 
-def lane_of(key: str) -> int:
-    """The lane of a key: the crc32 of its bed chunk (``testbed/<bed>/...``; the whole key for
-    any other) modulo ``LANES``, the same in every process.
+def bed_of(key: str) -> str:
+    """The bed chunk of a key (``testbed/<bed>/...``), or the whole key for any other.
 
-    >>> lane_of("testbed/tb01/sensor/nB") == lane_of("testbed/tb01/sensor/yB")
-    True
-    >>> 0 <= lane_of("odd key") < LANES
-    True
+    >>> bed_of("testbed/tb01/sensor/nB"), bed_of("testbed/x"), bed_of("odd key")
+    ('tb01', 'x', 'odd key')
     """
     if key.startswith(_PREFIX):
         end = key.find("/", len(_PREFIX))
-        name = key[len(_PREFIX):end] if end >= 0 else key[len(_PREFIX):]
-    else:
-        name = key
-    return zlib.crc32(name.encode("utf-8", "surrogatepass")) % LANES
+        return key[len(_PREFIX):end] if end >= 0 else key[len(_PREFIX):]
+    return key
 
 
 class FairIntake:
     """Messages waiting in lanes (see the module): ``extend`` in arrival order, ``take`` a
-    batch, shortest lanes first. Bounded by its owner (``len`` says how many wait)."""
+    batch, small lanes first. Bounded by its owner (``len`` says how many wait)."""
 
-    def __init__(self) -> None:
-        self._lanes: dict[int, deque[Message]] = {}  # lane -> its messages waiting, in order
-        self._lane_of: dict[str, int] = {}  # key -> lane (a cache of lane_of)
+    def __init__(self, lanes_max: int = LANES_MAX) -> None:
+        if lanes_max < 1:
+            raise ValueError(f"lanes_max must be >= 1, got {lanes_max}")
+        self.lanes_max = lanes_max  # lanes of their own at most (with the overflow lane's, one more)
+        self._lanes: dict[str, deque[Message]] = {}  # bed name (or OVERFLOW) -> its messages, in order
+        self._names: dict[str, str] = {}  # key -> bed name (a cache of bed_of)
         self._n = 0
 
     def __len__(self) -> int:
         return self._n
 
     def extend(self, messages: Iterable[Message]) -> None:
-        """Messages (key, payload, receive time ns) in the order they arrived."""
-        lanes, cache = self._lanes, self._lane_of
+        """Messages (key, payload, receive time ns) in the order they arrived.
+
+        A bed without a lane gets one unless ``lanes_max`` are in use or the overflow lane holds
+        messages (its own may be among them: they must go first); else it goes to the overflow
+        lane. So a bed's waiting messages are always in one lane."""
+        lanes, names, most = self._lanes, self._names, self.lanes_max
         n = 0
         for m in messages:
             key = m[0]
-            lane = cache.get(key)
-            if lane is None:
-                if len(cache) >= LANE_CACHE:
-                    cache.clear()
-                lane = cache[key] = lane_of(key)
-            q = lanes.get(lane)
+            name = names.get(key)
+            if name is None:
+                if len(names) >= NAME_CACHE:
+                    names.clear()
+                name = names[key] = bed_of(key)
+            q = lanes.get(name)
             if q is None:
-                q = lanes[lane] = deque()
+                if len(lanes) >= most or OVERFLOW in lanes:
+                    name = OVERFLOW
+                    q = lanes.get(name)
+                if q is None:
+                    q = lanes[name] = deque()
             q.append(m)
             n += 1
         self._n += n
 
     def take(self, n: int) -> list[Message]:
-        """At most n messages: whole lanes from the shortest, the last one cut, with room kept
-        for n / ``FULLEST_SHARE`` of the fullest lane (taken last); emptied lanes go.
+        """At most n messages, the lanes in the order their oldest messages arrived, each whole
+        (the last one cut), except the big ones (more than ``n // SMALL_SHARE`` and more than
+        ``BIG_RATIO`` x the median lane waiting), which come after the others. Of n,
+        n // ``FULLEST_SHARE`` is kept for the big ones when there are any (a backlog is never
+        starved). Emptied lanes go.
 
         Each lane's messages come out in the order they went in."""
         out: list[Message] = []
         if n <= 0 or not self._n:
             return out
         lanes = self._lanes
-        order = sorted(lanes, key=lambda k: len(lanes[k]))
-        fullest = order[-1]
-        keep = min(n // FULLEST_SHARE, len(lanes[fullest])) if len(order) > 1 else 0  # never starved
-        for lane in order:  # the fullest last
+        order = sorted(lanes, key=lambda k: lanes[k][0][2])  # by the oldest receipt waiting
+        sizes = sorted(map(len, lanes.values()))
+        most = max(n // SMALL_SHARE, BIG_RATIO * sizes[(len(sizes) - 1) // 2])  # the lower median
+        big = [k for k in order if len(lanes[k]) > most]
+        keep = min(n // FULLEST_SHARE, len(lanes[big[0]])) if big and len(big) < len(order) else 0
+        for lane in [k for k in order if len(lanes[k]) <= most] + big:
             q = lanes[lane]
-            room = n - len(out) - (keep if lane != fullest else 0)
+            room = n - len(out) - (keep if len(q) <= most else 0)
             if room <= 0:
                 continue
             if len(q) <= room:
