@@ -19,6 +19,8 @@ prints the mean held-out eps_td of
   ``default`` with the curve guard on (``node.runtime.guard``: within an OC visit the curve
   where the model erred more so far); the four columns before are scored with it off,
 * ``curve``: the characteristic-curve baseline,
+* ``floor``: the noise floor, the eps_td of a prediction that knew the clean signal (the
+  simulator's sensor noise on the measured amplitudes: ``noise_floor``): no model can go below it,
 
 all measured in this one run, then per set the mean, the OCs worse than the curve by more than
 5 %, and the same for the first OC of each run (the one after a start, where a bow is). The
@@ -93,10 +95,12 @@ def train_quietly(train: Path, schedule: Path, model: Path, options: dict) -> bo
     return True
 
 
-def held_out(model: Path, tr: list, te: list, guard: bool) -> list[tuple[str, float, str]]:
-    """Per OC: (name, held-out eps_td, model kind) over the held-out runs ``te``, the history
-    derived through the training runs ``tr`` first (as a node that ran them would have it);
-    guard: the curve guard on with the product's settings, else off (whatever the bundle says)."""
+def held_out(model: Path, tr: list, te: list, guard: bool, noise: float = 1.0
+             ) -> list[tuple[str, float, str, float]]:
+    """Per OC: (name, held-out eps_td, model kind, noise floor at ``noise``) over the held-out
+    runs ``te``, the history derived through the training runs ``tr`` first (as a node that ran
+    them would have it); guard: the curve guard on with the product's settings, else off
+    (whatever the bundle says)."""
     import dataclasses
 
     from node.models.bundle import load_bundle
@@ -111,9 +115,28 @@ def held_out(model: Path, tr: list, te: list, guard: bool) -> list[tuple[str, fl
                                  guard_margin=product.guard_margin)
     if any(c in HISTORY_CHANNELS for c in b.inputs):
         te = with_history(tr + te, b.schedule, b.config)[len(tr):]
-    evals, _ = evaluate(b.ocs, te, b.schedule, b.target, b.curve, config)
+    evals, preds = evaluate(b.ocs, te, b.schedule, b.target, b.curve, config)
     kinds = {r.name: r.kind for r in b.ocs}
-    return [(e.name, e.eps, kinds[e.name]) for e in evals]
+    return [(e.name, e.eps, kinds[e.name],
+             noise_floor(np.concatenate([p.measured for p in preds if p.oc == j] or [np.zeros(0)]), noise))
+            for j, e in enumerate(evals)]
+
+
+def noise_floor(measured: np.ndarray, noise: float) -> float:
+    """The eps_td of the clean signal against ``measured`` (K,) amplitudes (mm/s), NaN skipped:
+    the simulator's sensor noise (sigma = noise x (absolute + relative |y|), then rounding to
+    ``decimals``) over the signal's energy; NaN without samples.
+
+    >>> round(noise_floor(np.full(100, 3.0), 1.0), 4)  # (0.03 + 0.02 x 3) / 3, rounding's too
+    0.03
+    """
+    from simulator.campaign import NOISE
+    absolute, relative, decimals = NOISE["y"]
+    y = measured[np.isfinite(measured)]
+    if y.size == 0 or not np.any(y):
+        return float("nan")
+    var = (noise * (absolute + relative * np.abs(y))) ** 2 + (10.0 ** -decimals) ** 2 / 12
+    return float(np.sqrt(np.sum(var) / np.sum(y ** 2)))
 
 
 def engine_args(name: str, default_set: str, argv: list[str] | None
@@ -145,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     from node.training.evaluation import baseline_eps
     from node.training.fit import load_runs
 
-    rows: list[tuple[str, int, str, list[float], float, str]] = []  # engine, OC index, OC, eps, curve, kind
+    # engine, OC index, OC, eps per column, curve, kind, noise floor
+    rows: list[tuple[str, int, str, list[float], float, str, float]] = []
     for e in engines:
         t0 = time.perf_counter()
         train, test = simulate(e, work)
@@ -158,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
             if not reused and not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")
                 return 2
-            scores.append(held_out(model, tr, te, guard=False))
+            scores.append(held_out(model, tr, te, guard=False, noise=e.noise))
             models.append(model)
         scores += [held_out(models[c], tr, te, guard=True) for _, c in GUARDED]
         sched = load_schedule(schedule)
@@ -166,16 +190,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{e.name} (seed {e.seed}, schedule {e.schedule}, noise x{e.noise:g}; "
               f"{time.perf_counter() - t0:.0f} s)")
         labels = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED]
-        print("| OC | " + " | ".join(labels) + " | default's model | curve |")
-        print("|---|" + "---|" * (len(labels) + 2))
+        print("| OC | " + " | ".join(labels) + " | default's model | curve | floor |")
+        print("|---|" + "---|" * (len(labels) + 3))
         for k, (oc, b) in enumerate(zip([s[0] for s in scores[0]], base)):
             eps = [col[k][1] for col in scores]
-            kind = scores[len(COLUMNS) - 1][k][2]
-            print(f"| {oc} | " + " | ".join(f"{v:.3f}" for v in eps) + f" | {kind} | {b:.3f} |")
-            rows.append((e.name, k, oc, eps, b, kind))
-        mine = np.array([r[3] + [r[4]] for r in rows if r[0] == e.name], dtype=float)
+            kind, low = scores[len(COLUMNS) - 1][k][2], scores[len(COLUMNS) - 1][k][3]
+            print(f"| {oc} | " + " | ".join(f"{v:.3f}" for v in eps) + f" | {kind} | {b:.3f} | {low:.3f} |")
+            rows.append((e.name, k, oc, eps, b, kind, low))
+        mine = np.array([r[3] + [r[4], r[6]] for r in rows if r[0] == e.name], dtype=float)
         m = np.nanmean(mine, axis=0)
-        print("| mean | " + " | ".join(f"{v:.3f}" for v in m[:-1]) + f" | | {m[-1]:.3f} |", flush=True)
+        print("| mean | " + " | ".join(f"{v:.3f}" for v in m[:-2]) + f" | | {m[-2]:.3f} | {m[-1]:.3f} |",
+              flush=True)
     print(f"\n{set_name} set: {len(engines)} engines, {len(rows)} OCs (8 training, 10 held-out runs each)")
     print("| | mean held-out eps_td | OCs worse than the curve by > 5 % | first OC after a start: "
           "mean | first OCs worse than the curve by > 5 % |")
@@ -188,11 +213,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {label} | {np.nanmean(v):.3f} | {int(worse.sum())} of {v.size} | "
               f"{np.nanmean(v[first]):.3f} | {int(worse[first].sum())} of {int(first.sum())} |")
     print(f"| characteristic curve | {np.nanmean(curve):.3f} | - | {np.nanmean(curve[first]):.3f} | - |")
+    floor = np.array([r[6] for r in rows], dtype=float)
+    print(f"| noise floor | {np.nanmean(floor):.3f} | - | {np.nanmean(floor[first]):.3f} | - |")
     labels = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED]
     for held, new in ((0, 1), (2, 3), (0, 4), (2, 5)):
         change = 100 * (np.nanmean(a[:, new]) / np.nanmean(a[:, held]) - 1)
         change_first = 100 * (np.nanmean(a[first, new]) / np.nanmean(a[first, held]) - 1)
-        print(f"{labels[new]} against {labels[held]}: {change:+.1f} % (first OCs {change_first:+.1f} %)")
+        room = 100 * (np.nanmean(floor) / np.nanmean(a[:, held]) - 1)
+        print(f"{labels[new]} against {labels[held]}: {change:+.1f} % (first OCs {change_first:+.1f} %; "
+              f"the noise floor {room:+.1f} %)")
     return 0
 
 
