@@ -3,6 +3,7 @@ beds with the fewest messages waiting taken first, the fullest never starved."""
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -69,3 +70,58 @@ def test_beds_at_one_rate_all_behind_go_oldest_first():
     got = fi.take(128)
     assert [_bed(m) for m in got] == ["b00"] * 105 + ["b01"] * 23
     assert [m[2] for m in got[:21]] == list(range(21))
+
+
+class _Fifo:
+    """Zenoh's FIFO as the worker sees it: try_recv gives a sample or None."""
+
+    def __init__(self, keys: list[str]) -> None:
+        from types import SimpleNamespace as S
+        self.samples = [S(key_expr=k, payload=S(to_bytes=lambda i=i: str(i).encode()), timestamp=None)
+                        for i, k in enumerate(keys)]
+        self.at = 0
+
+    def try_recv(self):
+        if self.at == len(self.samples):
+            return None
+        self.at += 1
+        return self.samples[self.at - 1]
+
+
+@pytest.mark.parametrize("bound", [None, 1500])
+def test_the_workers_drain_bounded_fair_and_complete(monkeypatch, bound):
+    """LiveNode._drain over a FIFO holding a sibling's 5,000-message backlog, then a real bed's
+    slot: the fair intake never holds more than INTAKE_MAX; every message comes out once, each
+    bed's in order; the node is behind (its intake not found empty) until the last batch. With
+    the default bound the real bed's slot comes out whole once the drain reaches it, after
+    5,000 / DRAIN_MAX passes, not after the backlog."""
+    import io
+
+    import node.live.node as live
+    from node.contract.schedule import OperatingCondition, Schedule
+    from node.mcap import RecordingWriter
+    from node.models.bundle import Bundle
+    if bound is not None:
+        monkeypatch.setattr(live, "INTAKE_MAX", bound)
+    monkeypatch.setattr(live.time, "sleep", lambda s: None)
+    bundle = Bundle("wdmd", "yB", Schedule((OperatingCondition("A", 4000.0),)), [])
+    node = live.LiveNode(bundle, RecordingWriter(io.BytesIO()))
+    keys = ["testbed/sib/sensor/nB"] * 5000 + [f"testbed/real/sensor/c{c}" for c in range(21)]
+    node.sub = _Fifo(keys)
+    empty_at = node._last_empty_ns
+    out: list = []
+    while True:
+        batch = node._drain()
+        assert len(batch) <= live.BATCH_MAX and len(node._fair) <= live.INTAKE_MAX
+        out += batch
+        if not node._behind:
+            break
+        assert node._last_empty_ns == empty_at  # messages wait: the intake was not found empty
+    assert node._last_empty_ns > empty_at and not node._fair
+    ids = [int(p) for _, p, _ in out]
+    assert sorted(ids) == list(range(5021))
+    assert [i for i in ids if i < 5000] == list(range(5000))  # the sibling's in order
+    real = [i for i, (k, _, _) in enumerate(out) if "/real/" in k]
+    assert real == list(range(real[0], real[0] + 21))  # whole, in order
+    if bound is None:
+        assert real[0] < (5000 // live.DRAIN_MAX + 2) * live.BATCH_MAX
