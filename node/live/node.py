@@ -323,8 +323,8 @@ class LiveNode:
 
         Keeping up (all that waited fits in a batch), they come in the order they arrived. Behind,
         the worker takes up to ``DRAIN_MAX`` more from Zenoh's FIFO into the fair intake (at most
-        ``INTAKE_MAX`` held) and the batch comes from it: the beds with the fewest messages waiting
-        first (``node.live.intake``), so a bed catching up on a backlog does not delay the others.
+        ``INTAKE_MAX`` held) and the batch comes from it, bed by bed, oldest first, a bed with a
+        backlog after the others (``node.live.intake``): its catching up does not delay them.
 
         A message's receive time is its Zenoh timestamp (the session's clock as it arrived; see
         ``receive_ns``), within [the last time the intake was found empty, now]: a pass of the
