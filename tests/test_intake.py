@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from node.live.intake import FULLEST_SHARE, LANES_MAX, FairIntake, bed_of
+from node.live.intake import FULLEST_SHARE, LANES_MAX, FairIntake, lane_name
 
 
 def _bed(m) -> str:
@@ -38,8 +38,8 @@ def test_every_message_once_each_beds_order_kept(rounds, n, lanes):
         assert got
         out += got
     assert sorted(m[2] for m in out) == list(range(seq))
-    for bed in {bed_of(m[0]) for m in out}:  # each bed's messages in order
-        stamps = [m[2] for m in out if bed_of(m[0]) == bed]
+    for bed in {lane_name(m[0]) for m in out}:  # each bed's messages in order
+        stamps = [m[2] for m in out if lane_name(m[0]) == bed]
         assert stamps == sorted(stamps)
 
 

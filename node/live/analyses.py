@@ -75,11 +75,8 @@ class TransientAnalyses:
         return len(self._queue)
 
     def submit(self, key: str, pending: PendingTransient) -> None:
-        future: Future[dict | None]
-        if self.inline or len(self._queue) >= self.waiting_max:
-            future = Future()
-            future.set_result(pending.resolve())
-        else:
+        future: Future[dict | None] | None = None
+        if not self.inline and len(self._queue) < self.waiting_max:
             try:
                 if self._pool is None:
                     self._pool = ProcessPoolExecutor(1, multiprocessing.get_context("spawn"),
@@ -87,8 +84,9 @@ class TransientAnalyses:
                 future = self._pool.submit(message_of_job, *pending.job())
             except (BrokenProcessPool, OSError, RuntimeError) as exc:
                 self._fall_back(exc)
-                future = Future()
-                future.set_result(pending.resolve())
+        if future is None:  # inline, too many waiting, or the process failed: here and now
+            future = Future()
+            future.set_result(pending.resolve())
         self._queue.append((key, pending, future))
 
     def done(self, wait: bool = False) -> list[tuple[str, dict]]:

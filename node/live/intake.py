@@ -2,7 +2,7 @@
 
 When the node falls behind (more messages waiting than one worker pass takes), the worker takes what
 waits in Zenoh's FIFO into ``FairIntake``'s lanes, a lane per bed name (the key's second chunk,
-``bed_of``; at most ``LANES_MAX``, the rest in one overflow lane): a bed's waiting messages are all
+``lane_name``; at most ``LANES_MAX``, the rest in one overflow lane): a bed's waiting messages are all
 in one lane, so each bed's messages keep their order; the order between beds is free (the core keeps
 each bed's state apart, and the recording is written in the order the worker handled them). Each
 pass takes the lanes whole in the order their oldest messages arrived, but the big ones (more than
@@ -25,6 +25,8 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable
 
+from node.contract import bed_of
+
 Message = tuple[str, bytes, int]  # (key, payload, receive time ns), as the worker drains them
 
 LANES_MAX = 256  # lanes of their own (the node's --max-beds by default); more beds share one
@@ -33,20 +35,17 @@ OVERFLOW = "\x00overflow"  # the lane of beds beyond LANES_MAX (no bed name hold
 # BIG_RATIO x the median lane waiting: beds at one rate, all behind alike, go oldest first
 SMALL_SHARE, BIG_RATIO = 2, 4
 FULLEST_SHARE = 8  # the others get at least 1/8 of a batch (if they have so many waiting)
-_PREFIX = "testbed/"
-NAME_CACHE = 4096  # keys whose bed name is remembered (the cache is cleared when it holds more)
+NAME_CACHE = 4096  # keys whose lane name is remembered (the cache is cleared when it holds more)
 
 
-def bed_of(key: str) -> str:
-    """The bed chunk of a key (``testbed/<bed>/...``), or the whole key for any other.
+def lane_name(key: str) -> str:
+    """A key's lane: its test bed (``node.contract.bed_of``, the contract's one parse), or the
+    whole key for a key of no bed.
 
-    >>> bed_of("testbed/tb01/sensor/nB"), bed_of("testbed/x"), bed_of("odd key")
-    ('tb01', 'x', 'odd key')
+    >>> lane_name("testbed/tb01/sensor/nB"), lane_name("odd key")
+    ('tb01', 'odd key')
     """
-    if key.startswith(_PREFIX):
-        end = key.find("/", len(_PREFIX))
-        return key[len(_PREFIX):end] if end >= 0 else key[len(_PREFIX):]
-    return key
+    return bed_of(key) or key
 
 
 class FairIntake:
@@ -58,7 +57,7 @@ class FairIntake:
             raise ValueError(f"lanes_max must be >= 1, got {lanes_max}")
         self.lanes_max = lanes_max  # lanes of their own at most (with the overflow lane's, one more)
         self._lanes: dict[str, deque[Message]] = {}  # bed name (or OVERFLOW) -> its messages, in order
-        self._names: dict[str, str] = {}  # key -> bed name (a cache of bed_of)
+        self._names: dict[str, str] = {}  # key -> lane name (a cache of lane_name)
         self._n = 0
 
     def __len__(self) -> int:
@@ -78,7 +77,7 @@ class FairIntake:
             if name is None:
                 if len(names) >= NAME_CACHE:
                     names.clear()
-                name = names[key] = bed_of(key)
+                name = names[key] = lane_name(key)
             q = lanes.get(name)
             if q is None:
                 if len(lanes) >= most or OVERFLOW in lanes:
