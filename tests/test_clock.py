@@ -205,6 +205,56 @@ def test_a_second_publishers_burst_does_not_pass_for_a_silent_clock():
     assert len(_measured(monitor, 0.0)) >= 790 and all(m["measured"] >= 0 for m in _measured(monitor, 0.0))
 
 
+def _timed(msgs: list[tuple[str, float, float, int]], batch: int = 37) -> NodeCore:
+    """(channel, t, v, receipt ns) messages of bed b1 through a core in batches."""
+    core = NodeCore(_bundle())
+    for a in range(0, len(msgs), batch):
+        part = msgs[a:a + batch]
+        core.handle_batch([f"testbed/b1/sensor/{c}" for c, *_ in part],
+                          [orjson.dumps({"t": t, "v": v}) for _, t, v, _ in part], [r for *_, r in part])
+    core.finish()
+    return core
+
+
+def _starved_bursts(received_in_s: float) -> list[tuple[str, float, float, int]]:
+    """The bed's own nB and yB at 40 Hz, received at their pace; every 2 s a second publisher's
+    60 samples of yB 2-3.5 s ahead (1.5 s of its own time) arrive together, over ``received_in_s``,
+    between two of the bed's own slots (a publisher starved of CPU, then caught up)."""
+    msgs = []
+    for k in range(800):
+        t = T0 + k / 40
+        at = round(t * NS) + 5_000_000
+        msgs += [("nB", t, 4000.0, at), ("yB", t + 0.011, float(k), at + 1)]
+        if k % 80 == 79:
+            msgs += [("yB", t + 2 + j / 40 + 0.011, -1.0, at + 2 + round(j / 60 * received_in_s * NS))
+                     for j in range(60)]
+    return msgs
+
+
+def test_a_starved_publishers_burst_over_seconds_of_its_time_does_not_pass_for_a_silent_clock():
+    """A second publisher's 60 samples spanning 1.5 s of its own time, received within 6 ms
+    (beyond ``confirm_span_s`` in sensor time, not in receipt time): the bed's clock never moves
+    to them (it did when the span was measured on sensor time only: issue 31's loaded soak)."""
+    h = _timed(_starved_bursts(0.006)).health("b1", wall=0.0)
+    assert h["clock_jumps"] == 0 and h["clock_faults"] >= 500 and h["t"] < T0 + 20.1
+
+
+def test_a_clock_that_moved_on_a_silent_bed_is_still_followed_at_its_pace():
+    """Only yB goes on, its clock an hour ahead, received at its pace: once its samples span
+    ``confirm_span_s`` of their time and of receipt time with nothing on the old clock, the bed's
+    clock moves to them (one jump) and the rest is taken."""
+    own = []
+    for k in range(200):
+        t = T0 + k / 40
+        own += [("nB", t, 4000.0, round(t * NS)), ("yB", t + 0.011, float(k), round(t * NS) + 1)]
+    later = T0 + 5.0
+    own += [("yB", later + 3600 + k / 40, float(k), round((later + k / 40) * NS)) for k in range(200)]
+    core = _timed(own)
+    h = core.health("b1", wall=0.0)
+    assert h["clock_jumps"] == 1 and h["t"] > T0 + 3600
+    assert h["clock_faults"] == 0 and core.beds["b1"].aligner.guard.taken >= 390
+
+
 def test_a_data_gap_within_a_run_is_followed_at_once():
     """All channels resume 30 s later (a pause, no shutdown): the far samples confirm each other
     within the slot, nothing is dropped."""

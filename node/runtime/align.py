@@ -128,9 +128,11 @@ class Aligner:
         self.guard.taken += 1
         return self._push(channel, t, v)
 
-    def _guarded(self, channel: str, t: float, v: float | None) -> list[AlignedSample]:
-        """A message through the clock guard: taken, held, or confirming a new clock."""
-        take, confirmed = self.guard.offer(channel, t, v, self._last_t)
+    def _guarded(self, channel: str, t: float, v: float | None, received: int | None = None
+                 ) -> list[AlignedSample]:
+        """A message through the clock guard: taken, held, or confirming a new clock (received:
+        the node's receipt time, ns, None: not known)."""
+        take, confirmed = self.guard.offer(channel, t, v, self._last_t, received)
         if take:
             return self._push(channel, t, v)
         if confirmed is None:
@@ -196,11 +198,12 @@ class Aligner:
             out.append(self._emit(self._next))
         return out
 
-    def push_columns(self, channels: Sequence[str], t: np.ndarray, v: np.ndarray
-                     ) -> list[tuple[int, list[AlignedSample]]]:
+    def push_columns(self, channels: Sequence[str], t: np.ndarray, v: np.ndarray,
+                     received: Sequence[int] | None = None) -> list[tuple[int, list[AlignedSample]]]:
         """``push(channels[i], t[i], v[i])`` for every i in turn, with the very same effects.
 
-        t: (n,) finite times, s; v: (n,) values (NaN: null). Returns ``(i, samples)`` for each
+        t: (n,) finite times, s; v: (n,) values (NaN: null); received: (n,) the node's receipt
+        times, ns, for the clock guard (None: not known). Returns ``(i, samples)`` for each
         message i that completed samples. Inside a run that has emitted already, where no
         message of the batch can start a new run (the common case), the batch is aligned at
         once with numpy; otherwise, and for a few messages, message by message.
@@ -212,13 +215,13 @@ class Aligner:
         n, last = len(t), self._last_t
         if (n < SMALL_BATCH or not self._emitted or last is None or self.guard.pending
                 or float(t.max()) - last >= RUN_GAP or len(self._code) != self._n):
-            return self._one_by_one(channels, t, v)
+            return self._one_by_one(channels, t, v, received)
         ci = np.fromiter(map(self._code.get, channels, repeat(-1)), dtype=np.int64, count=n)
         at = np.flatnonzero(ci >= 0)  # the messages of known channels
         if len(at):
             before = np.maximum.accumulate(np.concatenate(([last], t[at])))[:-1]  # the bed's clock
             if (np.abs(t[at] - before) > self._jump).any():  # one far from it: the guard decides
-                return self._one_by_one(channels, t, v)
+                return self._one_by_one(channels, t, v, received)
         if (ci < 0).any():
             self.stats.unknown.update(compress(channels, (ci < 0).tolist()))
         if not len(at):
@@ -249,14 +252,15 @@ class Aligner:
                 done.append((tag, [self._emit(self._next)]))
         return done
 
-    def _one_by_one(self, channels: Sequence[str], t: np.ndarray, v: np.ndarray
-                    ) -> list[tuple[int, list[AlignedSample]]]:
-        return self.push_list(channels, t.tolist(), v.tolist())
+    def _one_by_one(self, channels: Sequence[str], t: np.ndarray, v: np.ndarray,
+                    received: Sequence[int] | None) -> list[tuple[int, list[AlignedSample]]]:
+        return self.push_list(channels, t.tolist(), v.tolist(), received)
 
-    def push_list(self, channels: Sequence[str], t: Sequence[float], v: Sequence[float | None]
-                  ) -> list[tuple[int, list[AlignedSample]]]:
+    def push_list(self, channels: Sequence[str], t: Sequence[float], v: Sequence[float | None],
+                  received: Sequence[int] | None = None) -> list[tuple[int, list[AlignedSample]]]:
         """``push(channels[i], t[i], v[i])`` for every i in turn, as Python lists (a few messages:
-        no numpy call); ``(i, samples)`` for each message i that completed samples.
+        no numpy call); ``(i, samples)`` for each message i that completed samples; received:
+        as ``push_columns``'.
 
         The messages of channels not expected are counted at once and skipped (``push`` does
         nothing else with them); the others go through ``push``'s very steps."""
@@ -278,7 +282,7 @@ class Aligner:
             if last is None or guard.pending or not -jump <= ti - last <= jump:
                 guard.taken += taken
                 taken = 0
-                got = self._guarded(c, ti, v[i])
+                got = self._guarded(c, ti, v[i], None if received is None else received[i])
                 if got:
                     out.append((i, got))
                 continue

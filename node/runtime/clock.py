@@ -7,11 +7,14 @@ sample within ``max_jump_s`` of that clock goes on to the aligner. A sample furt
 confirmed, the bed's clock moves to it and its samples go to the aligner in arrival order, when
 
 - ``confirm_channels`` distinct channels agree on it (every channel of a bed with fewer), or
-- it holds ``confirm_samples`` samples spanning ``confirm_span_s`` of their own time and no
-  sample was taken on the bed's clock since it began (the old clock fell silent: a bed of one or
-  two publishing channels whose clock moved). The span keeps a burst of a second publisher's
-  samples, delivered together before the bed's next one, from passing for silence (issue 31:
-  25 samples of a key 2 s ahead arrived in 64 ms and moved the bed's clock).
+- it holds ``confirm_samples`` samples spanning ``confirm_span_s`` of their own time, and as
+  much of the node's receipt time where the node stamped them, and no sample was taken on the
+  bed's clock since it began (the old clock fell silent: a bed of one or two publishing channels
+  whose clock moved). The span keeps a burst of a second publisher's samples, delivered together
+  before the bed's next one, from passing for silence (issue 31: 25 samples of a key 2 s ahead
+  arrived in 64 ms and moved the bed's clock); on receipt time too, because a publisher starved
+  of CPU for a while sends a burst that spans seconds of its own time in a few milliseconds
+  (issue 31's soak on a loaded machine: 83 samples of a second publisher taken as the bed's).
 
 A candidate not confirmed once the bed's clock has gone ``hold_s`` past its start is dropped:
 its samples are counted as clock faults (a lone sample stamped 9e9, a clock that jumped on one
@@ -22,7 +25,8 @@ a clock that really moved (every channel, or the only ones there are) is followe
 samples: the aligner restarts on it as a new run when it went back, and goes on (a new run after
 ``RUN_GAP``) when it went forward.
 
-Decisions depend only on the messages' order and content: pure, the same live and in replay.
+Decisions depend only on the messages' order, content and receipt times (which the recording
+keeps): pure, the same live and in replay.
 """
 
 from __future__ import annotations
@@ -44,7 +48,8 @@ class ClockPolicy:
             to be caught (a second publisher 2 s ahead). ``UNGUARDED``: inf, one channel confirms.
         confirm_channels: distinct channels that confirm a candidate clock (at most the bed's).
         confirm_samples: samples that confirm one while nothing arrives on the bed's clock...
-        confirm_span_s: ... when they also span this much sensor time, s.
+        confirm_span_s: ... when they also span this much sensor time, s, and this much receipt
+            time where the samples have one.
         hold_s: bed time a candidate waits for confirmation before it is dropped, s.
         max_held: samples held at most, every candidate of a bed (beyond: counted, not kept).
         max_candidates: candidate clocks at most; a new one drops the oldest.
@@ -111,6 +116,7 @@ class Candidate:
     oldest: float  # the oldest time among them, s
     since: float | None  # the bed's clock when it began (None: the bed had none yet)
     taken: int  # the guard's count of samples taken on the bed's clock when it began
+    received: int | None = None  # the node's receipt time of its first sample, ns (None: not known)
     samples: list[Held] = field(default_factory=list)  # in arrival order (at most the guard's share)
     per_channel: Counter[str] = field(default_factory=Counter)  # samples offered, per channel
 
@@ -153,9 +159,10 @@ class ClockGuard:
         """Samples held now, every candidate."""
         return sum(sum(c.per_channel.values()) for c in self._cands)
 
-    def offer(self, channel: str, t: float, v: float | None, clock: float | None
-              ) -> tuple[bool, Candidate | None]:
-        """A sample of ``channel`` at t (s), the bed's clock being ``clock`` (None: none yet).
+    def offer(self, channel: str, t: float, v: float | None, clock: float | None,
+              received: int | None = None) -> tuple[bool, Candidate | None]:
+        """A sample of ``channel`` at t (s), the bed's clock being ``clock`` (None: none yet),
+        received by the node at ``received`` (ns on its clock; None: not known).
 
         Returns (take, confirmed): take it now on the bed's clock; or a candidate this sample
         confirmed (its held samples, this one last, are the bed's new clock), or None (held)."""
@@ -169,7 +176,7 @@ class ClockGuard:
         if cand is None:
             if len(self._cands) >= self.policy.max_candidates:
                 self._drop(self._cands.pop(0))
-            cand = Candidate(t, t, clock, self.taken)
+            cand = Candidate(t, t, clock, self.taken, received)
             self._cands.append(cand)
         cand.newest = max(cand.newest, t)
         cand.oldest = min(cand.oldest, t)
@@ -179,12 +186,19 @@ class ClockGuard:
         if (len(cand.per_channel) >= self.need
                 or (sum(cand.per_channel.values()) >= self.policy.confirm_samples
                     and cand.newest - cand.oldest >= self.policy.confirm_span_s
-                    and cand.taken == self.taken)):
+                    and cand.taken == self.taken and self._spans_receipt(cand, received))):
             self._cands.remove(cand)
             self.faults += sum(cand.per_channel.values()) - len(cand.samples)  # beyond the share
             self.jumps += clock is not None
             return False, cand
         return False, None
+
+    def _spans_receipt(self, cand: Candidate, received: int | None) -> bool:
+        """Whether the candidate's samples came over ``confirm_span_s`` of receipt time, this
+        one received at ``received`` (ns); True where either receipt is not known."""
+        if received is None or cand.received is None:
+            return True
+        return received - cand.received >= self.policy.confirm_span_s * 1e9
 
     def _expire(self, clock: float) -> None:
         for cand in list(self._cands):

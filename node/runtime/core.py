@@ -263,14 +263,15 @@ class NodeCore:
             # numpy for a bed's many messages (replay), Python lists for a few (live): the same steps
             push: Callable[..., list[tuple[int, list[AlignedSample]]]] = \
                 bed.aligner.push_columns if len(good) >= SMALL_BATCH else bed.aligner.push_list
-            cuts = [] if received is None else self._idle_cuts(bed, [received[i] for i in good])
+            rg = None if received is None else (received if whole else [received[i] for i in good])
+            cuts = [] if rg is None else self._idle_cuts(bed, rg)
             starts = [0, *cuts] if cuts and cuts[0] else cuts or [0]
             for a, b in zip(starts, [*starts[1:], len(good)], strict=True):
                 flushed = bed.aligner.flush() if cuts and a in cuts else []
                 if b - a == len(good):
-                    part = push(channels, tg, vg)
+                    part = push(channels, tg, vg, rg)
                 else:
-                    part = push(channels[a:b], tg[a:b], vg[a:b])
+                    part = push(channels[a:b], tg[a:b], vg[a:b], None if rg is None else rg[a:b])
                 if flushed and part and part[0][0] == 0:  # the message after the silence completed some too
                     flushed += part.pop(0)[1]
                 if flushed:
