@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import tempfile
 import time
 from dataclasses import dataclass
@@ -96,8 +97,9 @@ def train_quietly(train: Path, schedule: Path, model: Path, options: dict) -> bo
 
 
 def held_out(model: Path, tr: list, te: list, guard: bool, noise: float = 1.0
-             ) -> list[tuple[str, float, str, float]]:
-    """Per OC: (name, held-out eps_td, model kind, noise floor at ``noise``) over the held-out
+             ) -> list[tuple[str, float, str, float, tuple[float, float, float]]]:
+    """Per OC: (name, held-out eps_td, model kind, noise floor at ``noise``, ``excess_split``
+    of its segments) over the held-out
     runs ``te``, the history derived through the training runs ``tr`` first (as a node that ran
     them would have it); guard: the curve guard on with the product's settings, else off
     (whatever the bundle says)."""
@@ -118,8 +120,47 @@ def held_out(model: Path, tr: list, te: list, guard: bool, noise: float = 1.0
     evals, preds = evaluate(b.ocs, te, b.schedule, b.target, b.curve, config)
     kinds = {r.name: r.kind for r in b.ocs}
     return [(e.name, e.eps, kinds[e.name],
-             noise_floor(np.concatenate([p.measured for p in preds if p.oc == j] or [np.zeros(0)]), noise))
+             noise_floor(np.concatenate([p.measured for p in preds if p.oc == j] or [np.zeros(0)]), noise),
+             excess_split([(p.measured, p.predicted) for p in preds if p.oc == j], noise))
             for j, e in enumerate(evals)]
+
+
+RAMP_S = 15.0  # excess_split: the first seconds of an OC visit, where its transition is
+
+
+def excess_split(visits: list[tuple[np.ndarray, np.ndarray]], noise: float
+                 ) -> tuple[float, float, float]:
+    """Where a prediction's error above the noise floor lies, over the OC visits ``visits``
+    ((measured, predicted) (K,) each, from the OC switch on): the shares (0-1) of the excess
+    squared error (the error's energy less the noise's, ``noise_floor``) that fall in the first
+    ``RAMP_S`` of each visit (the transition), in each visit's constant offset after that (its
+    mean error there, squared, times its samples: a level the model missed), and the rest (the
+    plateau's own wander); NaN without excess.
+
+    >>> t = np.arange(1600) / 40.0  # a 40 s visit: a level missed by 0.5 on the plateau
+    >>> y = np.full(t.size, 3.0); p = y + np.where(t < RAMP_S, 0.0, 0.5)
+    >>> [round(v, 2) + 0.0 for v in excess_split([(y, p)], noise=0.0)]  # (+ 0.0: no -0.0)
+    [0.0, 1.0, 0.0]
+    """
+    from simulator.campaign import NOISE
+    absolute, relative, decimals = NOISE["y"]
+    ramp = offset = total = 0.0
+    n_ramp = int(RAMP_S * 40)
+    for y, p in visits:
+        e = np.asarray(y, float) - np.asarray(p, float)
+        ok = np.isfinite(e)
+        var = np.where(ok, (noise * (absolute + relative * np.abs(np.nan_to_num(y)))) ** 2
+                       + (10.0 ** -decimals) ** 2 / 12, 0.0)
+        e = np.where(ok, e, 0.0)
+        excess = e ** 2 - var
+        total += float(excess.sum())
+        ramp += float(excess[:n_ramp].sum())
+        late = ok[n_ramp:]
+        if late.any():
+            offset += float(late.sum()) * float(np.mean(e[n_ramp:][late])) ** 2
+    if not total > 0:
+        return (math.nan, math.nan, math.nan)
+    return (ramp / total, offset / total, 1.0 - (ramp + offset) / total)
 
 
 def noise_floor(measured: np.ndarray, noise: float) -> float:
@@ -168,8 +209,8 @@ def main(argv: list[str] | None = None) -> int:
     from node.training.evaluation import baseline_eps
     from node.training.fit import load_runs
 
-    # engine, OC index, OC, eps per column, curve, kind, noise floor
-    rows: list[tuple[str, int, str, list[float], float, str, float]] = []
+    # engine, OC index, OC, eps per column, curve, kind, noise floor, excess split per column
+    rows: list[tuple[str, int, str, list[float], float, str, float, list[tuple[float, float, float]]]] = []
     for e in engines:
         t0 = time.perf_counter()
         train, test = simulate(e, work)
@@ -184,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
                 return 2
             scores.append(held_out(model, tr, te, guard=False, noise=e.noise))
             models.append(model)
-        scores += [held_out(models[c], tr, te, guard=True) for _, c in GUARDED]
+        scores += [held_out(models[c], tr, te, guard=True, noise=e.noise) for _, c in GUARDED]
         sched = load_schedule(schedule)
         base = baseline_eps(tr, te, sched, "yB")
         print(f"\n{e.name} (seed {e.seed}, schedule {e.schedule}, noise x{e.noise:g}; "
@@ -196,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
             eps = [col[k][1] for col in scores]
             kind, low = scores[len(COLUMNS) - 1][k][2], scores[len(COLUMNS) - 1][k][3]
             print(f"| {oc} | " + " | ".join(f"{v:.3f}" for v in eps) + f" | {kind} | {b:.3f} | {low:.3f} |")
-            rows.append((e.name, k, oc, eps, b, kind, low))
+            rows.append((e.name, k, oc, eps, b, kind, low, [col[k][4] for col in scores]))
         mine = np.array([r[3] + [r[4], r[6]] for r in rows if r[0] == e.name], dtype=float)
         m = np.nanmean(mine, axis=0)
         print("| mean | " + " | ".join(f"{v:.3f}" for v in m[:-2]) + f" | | {m[-2]:.3f} | {m[-1]:.3f} |",
@@ -216,6 +257,14 @@ def main(argv: list[str] | None = None) -> int:
     floor = np.array([r[6] for r in rows], dtype=float)
     print(f"| noise floor | {np.nanmean(floor):.3f} | - | {np.nanmean(floor[first]):.3f} | - |")
     labels = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED]
+    print("\nWhere the error above the noise floor lies (mean share over the OCs; ``excess_split``):")
+    print(f"| | transition (first {RAMP_S:g} s of a visit) | the plateau's offset (a missed level) "
+          "| the rest |")
+    print("|---|---|---|---|")
+    splits = np.array([r[7] for r in rows], dtype=float)  # (OCs, columns, 3)
+    for c, label in enumerate(labels):
+        share = np.nanmean(splits[:, c, :], axis=0)
+        print(f"| {label} | " + " | ".join(f"{100 * v:.0f} %" for v in share) + " |")
     for held, new in ((0, 1), (2, 3), (0, 4), (2, 5)):
         change = 100 * (np.nanmean(a[:, new]) / np.nanmean(a[:, held]) - 1)
         change_first = 100 * (np.nanmean(a[first, new]) / np.nanmean(a[first, held]) - 1)

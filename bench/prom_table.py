@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
             if not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")
                 return 2
-            held[name] = {oc: (eps, kind) for oc, eps, kind, _ in held_out(model, tr, te, guard=False)}
+            held[name] = {oc: (eps, kind) for oc, eps, kind, *_ in held_out(model, tr, te, guard=False)}
             cvs[name] = _cv(model)
         base = baseline_eps(tr, te, load_schedule(schedule), "yB")
         print(f"\n{e.name} (seed {e.seed}, schedule {e.schedule}, noise x{e.noise:g}; "

@@ -38,6 +38,7 @@ from node.models.config import BEFORE_GUARD, V1_SETTINGS, RuntimeConfig, Setting
 from node.models.envelope import Envelope
 from node.models.kinds import model_from_arrays
 from node.models.ocmodel import RUN_CURVE
+from node.models.plateau import PlateauShift
 from node.models.result import Calibration, OCResult
 from node.models.transients import FleetTransients
 
@@ -114,6 +115,8 @@ def _manifest_oc(r: OCResult) -> dict:
         if r.outside_cv is not None:
             env["cv_outside"] = {"sum_z2": r.outside_cv[0], "samples": r.outside_cv[1]}
         d["envelope"] = env
+    if r.plateau is not None:
+        d["plateau"] = r.plateau.to_dict()
     return d
 
 
@@ -330,10 +333,13 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
                 cv = e.get("cv_outside")
                 if isinstance(cv, dict):
                     outside = (float(cv["sum_z2"]), int(cv["samples"]))
+            plateau = None  # (bundles before it had none: the model as it is)
+            if d.get("plateau") is not None:
+                plateau = PlateauShift.from_dict(d["plateau"], len(schedule.names))
             ocs.append(OCResult(d["name"], model, list(d["inputs"]), dict(d["params"]), d["n_runs"],
                                 _f(d["train_eps"]), _f(d["cv_eps"]), calib,
                                 [(c, _f(s)) for c, s in d.get("ranking", [])], [], d.get("note", ""),
-                                envelope, outside))
+                                envelope, outside, plateau))
         curve = None
         if "curve/speed" in arrays:
             curve = (arrays["curve/speed"], arrays["curve/mean"])

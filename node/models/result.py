@@ -15,6 +15,7 @@ from node.contract import FS
 from node.models.average import member_label
 from node.models.envelope import Envelope
 from node.models.ocmodel import OCModel
+from node.models.plateau import PlateauShift
 
 EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
 PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
@@ -61,6 +62,7 @@ class OCResult:
     note: str = ""
     envelope: Envelope | None = None  # the region its training runs covered (node.models.envelope)
     outside_cv: tuple[float, int] | None = None  # CV samples beyond their fold's envelope: sum z^2, count
+    plateau: PlateauShift | None = None  # what the run's earlier plateaus add (node.models.plateau)
 
     @property
     def kind(self) -> str:

@@ -39,12 +39,14 @@ from node.models.bundle import Bundle
 from node.models.curve import CurveRuntime
 from node.models.envelope import HELD, OUTSIDE, Envelope
 from node.models.ocmodel import OCRuntime
+from node.models.plateau import PlateauShift
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
 from node.runtime.chirp import CHIRP_RATE, ChirpRate
 from node.runtime.guard import CURVE, guard_of
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
 from node.runtime.ocdetect import OCDetector, OCState
+from node.runtime.plateaus import RunPlateaus
 from node.runtime.rows import RecentRows
 from node.runtime.runcurve import RUN_CURVE, RunCurve
 from node.runtime.transient_watch import PendingTransient, TransientWatch
@@ -67,6 +69,7 @@ class _Active:
     vector: CurveRuntime | AverageRuntime | None = None  # the runtime again when it predicts the 1x vector
     envelope: Envelope | None = None  # the region its training runs covered (None: not known)
     since: int = 0  # samples since the OC switch
+    shift: float = 0.0  # what the run's earlier plateaus add (node.models.plateau), faded in
 
 
 def _num(x: float) -> float | None:
@@ -114,7 +117,9 @@ class MonitorPipeline:
                            for n in bundle.schedule.names]
         self._phase_ch = phase_channel(self.target)
         vector_models = any(predicts_vector(r.model) for r in bundle.ocs)
-        self._uses_phase = bool(self._vector) or vector_models
+        shifts = [r.plateau for r in bundle.ocs if r.plateau is not None]
+        self._plateau_vector = bool(shifts) and shifts[0].vector  # (a bundle's shifts are of one kind)
+        self._uses_phase = bool(self._vector) or vector_models or self._plateau_vector
         phase = (self._phase_ch,) if self._uses_phase else ()
         # the transitions: on the speed and phase the fleet's were analysed on (an older bundle:
         # the switch speed, and the phase where the other rules read it)
@@ -149,6 +154,8 @@ class MonitorPipeline:
             self._curve = RunCurve(*bundle.curve, cfg.run_curve_bin)
         # the chirp rate (node.runtime.chirp), when a model takes it as input
         self._chirp = ChirpRate() if CHIRP_RATE in self.channels else None
+        # this run's plateaus, when an OC model's plateau shift reads them (node.runtime.plateaus)
+        self._plateaus = RunPlateaus(len(self._names)) if shifts else None
 
     def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
         self.transient = None
@@ -202,6 +209,8 @@ class MonitorPipeline:
         if self._flat is not None and self._flat.step(measured, phase is not _OFF):
             msg["flag"], msg["reason"] = Flag.ALARM, Reason.FLATLINE
         self._hist.push(tuple(vals.values()))
+        if self._plateaus is not None:
+            self._plateaus.step(z if self._plateau_vector else measured)
         tw = self._transient
         ended = tw.step(sample.t, values.get(tw.speed, _NAN), values.get(self.switch, _NAN), measured,
                         values.get(self._phase_ch) if self._tr_phase else None)
@@ -237,6 +246,8 @@ class MonitorPipeline:
             if e > OUTSIDE:
                 model_id, widen = model_id + HELD, env.band_factor
         pred = a.runtime.step(u)
+        if a.shift != 0.0:
+            pred = pred + PlateauShift.ramp(a.since) * a.shift
         on, own = False, pred
         if self._guard is not None:
             pred, on = self._guard.step(measured, pred, vals[self.switch])
@@ -291,7 +302,8 @@ class MonitorPipeline:
         self.transient = self._transient.end()  # the last run's last transition (its coast-down)
         self._hist.clear()
         self._last = dict.fromkeys(self.channels, _NAN)
-        for rule in (self._flat, self._jump, *self._vector, self._runscale, self._curve, self._chirp):
+        for rule in (self._flat, self._jump, *self._vector, self._runscale, self._curve, self._chirp,
+                     self._plateaus):
             if rule is not None:
                 rule.reset()
         self._active = None  # its segment is not this run's: RunScale never hears of it
@@ -300,6 +312,8 @@ class MonitorPipeline:
         """The OC or phase changed at this sample: the OC message, and the OC's model in force."""
         prev = self._state[0]
         if oc_changed:
+            if self._plateaus is not None:
+                self._plateaus.switch(st.oc)
             self._activate(st.oc)
             if self._drift is not None and st.oc is not None:
                 self._drift.threshold = self._drift_thr[st.oc]
@@ -350,5 +364,8 @@ class MonitorPipeline:
         c = res.calibration
         scale = 1.0 if self._runscale is None else self._runscale.factor
         check = ResidualCheck(c.sigma, c.threshold, c.ewma_alpha, c.persist, self._clear, scale)
+        shift = 0.0
+        if res.plateau is not None and self._plateaus is not None:
+            shift = res.plateau.shift(self._plateaus.pre, self._plateaus.levels)
         self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check, vector,
-                               res.envelope)
+                               res.envelope, shift=shift)

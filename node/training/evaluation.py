@@ -21,7 +21,8 @@ from node.runtime.history import HISTORY_CHANNELS
 from node.runtime.runcurve import RUN_CURVE, add_run_curve, hold_last
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import alarm_mask
-from node.training.dataset import run_arrays, segment_runs, target_vectors, with_history
+from node.training.dataset import label_runs, run_arrays, segment_runs, target_vectors, with_history
+from node.training.plateau_fit import shifted, visit_tables
 from node.training.runs import Run
 
 
@@ -92,7 +93,11 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
     guard = guard_of(fleet, config)
     if guard is not None:  # what the node sees: the target as measured, the switch speed held
         seen = [(run.column(target), hold_last(run.column(schedule.switch))) for run in runs]
-    for s in segment_runs(runs, schedule):
+    labels = label_runs(runs, schedule)
+    shifts = [r.plateau for r in by_oc.values() if r.plateau is not None]
+    visits = visit_tables(runs, [codes for codes, _ in labels], target, len(schedule.names),
+                          shifts[0].vector) if shifts else None  # the run's plateaus, as the node's
+    for s in segment_runs(runs, schedule, labels=labels):
         res = by_oc.get(s.oc)
         if res is None or res.model is None:
             continue
@@ -109,6 +114,9 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
         traj = Trajectory(ra.y[lo:s.stop], U, s.start - lo, None if z is None else z[lo:s.stop])
         with np.errstate(all="ignore"):
             pred = res.model.predict(traj)
+        v = None if visits is None or res.plateau is None else visits[s.run].get(s.start)
+        if v is not None and res.plateau is not None:
+            pred = shifted(pred, res.plateau.shift(v[0], v[1]))
         used = None
         if guard is not None:
             y, speed = seen[s.run]

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.contract import FS, is_phase_channel
+from node.contract import FS, is_phase_channel, phase_channel
 from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.models.average import average_params, mean_in_order
@@ -48,6 +48,7 @@ from node.training.dataset import (
 )
 from node.training.envelope import band_factors, cv_outside, fit_envelope
 from node.training.features import Term, combine_terms, segment_term
+from node.training.plateau_fit import Visit, choose_shift, visit_tables
 from node.training.runs import Run
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
@@ -171,6 +172,10 @@ class OCData:
     proms: list[dict] = field(default_factory=list)  # parametric candidates (ParametricOCModel params)
     unranked: list[str] = field(default_factory=list)  # candidates only the parametric models take
     folds: dict[int, int] = field(default_factory=dict)  # run -> its CV fold (``run_folds``; empty: its own)
+    # each row's visit for the plateau shift (node.training.plateau_fit; None: not known), and
+    # whether the shift is on the 1x vector; None: no shift learned
+    plateaus: list[Visit | None] = field(default_factory=list)
+    plateau_vector: bool | None = None
 
     def fold(self, run: int) -> int:
         """The CV fold of ``run``: the run itself (leave one run out) unless ``folds`` says otherwise."""
@@ -428,6 +433,13 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     if Method(method) is Method.PROM and not np.isfinite(cv_eps):
         return OCResult(d.name, None, [], {}, n_runs, float("nan"), float("nan"), None, ranking,
                         cv_scores, note="no parametric model in cross-validation")
+    plateau = None
+    if d.plateau_vector is not None and pairs:  # the plateau shift, if the OC's CV says it helps
+        order = [d.held_out(f) for f in folds]
+        plateau, moved = choose_shift(d.plateaus, order, [d.fitted_on(f) for f in folds], pairs,
+                                      d.plateau_vector)
+        if plateau is not None:
+            pairs, cv_eps = moved, pooled_eps(moved)
     trajs = _trajs(d, all_rows, chosen)
     model = fit_oc_model(method, params, trajs)
     train_eps = pooled_eps(_predict_pairs(model, trajs))
@@ -447,19 +459,22 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     envelope = fit_envelope(d, all_rows, chosen)
     outside = cv_outside(d, folds, chosen, res, sigma) if calib is not None else None
     return OCResult(d.name, model, chosen, params, n_runs, train_eps, cv_eps, calib,
-                    ranking, cv_scores, note, envelope, outside)
+                    ranking, cv_scores, note, envelope, outside, plateau)
 
 
 def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: list[str],
                 segments: list[Segment] | None = None,
                 history_s: float = RuntimeConfig().history_s,
                 curves: list[dict] | None = None, phase: bool = True,
-                proms: list[dict] | None = None, unranked: list[str] | None = None) -> list[OCData]:
+                proms: list[dict] | None = None, unranked: list[str] | None = None,
+                visits: list[dict[int, Visit]] | None = None, plateau_vector: bool = False) -> list[OCData]:
     """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it.
 
     curves: each OC's curve candidates (``CURVE_CANDIDATES``; None: none). phase: the target's
     1x vectors too (``OCData.z``) when every run holds its phase channel. proms: the parametric
     candidates (``PROM_CANDIDATES``); unranked: candidates MS-DPCCA leaves out (their inputs).
+    visits: per run, its visits by start (``plateau_fit.visit_tables``; on the 1x vector with
+    ``plateau_vector``): each OC learns its plateau shift (None: none).
     """
     segments = segment_runs(runs, schedule) if segments is None else segments
     arrays = [run_arrays(run, target, candidates) for run in runs]
@@ -472,7 +487,8 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
     for j, name in enumerate(schedule.names):
         d = OCData(name, target, list(candidates), [], [], [], [], switch=schedule.switch,
                    curves=[dict(c) for c in curves or []], proms=[dict(c) for c in proms or []],
-                   unranked=list(unranked or []), folds=run_folds(len(runs)))
+                   unranked=list(unranked or []), folds=run_folds(len(runs)),
+                   plateau_vector=plateau_vector if visits is not None else None)
         for s in segments:
             if s.oc != j:
                 continue
@@ -485,6 +501,8 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
             d.X.append(ra.U[lo:s.stop])
             d.start.append(s.start - lo)
             d.at.append(s.start)
+            if visits is not None:
+                d.plateaus.append(visits[s.run].get(s.start))
         out.append(d)
     return out
 
@@ -587,7 +605,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           fleet: tuple[np.ndarray, np.ndarray] | None = None,
           config: RuntimeConfig | None = None, curves: bool = True,
           history: bool = False, phase: bool = True, prom: bool = True, prune: bool = True,
-          fade: bool = True, labels: list[Labels] | None = None) -> list[OCResult]:
+          fade: bool = True, labels: list[Labels] | None = None, plateaus: bool = False) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
@@ -620,6 +638,10 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     labels: each run's OC labels (``label_runs``; None: labelled here), computed once per
     training by the caller that trains several targets.
 
+    plateaus: each OC also learns what the run's earlier plateaus add to its model's plateau
+    (``node.models.plateau``; on the 1x vector with ``phase`` and the phase in every run), kept
+    where its CV says it helps (``node.training.plateau_fit``).
+
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
     """
@@ -645,10 +667,15 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     if len(candidates) == len(unranked):
         raise OrdervibError("no usable input channel in the recordings")
     grid = grid or DEFAULT_GRIDS[meth]
+    visits, on_vector = None, False
+    if plateaus:
+        on_vector = phase and all(phase_channel(target) in r.channels for r in runs)
+        visits = visit_tables(runs, [codes for codes, _ in labels], target, len(schedule.names), on_vector)
     datas = oc_datasets(runs, schedule, target, candidates, segment_runs(runs, schedule, labels=labels),
                         history_s=(config or RuntimeConfig()).history_s,
                         curves=curve_candidates(fade) if curves else None, phase=phase,
-                        proms=PROM_CANDIDATES if prom else None, unranked=unranked)
+                        proms=PROM_CANDIDATES if prom else None, unranked=unranked,
+                        visits=visits, plateau_vector=on_vector)
     workers = workers or min(2, os.cpu_count() or 1)
     jobs = [(d, method, grid, inputs, n_inputs, prune) for d in datas]
     results: list[OCResult | None] = [None] * len(jobs)
