@@ -67,15 +67,17 @@ class Setup:
     model uses the order phases the recordings always hold (``train --no-phase`` when not)."""
 
     def __init__(self, schedule: SimSchedule = BUILT_IN_SCHEDULE, noise_scale: float = 1.0,
-                 phase: bool = True, guard: bool = True) -> None:
+                 phase: bool = True, guard: bool = True, plateaus: bool | None = None) -> None:
         self.schedule = schedule
         self.noise_scale = float(noise_scale)
         self.phase = phase
         self.guard = guard  # False: the replays run the model with its curve guard off
+        self.plateaus = plateaus  # train --plateaus / --no-plateaus (None: the product's default)
 
     def model_name(self, method: str) -> str:
         """The model's folder in an engine's work dir (with and without phase side by side)."""
-        return f"model-{method}" + ("" if self.phase else "-nophase")
+        plateaus = {None: "", True: "-plateaus", False: "-noplateaus"}[self.plateaus]
+        return f"model-{method}" + ("" if self.phase else "-nophase") + plateaus
 
     def settings(self) -> dict:
         """The simulator settings (``simulator.files.Simulation``) of this setup."""
@@ -180,8 +182,9 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
     if not (model / "manifest.json").exists() or old != trained_on:
         print(f"[engine {seed}] training {method} on the training runs ...", flush=True)
         stamp.unlink(missing_ok=True)
+        extra = {} if setup.plateaus is None else {"plateaus": setup.plateaus}
         make.train([train], work / "train.schedule.toml", model, method=method, target="yB",
-                   phase=setup.phase)
+                   phase=setup.phase, **extra)
         stamp.write_text(json.dumps(trained_on) + "\n")
     if not setup.guard:
         model = _unguarded_copy(model)
@@ -237,12 +240,15 @@ def main(argv: list[str] | None = None) -> int:
                          "its own model folder model-METHOD-nophase)")
     ap.add_argument("--guard", choices=["on", "off"], default="on",
                     help="replay with the curve guard on (the product's) or off (node.runtime.guard)")
+    ap.add_argument("--plateaus", action=argparse.BooleanOptionalAction, default=None,
+                    help="train with or without the plateau shift (train --plateaus; its own model "
+                         "folder; default: the product's default)")
     args = ap.parse_args(argv)
     if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
         ap.error(f"--noise-scale must be > 0 and finite, got {args.noise_scale!r}")
     try:
         setup = Setup(BUILT_IN_SCHEDULE if args.schedule is None else load_sim_schedule(args.schedule),
-                      args.noise_scale, args.phase, args.guard == "on")
+                      args.noise_scale, args.phase, args.guard == "on", args.plateaus)
     except OrdervibError as e:
         ap.error(f"--schedule: {e}")
     faults = tuple(x.strip() for x in args.faults.split(",") if x.strip())

@@ -18,6 +18,9 @@ prints the mean held-out eps_td of
 * ``no phase, guarded`` / ``default, guarded``: the same models as ``no phase`` and
   ``default`` with the curve guard on (``node.runtime.guard``: within an OC visit the curve
   where the model erred more so far); the four columns before are scored with it off,
+* ``no phase, plateaus`` / ``default, plateaus``: ``ordervib train [--no-phase] --plateaus``,
+  the plateau shift on (``node.models.plateau``: what the run's earlier plateaus add), scored
+  with the curve guard on,
 * ``curve``: the characteristic-curve baseline,
 * ``floor``: the noise floor, the eps_td of a prediction that knew the clean signal (the
   simulator's sensor noise on the measured amplitudes: ``noise_floor``): no model can go below it,
@@ -201,6 +204,10 @@ COLUMNS: tuple[tuple[str, dict], ...] = (
     ("no phase, held", {"phase": False, "fade": False}), ("no phase", {"phase": False}),
     ("default, held", {"fade": False}), ("default", {}))
 GUARDED = (("no phase, guarded", 1), ("default, guarded", 3))  # the curve guard on that column's model
+# trained with the plateau shift (``train --plateaus``), scored with the curve guard on (as the node runs)
+PLATEAUS: tuple[tuple[str, dict], ...] = (
+    ("no phase, plateaus", {"phase": False, "plateaus": True}), ("default, plateaus", {"plateaus": True}))
+LABELS = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED] + [n for n, _ in PLATEAUS]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -217,20 +224,21 @@ def main(argv: list[str] | None = None) -> int:
         schedule = train.with_suffix(".schedule.toml")
         scores, models = [], []
         tr, te = load_runs([str(train)], quiet=True), load_runs([str(test)], quiet=True)
-        for name, extra in COLUMNS:
+        for name, extra in COLUMNS + PLATEAUS:
             model = work / f"{e.name}-{name.replace(', ', '-').replace(' ', '-')}"
             reused = reuse and (model / "manifest.json").exists()
             if not reused and not train_quietly(train, schedule, model, extra):
                 print(f"{e.name}: training ({name}) failed")
                 return 2
-            scores.append(held_out(model, tr, te, guard=False, noise=e.noise))
             models.append(model)
+        scores = [held_out(m, tr, te, guard=False, noise=e.noise) for m in models[:len(COLUMNS)]]
         scores += [held_out(models[c], tr, te, guard=True, noise=e.noise) for _, c in GUARDED]
+        scores += [held_out(m, tr, te, guard=True, noise=e.noise) for m in models[len(COLUMNS):]]
         sched = load_schedule(schedule)
         base = baseline_eps(tr, te, sched, "yB")
         print(f"\n{e.name} (seed {e.seed}, schedule {e.schedule}, noise x{e.noise:g}; "
               f"{time.perf_counter() - t0:.0f} s)")
-        labels = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED]
+        labels = LABELS
         print("| OC | " + " | ".join(labels) + " | default's model | curve | floor |")
         print("|---|" + "---|" * (len(labels) + 3))
         for k, (oc, b) in enumerate(zip([s[0] for s in scores[0]], base)):
@@ -249,14 +257,14 @@ def main(argv: list[str] | None = None) -> int:
     a = np.array([r[3] for r in rows], dtype=float)
     curve = np.array([r[4] for r in rows], dtype=float)
     first = np.array([r[1] == 0 for r in rows])
-    for c, label in enumerate([n for n, _ in COLUMNS] + [n for n, _ in GUARDED]):
+    for c, label in enumerate(LABELS):
         v, worse = a[:, c], a[:, c] > 1.05 * curve
         print(f"| {label} | {np.nanmean(v):.3f} | {int(worse.sum())} of {v.size} | "
               f"{np.nanmean(v[first]):.3f} | {int(worse[first].sum())} of {int(first.sum())} |")
     print(f"| characteristic curve | {np.nanmean(curve):.3f} | - | {np.nanmean(curve[first]):.3f} | - |")
     floor = np.array([r[6] for r in rows], dtype=float)
     print(f"| noise floor | {np.nanmean(floor):.3f} | - | {np.nanmean(floor[first]):.3f} | - |")
-    labels = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED]
+    labels = LABELS
     print("\nWhere the error above the noise floor lies (mean share over the OCs; ``excess_split``):")
     print(f"| | transition (first {RAMP_S:g} s of a visit) | the plateau's offset (a missed level) "
           "| the rest |")
@@ -265,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     for c, label in enumerate(labels):
         share = np.nanmean(splits[:, c, :], axis=0)
         print(f"| {label} | " + " | ".join(f"{100 * v:.0f} %" for v in share) + " |")
-    for held, new in ((0, 1), (2, 3), (0, 4), (2, 5)):
+    for held, new in ((0, 1), (2, 3), (0, 4), (2, 5), (0, 6), (2, 7), (4, 6), (5, 7)):
         change = 100 * (np.nanmean(a[:, new]) / np.nanmean(a[:, held]) - 1)
         change_first = 100 * (np.nanmean(a[first, new]) / np.nanmean(a[first, held]) - 1)
         room = 100 * (np.nanmean(floor) / np.nanmean(a[:, held]) - 1)

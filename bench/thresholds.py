@@ -2,6 +2,7 @@
 
     python -m bench thresholds [--seeds 41,42,43,44,45] [--runs 4,8] [--normal-runs 10]
         [--workdir W] [--rules plug-in:4,predictive:1,predictive:2,predictive:4] [--few-runs 6]
+        [--plateaus | --no-plateaus]
 
 Per engine and training-run count: simulates the training and normal runs (reused from the
 work dir when there), trains yB once with the defaults (``node.training.fit``), then for each
@@ -11,6 +12,7 @@ code (``replay.offline.replay``). Prints, per rule and run count, the false alar
 normal held-out runs (all rules, and the residual rule alone) beside the budget (1 per hour).
 ``--few-runs 0,6`` trains each engine once per value of ``node.training.train.FEW_RUNS`` (0: a
 free-running model may be chosen alone whatever the number of runs; the product's: 6).
+``--plateaus`` / ``--no-plateaus`` trains with or without the plateau shift (``train --plateaus``).
 ``--guard on,off`` replays each training with the curve guard on (the bundle's setting) and off
 (``node.runtime.guard``; ``guard_wait_s`` 0).
 """
@@ -76,6 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--few-runs", default=str(train_module.FEW_RUNS),
                     help="values of FEW_RUNS to train with, each a training (default: the product's)")
     ap.add_argument("--guard", default="on", help="curve guard settings to replay with: on, off or on,off")
+    ap.add_argument("--plateaus", action=argparse.BooleanOptionalAction, default=None,
+                    help="train with or without the plateau shift (default: the product's default)")
     args = ap.parse_args(argv)
     guards = args.guard.split(",")
     if not guards or any(g not in ("on", "off") for g in guards):
@@ -97,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             for few in few_values:
                 train_module.FEW_RUNS = few
                 seen = _capture()
-                model, _ = train_model(runs, schedule, model_options(target=TARGET), None, False)
+                extra = {} if args.plateaus is None else {"plateaus": args.plateaus}
+                model, _ = train_model(runs, schedule, model_options(target=TARGET, **extra), None, False)
                 train_module.set_thresholds = seen.original
                 for guard in guards:
                     bundle = model.bundles[0]

@@ -66,11 +66,12 @@ class OCResult:
 
     @property
     def kind(self) -> str:
-        """The model's kind for tables: its method, a curve with its variant ("curve:anchored");
-        "-" without a model."""
+        """The model's kind for tables: its method, a curve with its variant ("curve:anchored"),
+        "+plateau" where a plateau shift moves it; "-" without a model."""
         if self.model is None:
             return "-"
+        shift = "+plateau" if self.plateau is not None else ""
         if "members" in self.params:  # an average: "average:vector+influence+wdmd"
-            return f"{self.model.method.value}:{member_label(self.params)}"
+            return f"{self.model.method.value}:{member_label(self.params)}{shift}"
         variant = self.params.get("variant")
-        return f"{self.model.method.value}:{variant}" if variant else self.model.method.value
+        return (f"{self.model.method.value}:{variant}" if variant else self.model.method.value) + shift

@@ -19,6 +19,10 @@ with the measured vectors. The monitor message then carries ``measured_phase``,
 ``predicted_phase``, ``vector_residual`` (|measured - predicted vector|) and
 ``vector_score``. Every timing comes from the bundle's ``RuntimeConfig``.
 
+An OC model with a plateau shift (``node.models.plateau``) has its prediction moved by what this
+run's earlier plateaus (``RunPlateaus``, stepped with every sample's measured level) add to the
+level before the switch, faded in after the switch.
+
 Each sample also steps the target's ``TransientWatch`` (``node.runtime.transient_watch``): at
 the end of a transition (a run-up, a coast-down, a ramp between plateaus; a run's last one at
 the next run or the end of the stream, ``end_transient``) ``transient`` holds its
