@@ -10,17 +10,17 @@ warm-up at ground idle first, in which a bowed rotor straightens) and one of two
 (x1, x2.5): 8 training runs, then 10 held-out runs of the same engine. Per engine and OC it
 prints the mean held-out eps_td of
 
-* ``no phase, held`` / ``no phase``: ``ordervib train --no-phase [--no-fade]``, the model
-  on the amplitudes alone, its anchored curves held through the OC (the default before
-  issue 30) or learning how their anchor fades (``CurveModel.decay``),
-* ``default, held`` / ``default``: ``ordervib train [--no-fade]``, which use the order's
-  phase (the recordings carry it: ``yB_ph``), and which kind won the OC,
+* ``no phase, held`` / ``no phase``: ``ordervib train --no-phase --no-plateaus [--no-fade]``,
+  the model on the amplitudes alone, its anchored curves held through the OC (the default
+  before issue 30) or learning how their anchor fades (``CurveModel.decay``),
+* ``default, held`` / ``default``: ``ordervib train --no-plateaus [--no-fade]``, which use the
+  order's phase (the recordings carry it: ``yB_ph``), and which kind won the OC,
 * ``no phase, guarded`` / ``default, guarded``: the same models as ``no phase`` and
   ``default`` with the curve guard on (``node.runtime.guard``: within an OC visit the curve
   where the model erred more so far); the four columns before are scored with it off,
-* ``no phase, plateaus`` / ``default, plateaus``: ``ordervib train [--no-phase] --plateaus``,
-  the plateau shift on (``node.models.plateau``: what the run's earlier plateaus add), scored
-  with the curve guard on,
+* ``no phase, plateaus`` / ``default, plateaus``: ``ordervib train [--no-phase]`` (today's
+  defaults: the plateau shift on, ``node.models.plateau``: what the run's earlier plateaus add),
+  scored with the curve guard on,
 * ``curve``: the characteristic-curve baseline,
 * ``floor``: the noise floor, the eps_td of a prediction that knew the clean signal (the
   simulator's sensor noise on the measured amplitudes: ``noise_floor``): no model can go below it,
@@ -201,12 +201,12 @@ def engine_args(name: str, default_set: str, argv: list[str] | None
 
 
 COLUMNS: tuple[tuple[str, dict], ...] = (
-    ("no phase, held", {"phase": False, "fade": False}), ("no phase", {"phase": False}),
-    ("default, held", {"fade": False}), ("default", {}))
+    ("no phase, held", {"phase": False, "fade": False, "plateaus": False}),
+    ("no phase", {"phase": False, "plateaus": False}),
+    ("default, held", {"fade": False, "plateaus": False}), ("default", {"plateaus": False}))
 GUARDED = (("no phase, guarded", 1), ("default, guarded", 3))  # the curve guard on that column's model
 # trained with the plateau shift (``train --plateaus``), scored with the curve guard on (as the node runs)
-PLATEAUS: tuple[tuple[str, dict], ...] = (
-    ("no phase, plateaus", {"phase": False, "plateaus": True}), ("default, plateaus", {"plateaus": True}))
+PLATEAUS: tuple[tuple[str, dict], ...] = (("no phase, plateaus", {"phase": False}), ("default, plateaus", {}))
 LABELS = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED] + [n for n, _ in PLATEAUS]
 
 

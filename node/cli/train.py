@@ -87,8 +87,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "--no-fade: the anchor is held through the OC (default: learn it)")
     p.add_argument("--plateaus", action=argparse.BooleanOptionalAction, default=D["plateaus"],
                    help="each OC also learns what the run's earlier plateaus (at other speeds) add to its "
-                        "model's plateau level, kept where its cross-validation says it helps (issue 30; "
-                        "default: off)")
+                        "model's plateau level, kept where its cross-validation says it helps; "
+                        "--no-plateaus: the OC models as they are (default: learn it)")
     p.add_argument("--chirp-rate", action=argparse.BooleanOptionalAction, default=D["chirp_rate"],
                    help="offer the switch speed's rate (rpm/s over the last second, derived by the node: "
                         "the chirp rate of section 3.3) to the cross-validation as a candidate input "

@@ -53,7 +53,7 @@ DEFAULT_OPTIONS: dict[str, Any] = {
     "prom": True,
     "phase": True,
     "fade": True,
-    "plateaus": False,  # each OC learns what the run's earlier plateaus add (node.models.plateau)
+    "plateaus": True,  # each OC learns what the run's earlier plateaus add (node.models.plateau)
     "chirp_rate": False,  # the switch speed's rate (``node.runtime.chirp``) among the candidate inputs
     "tracker_s": 0.0,  # the vibration unit's order-tracker lag (s) the transient analysis undoes; 0: none
 }
