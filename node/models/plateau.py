@@ -26,8 +26,10 @@ from dataclasses import dataclass
 
 from node.contract import FS
 
-SETTLE_S = 15.0  # a visit's samples from this long after its switch on make its plateau level, s
-RAMP_S = 10.0  # the shift comes in linearly over this long after the switch, s
+# a visit's samples from this long after its switch on make its plateau level, s; the shift comes
+# in linearly over RAMP_S after the switch, s (study: docs/tuning.md#plateau_shift)
+SETTLE_S = 15.0
+RAMP_S = 10.0
 MAX_TERMS = 64  # earlier plateaus a shift may read (a schedule's OCs are bounded too)
 
 

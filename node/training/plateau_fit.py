@@ -28,6 +28,7 @@ RIDGE = 1e-2  # the regressions' ridge, relative to the mean squared level of th
 PLATEAU_GAIN = 0.01  # the shift must lower the OC's CV eps by this share to be kept
 MIN_RUNS = 4  # visits (runs) an OC's shift is fitted on, at least
 LIMIT_FACTOR = 2.0  # the shift is clipped at this times the largest the training visits gave
+# (study: docs/tuning.md#plateau_shift)
 
 Visit = tuple[complex, list[complex], complex]  # level before the switch, plateaus then, its own
 
