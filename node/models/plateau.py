@@ -24,6 +24,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from node.contract import FS
 
 # a visit's samples from this long after its switch on make its plateau level, s; the shift comes
@@ -90,6 +92,15 @@ class PlateauShift:
         """The share of the shift at ``since`` samples after the switch (0 at the switch sample)."""
         return min(1.0, (since + 1) / (RAMP_S * FS))
 
+    @staticmethod
+    def ramps(n: int) -> np.ndarray:
+        """``ramp`` of the first n samples of a visit (n,), the same numbers to the last bit.
+
+        >>> bool((PlateauShift.ramps(500) == [PlateauShift.ramp(k) for k in range(500)]).all())
+        True
+        """
+        return np.minimum(1.0, (np.arange(n) + 1) / (RAMP_S * FS))
+
     def to_dict(self) -> dict:
         """For the bundle's manifest (JSON: complex numbers as [re, im])."""
         return {"earlier": list(self.earlier), "coef": [[c.real, c.imag] for c in map(complex, self.coef)],
@@ -117,10 +128,11 @@ class PlateauShift:
         if not isinstance(earlier, list) or len(earlier) > MAX_TERMS or not all(
                 isinstance(i, int) and not isinstance(i, bool) and 0 <= i < n_ocs for i in earlier):
             raise ValueError("a plateau shift's earlier OCs must be indices into the schedule")
-        if not isinstance(coef, list) or not isinstance(pre, list) or len(coef) > MAX_TERMS + 2:
-            raise ValueError("a plateau shift's coefficients must be lists")
+        if (not isinstance(coef, list) or len(coef) > MAX_TERMS + 2
+                or not isinstance(pre, list) or len(pre) != 2):
+            raise ValueError("a plateau shift's coefficients must be lists (coef_pre of two)")
         if not isinstance(d["vector"], bool) or not isinstance(d["limit"], (int, float)) \
                 or isinstance(d["limit"], bool):
             raise ValueError("a plateau shift's vector must be true or false, its limit a number")
-        return cls(tuple(earlier), tuple(cplx(c) for c in coef), (cplx(pre[0]), cplx(pre[1])) if len(pre) == 2
-                   else (math.nan, math.nan), d["vector"], float(d["limit"]))
+        return cls(tuple(earlier), tuple(cplx(c) for c in coef), (cplx(pre[0]), cplx(pre[1])), d["vector"],
+                   float(d["limit"]))

@@ -89,22 +89,21 @@ def plateau_visits(levels: np.ndarray, labels: np.ndarray, n_ocs: int
     """
     rp = RunPlateaus(n_ocs)
     out: dict[int, tuple[complex, list[complex], complex]] = {}
+    starts: dict[int, tuple[complex, list[complex]]] = {}  # per visit: the level before, the plateaus then
     visit: int | None = None  # the start of the visit under way
     prev: int | None = None
     for k, (oc_k, v) in enumerate(zip(np.asarray(labels).tolist(), np.asarray(levels, complex).tolist(),
                                       strict=True)):
         oc = oc_k if oc_k >= 0 else None
         if k == 0 or oc != prev:
-            if visit is not None:
-                pre, before, _ = out[visit]
-                out[visit] = (pre, before, rp.current)
+            if visit is not None:  # the visit that ends: its own plateau
+                out[visit] = (*starts[visit], rp.current)
             rp.switch(oc)
             visit = k if oc is not None else None
             if visit is not None:
-                out[k] = (rp.pre, list(rp.levels), _NAN)
+                starts[k] = (rp.pre, list(rp.levels))
             prev = oc
         rp.step(v)
     if visit is not None:
-        pre, before, _ = out[visit]
-        out[visit] = (pre, before, rp.current)
+        out[visit] = (*starts[visit], rp.current)
     return out

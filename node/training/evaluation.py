@@ -114,8 +114,7 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
         traj = Trajectory(ra.y[lo:s.stop], U, s.start - lo, None if z is None else z[lo:s.stop])
         with np.errstate(all="ignore"):
             pred = res.model.predict(traj)
-        v = None if visits is None or res.plateau is None else visits[s.run].get(s.start)
-        if v is not None and res.plateau is not None:
+        if visits is not None and res.plateau is not None and (v := visits[s.run].get(s.start)) is not None:
             pred = shifted(pred, res.plateau.shift(v[0], v[1]))
         used = None
         if guard is not None:

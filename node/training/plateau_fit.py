@@ -98,8 +98,7 @@ def shifted(pred: np.ndarray, s: float) -> np.ndarray:
     (``PlateauShift.ramp``), as the node adds it sample by sample."""
     if s == 0.0:
         return pred
-    ramp = np.array([PlateauShift.ramp(k) for k in range(len(pred))])
-    return pred + ramp * s
+    return pred + PlateauShift.ramps(len(pred)) * s
 
 
 def choose_shift(visits: Sequence[Visit | None], held_out: Sequence[Sequence[int]],
