@@ -67,17 +67,20 @@ class Setup:
     model uses the order phases the recordings always hold (``train --no-phase`` when not)."""
 
     def __init__(self, schedule: SimSchedule = BUILT_IN_SCHEDULE, noise_scale: float = 1.0,
-                 phase: bool = True, guard: bool = True, plateaus: bool | None = None) -> None:
+                 phase: bool = True, guard: bool = True, plateaus: bool | None = None,
+                 settle: bool | None = None) -> None:
         self.schedule = schedule
         self.noise_scale = float(noise_scale)
         self.phase = phase
         self.guard = guard  # False: the replays run the model with its curve guard off
         self.plateaus = plateaus  # train --plateaus / --no-plateaus (None: the product's default)
+        self.settle = settle  # train --settle / --no-settle (None: the product's default)
 
     def model_name(self, method: str) -> str:
         """The model's folder in an engine's work dir (with and without phase side by side)."""
         plateaus = {None: "", True: "-plateaus", False: "-noplateaus"}[self.plateaus]
-        return f"model-{method}" + ("" if self.phase else "-nophase") + plateaus
+        settle = {None: "", True: "-settle", False: "-nosettle"}[self.settle]
+        return f"model-{method}" + ("" if self.phase else "-nophase") + plateaus + settle
 
     def settings(self) -> dict:
         """The simulator settings (``simulator.files.Simulation``) of this setup."""
@@ -182,7 +185,7 @@ def engine_rows(work: Path, seed: int, n: int, m: int, instances: int, method: s
     if not (model / "manifest.json").exists() or old != trained_on:
         print(f"[engine {seed}] training {method} on the training runs ...", flush=True)
         stamp.unlink(missing_ok=True)
-        extra = {} if setup.plateaus is None else {"plateaus": setup.plateaus}
+        extra = {k: v for k, v in (("plateaus", setup.plateaus), ("settle", setup.settle)) if v is not None}
         make.train([train], work / "train.schedule.toml", model, method=method, target="yB",
                    phase=setup.phase, **extra)
         stamp.write_text(json.dumps(trained_on) + "\n")
@@ -243,12 +246,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plateaus", action=argparse.BooleanOptionalAction, default=None,
                     help="train with or without the plateau shift (train --plateaus; its own model "
                          "folder; default: the product's default)")
+    ap.add_argument("--settle", action=argparse.BooleanOptionalAction, default=None,
+                    help="train with or without the settle anchor (train --settle; its own model folder; "
+                         "default: the product's default)")
     args = ap.parse_args(argv)
     if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
         ap.error(f"--noise-scale must be > 0 and finite, got {args.noise_scale!r}")
     try:
         setup = Setup(BUILT_IN_SCHEDULE if args.schedule is None else load_sim_schedule(args.schedule),
-                      args.noise_scale, args.phase, args.guard == "on", args.plateaus)
+                      args.noise_scale, args.phase, args.guard == "on", args.plateaus, args.settle)
     except OrdervibError as e:
         ap.error(f"--schedule: {e}")
     faults = tuple(x.strip() for x in args.faults.split(",") if x.strip())

@@ -10,17 +10,21 @@ warm-up at ground idle first, in which a bowed rotor straightens) and one of two
 (x1, x2.5): 8 training runs, then 10 held-out runs of the same engine. Per engine and OC it
 prints the mean held-out eps_td of
 
-* ``no phase, held`` / ``no phase``: ``ordervib train --no-phase --no-plateaus [--no-fade]``,
+* ``no phase, held`` / ``no phase``: ``ordervib train --no-phase --no-plateaus --no-settle
+  [--no-fade]``,
   the model on the amplitudes alone, its anchored curves held through the OC (the default
   before issue 30) or learning how their anchor fades (``CurveModel.decay``),
-* ``default, held`` / ``default``: ``ordervib train --no-plateaus [--no-fade]``, which use the
-  order's phase (the recordings carry it: ``yB_ph``), and which kind won the OC,
+* ``default, held`` / ``default``: ``ordervib train --no-plateaus --no-settle [--no-fade]``, which
+  use the order's phase (the recordings carry it: ``yB_ph``),
 * ``no phase, guarded`` / ``default, guarded``: the same models as ``no phase`` and
   ``default`` with the curve guard on (``node.runtime.guard``: within an OC visit the curve
   where the model erred more so far); the four columns before are scored with it off,
-* ``no phase, plateaus`` / ``default, plateaus``: ``ordervib train [--no-phase]`` (today's
-  defaults: the plateau shift on, ``node.models.plateau``: what the run's earlier plateaus add),
-  scored with the curve guard on,
+* ``no phase, plateaus`` / ``default, plateaus``: ``ordervib train [--no-phase] --no-settle``
+  (the plateau shift on, ``node.models.plateau``: what the run's earlier plateaus add), scored
+  with the curve guard on,
+* ``no phase, settle`` / ``default, settle``: ``ordervib train [--no-phase]`` (today's
+  defaults: the settle anchor on too, ``node.models.settle``: what the visit's own settled level
+  adds), scored with the curve guard on,
 * ``curve``: the characteristic-curve baseline,
 * ``floor``: the noise floor, the eps_td of a prediction that knew the clean signal (the
   simulator's sensor noise on the measured amplitudes: ``noise_floor``): no model can go below it,
@@ -201,12 +205,16 @@ def engine_args(name: str, default_set: str, argv: list[str] | None
 
 
 COLUMNS: tuple[tuple[str, dict], ...] = (
-    ("no phase, held", {"phase": False, "fade": False, "plateaus": False}),
-    ("no phase", {"phase": False, "plateaus": False}),
-    ("default, held", {"fade": False, "plateaus": False}), ("default", {"plateaus": False}))
+    ("no phase, held", {"phase": False, "fade": False, "plateaus": False, "settle": False}),
+    ("no phase", {"phase": False, "plateaus": False, "settle": False}),
+    ("default, held", {"fade": False, "plateaus": False, "settle": False}),
+    ("default", {"plateaus": False, "settle": False}))
 GUARDED = (("no phase, guarded", 1), ("default, guarded", 3))  # the curve guard on that column's model
-# trained with the plateau shift (``train --plateaus``), scored with the curve guard on (as the node runs)
-PLATEAUS: tuple[tuple[str, dict], ...] = (("no phase, plateaus", {"phase": False}), ("default, plateaus", {}))
+# trained with the plateau shift (``train --plateaus --no-settle``), then with the settle anchor too
+# (today's defaults), scored with the curve guard on (as the node runs)
+PLATEAUS: tuple[tuple[str, dict], ...] = (
+    ("no phase, plateaus", {"phase": False, "settle": False}), ("default, plateaus", {"settle": False}),
+    ("no phase, settle", {"phase": False}), ("default, settle", {}))
 LABELS = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED] + [n for n, _ in PLATEAUS]
 
 
@@ -239,11 +247,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{e.name} (seed {e.seed}, schedule {e.schedule}, noise x{e.noise:g}; "
               f"{time.perf_counter() - t0:.0f} s)")
         labels = LABELS
-        print("| OC | " + " | ".join(labels) + " | default's model | curve | floor |")
+        print("| OC | " + " | ".join(labels) + " | today's default's model | curve | floor |")
         print("|---|" + "---|" * (len(labels) + 3))
         for k, (oc, b) in enumerate(zip([s[0] for s in scores[0]], base)):
             eps = [col[k][1] for col in scores]
-            kind, low = scores[len(COLUMNS) - 1][k][2], scores[len(COLUMNS) - 1][k][3]
+            kind, low = scores[-1][k][2], scores[-1][k][3]  # today's default's model
             print(f"| {oc} | " + " | ".join(f"{v:.3f}" for v in eps) + f" | {kind} | {b:.3f} | {low:.3f} |")
             rows.append((e.name, k, oc, eps, b, kind, low, [col[k][4] for col in scores]))
         mine = np.array([r[3] + [r[4], r[6]] for r in rows if r[0] == e.name], dtype=float)
@@ -273,7 +281,8 @@ def main(argv: list[str] | None = None) -> int:
     for c, label in enumerate(labels):
         share = np.nanmean(splits[:, c, :], axis=0)
         print(f"| {label} | " + " | ".join(f"{100 * v:.0f} %" for v in share) + " |")
-    for held, new in ((0, 1), (2, 3), (0, 4), (2, 5), (0, 6), (2, 7), (4, 6), (5, 7)):
+    for held, new in ((0, 1), (2, 3), (0, 4), (2, 5), (0, 6), (2, 7), (4, 6), (5, 7), (0, 8), (2, 9),
+                      (6, 8), (7, 9)):
         change = 100 * (np.nanmean(a[:, new]) / np.nanmean(a[:, held]) - 1)
         change_first = 100 * (np.nanmean(a[first, new]) / np.nanmean(a[first, held]) - 1)
         room = 100 * (np.nanmean(floor) / np.nanmean(a[:, held]) - 1)

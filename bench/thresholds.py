@@ -2,7 +2,7 @@
 
     python -m bench thresholds [--seeds 41,42,43,44,45] [--runs 4,8] [--normal-runs 10]
         [--workdir W] [--rules plug-in:4,predictive:1,predictive:2,predictive:4] [--few-runs 6]
-        [--plateaus | --no-plateaus]
+        [--plateaus | --no-plateaus] [--settle | --no-settle]
 
 Per engine and training-run count: simulates the training and normal runs (reused from the
 work dir when there), trains yB once with the defaults (``node.training.fit``), then for each
@@ -12,7 +12,8 @@ code (``replay.offline.replay``). Prints, per rule and run count, the false alar
 normal held-out runs (all rules, and the residual rule alone) beside the budget (1 per hour).
 ``--few-runs 0,6`` trains each engine once per value of ``node.training.train.FEW_RUNS`` (0: a
 free-running model may be chosen alone whatever the number of runs; the product's: 6).
-``--plateaus`` / ``--no-plateaus`` trains with or without the plateau shift (``train --plateaus``).
+``--plateaus`` / ``--no-plateaus`` trains with or without the plateau shift (``train --plateaus``),
+``--settle`` / ``--no-settle`` with or without the settle anchor (``train --settle``).
 ``--guard on,off`` replays each training with the curve guard on (the bundle's setting) and off
 (``node.runtime.guard``; ``guard_wait_s`` 0).
 """
@@ -80,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--guard", default="on", help="curve guard settings to replay with: on, off or on,off")
     ap.add_argument("--plateaus", action=argparse.BooleanOptionalAction, default=None,
                     help="train with or without the plateau shift (default: the product's default)")
+    ap.add_argument("--settle", action=argparse.BooleanOptionalAction, default=None,
+                    help="train with or without the settle anchor (default: the product's default)")
     args = ap.parse_args(argv)
     guards = args.guard.split(",")
     if not guards or any(g not in ("on", "off") for g in guards):
@@ -101,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
             for few in few_values:
                 train_module.FEW_RUNS = few
                 seen = _capture()
-                extra = {} if args.plateaus is None else {"plateaus": args.plateaus}
+                extra = {k: v for k, v in (("plateaus", args.plateaus), ("settle", args.settle))
+                         if v is not None}
                 model, _ = train_model(runs, schedule, model_options(target=TARGET, **extra), None, False)
                 train_module.set_thresholds = seen.original
                 for guard in guards:

@@ -40,6 +40,7 @@ from node.models.kinds import model_from_arrays
 from node.models.ocmodel import RUN_CURVE
 from node.models.plateau import PlateauShift
 from node.models.result import Calibration, OCResult
+from node.models.settle import SettleAnchor
 from node.models.transients import FleetTransients
 
 FORMAT = "ordervib-model"
@@ -117,6 +118,8 @@ def _manifest_oc(r: OCResult) -> dict:
         d["envelope"] = env
     if r.plateau is not None:
         d["plateau"] = r.plateau.to_dict()
+    if r.settle is not None:
+        d["settle"] = r.settle.to_dict()
     return d
 
 
@@ -336,10 +339,11 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
             plateau = None  # (bundles before it had none: the model as it is)
             if d.get("plateau") is not None:
                 plateau = PlateauShift.from_dict(d["plateau"], len(schedule.names))
+            settle = SettleAnchor.from_dict(d["settle"]) if d.get("settle") is not None else None
             ocs.append(OCResult(d["name"], model, list(d["inputs"]), dict(d["params"]), d["n_runs"],
                                 _f(d["train_eps"]), _f(d["cv_eps"]), calib,
                                 [(c, _f(s)) for c, s in d.get("ranking", [])], [], d.get("note", ""),
-                                envelope, outside, plateau))
+                                envelope, outside, plateau, settle))
         curve = None
         if "curve/speed" in arrays:
             curve = (arrays["curve/speed"], arrays["curve/mean"])

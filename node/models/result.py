@@ -16,6 +16,7 @@ from node.models.average import member_label
 from node.models.envelope import Envelope
 from node.models.ocmodel import OCModel
 from node.models.plateau import PlateauShift
+from node.models.settle import SettleAnchor
 
 EWMA_SPAN_S = 2.0  # smoothing of the standardized residual, s
 PERSIST_S = 1.0  # an alarm needs the smoothed score beyond threshold this long, s
@@ -63,14 +64,17 @@ class OCResult:
     envelope: Envelope | None = None  # the region its training runs covered (node.models.envelope)
     outside_cv: tuple[float, int] | None = None  # CV samples beyond their fold's envelope: sum z^2, count
     plateau: PlateauShift | None = None  # what the run's earlier plateaus add (node.models.plateau)
+    settle: SettleAnchor | None = None  # the re-anchor on the visit's own level (node.models.settle)
 
     @property
     def kind(self) -> str:
         """The model's kind for tables: its method, a curve with its variant ("curve:anchored"),
-        "+plateau" where a plateau shift moves it; "-" without a model."""
+        "+plateau" where a plateau shift moves it, "+settle" where a settle anchor does; "-"
+        without a model."""
         if self.model is None:
             return "-"
         shift = "+plateau" if self.plateau is not None else ""
+        shift += "+settle" if self.settle is not None else ""
         if "members" in self.params:  # an average: "average:vector+influence+wdmd"
             return f"{self.model.method.value}:{member_label(self.params)}{shift}"
         variant = self.params.get("variant")

@@ -32,7 +32,7 @@ the next run or the end of the stream, ``end_transient``) ``transient`` holds it
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -44,6 +44,9 @@ from node.models.curve import CurveRuntime
 from node.models.envelope import HELD, OUTSIDE, Envelope
 from node.models.ocmodel import OCRuntime
 from node.models.plateau import PlateauShift
+from node.models.settle import AT as SETTLE_AT
+from node.models.settle import WINDOW as SETTLE_WINDOW
+from node.models.settle import SettleAnchor
 from node.runtime.alarms import FlatlineCheck, ResidualCheck, RunScale, StepCheck
 from node.runtime.align import AlignedSample
 from node.runtime.chirp import CHIRP_RATE, ChirpRate
@@ -74,6 +77,9 @@ class _Active:
     envelope: Envelope | None = None  # the region its training runs covered (None: not known)
     since: int = 0  # samples since the OC switch
     shift: float = 0.0  # what the run's earlier plateaus add (node.models.plateau), faded in
+    settle: SettleAnchor | None = None  # the re-anchor on the visit's own level (node.models.settle)
+    window: list[float] = field(default_factory=list)  # its residuals before SETTLE_AT (<= SETTLE_WINDOW)
+    moved: float | None = None  # its move from SETTLE_AT on (None: not yet known)
 
 
 def _num(x: float) -> float | None:
@@ -252,6 +258,8 @@ class MonitorPipeline:
         pred = a.runtime.step(u)
         if a.shift != 0.0:
             pred = pred + PlateauShift.ramp(a.since) * a.shift
+        if a.settle is not None:
+            pred = self._settled(a, measured, pred)
         on, own = False, pred
         if self._guard is not None:
             pred, on = self._guard.step(measured, pred, vals[self.switch])
@@ -297,6 +305,20 @@ class MonitorPipeline:
 
     def _name(self, oc: int | None) -> str | None:
         return None if oc is None else self._names[oc]
+
+    @staticmethod
+    def _settled(a: _Active, measured: float, pred: float) -> float:
+        """The prediction moved by the OC's settle anchor (``SettleAnchor.moved``, sample by
+        sample: the window's residuals kept, the move from ``SETTLE_AT`` on)."""
+        since = a.since
+        if since < SETTLE_AT:
+            if since >= SETTLE_AT - SETTLE_WINDOW:
+                a.window.append(measured - pred)
+            return pred
+        if a.moved is None:
+            a.moved = a.settle.offset(a.window) if a.settle is not None else 0.0
+            a.window.clear()
+        return pred + a.moved if a.moved != 0.0 else pred
 
     def _new_run(self) -> None:
         """A new run: the detector restarts off (reset by the pipeline that steps it), every rule
@@ -372,4 +394,4 @@ class MonitorPipeline:
         if res.plateau is not None and self._plateaus is not None:
             shift = res.plateau.shift(self._plateaus.pre, self._plateaus.levels)
         self._active = _Active(rt, list(res.inputs), f"{res.model.method.value}:{res.name}", check, vector,
-                               res.envelope, shift=shift)
+                               res.envelope, shift=shift, settle=res.settle)

@@ -116,6 +116,8 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
             pred = res.model.predict(traj)
         if visits is not None and res.plateau is not None and (v := visits[s.run].get(s.start)) is not None:
             pred = shifted(pred, res.plateau.shift(v[0], v[1]))
+        if res.settle is not None:  # on the target as measured (NaN in a gap), as the node
+            pred = res.settle.moved(runs[s.run].column(target)[s.start:s.stop], pred)
         used = None
         if guard is not None:
             y, speed = seen[s.run]

@@ -54,6 +54,7 @@ DEFAULT_OPTIONS: dict[str, Any] = {
     "phase": True,
     "fade": True,
     "plateaus": True,  # each OC learns what the run's earlier plateaus add (node.models.plateau)
+    "settle": False,  # each OC learns its re-anchor on the visit's settled level (node.models.settle)
     "chirp_rate": False,  # the switch speed's rate (``node.runtime.chirp``) among the candidate inputs
     "tracker_s": 0.0,  # the vibration unit's order-tracker lag (s) the transient analysis undoes; 0: none
 }
@@ -296,7 +297,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
                         false_alarms_per_hour=per_rule, cv_undercoverage=under,
                         fleet=curve, curves=o["curves"], config=config, history=o["history"],
                         phase=o["phase"], prom=use_prom, fade=o["fade"], labels=labels,
-                        plateaus=o["plateaus"])
+                        plateaus=o["plateaus"], settle=o["settle"])
         if not any(r.model is not None for r in results) and not allow_empty:
             notes = sorted({r.note for r in results if r.note})
             which = f"target {target}: " if len(targets) > 1 else ""

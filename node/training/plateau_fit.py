@@ -20,6 +20,7 @@ import numpy as np
 from node.contract import phase_channel
 from node.contract.vector import order_vector
 from node.models.plateau import PlateauShift
+from node.models.settle import AT, MAX_GAIN, WINDOW, SettleAnchor
 from node.runtime.plateaus import plateau_visits
 from node.sysid.metrics import pooled_eps
 from node.training.runs import Run
@@ -125,3 +126,48 @@ def choose_shift(visits: Sequence[Visit | None], held_out: Sequence[Sequence[int
     if not pooled_eps(moved) < (1.0 - PLATEAU_GAIN) * pooled_eps(pairs):
         return None, list(pairs)
     return fit_shift(usable, vector), moved
+
+
+def fit_settle(pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> SettleAnchor | None:
+    """The settle anchor's gain fitted on held-out visits ``pairs`` ((measured, predicted) from
+    the switch on): least squares of each visit's residuals from ``AT_S`` on on its mean residual
+    over the window before, clipped to [0, ``MAX_GAIN``]; None without a visit that reaches it.
+
+    >>> y, p = np.full(700, 3.0), np.full(700, 2.0)
+    >>> p[AT:] = 2.5  # the model makes good half its miss itself: half the window's is left
+    >>> fit_settle([(y, p)]).gain
+    0.5
+    """
+    num = den = 0.0
+    for y, p in pairs:
+        if len(p) <= AT:
+            continue
+        m = SettleAnchor(1.0).offset((y[AT - WINDOW:AT] - p[AT - WINDOW:AT]).tolist())
+        r = y[AT:] - p[AT:]
+        ok = np.isfinite(r)
+        if m == 0.0 or not ok.any():
+            continue
+        num += m * float(r[ok].sum())
+        den += m * m * int(ok.sum())
+    if not den > 0:
+        return None
+    return SettleAnchor(float(min(MAX_GAIN, max(0.0, num / den))))
+
+
+def choose_settle(held_out: Sequence[Sequence[int]], pairs: Sequence[tuple[np.ndarray, np.ndarray]]
+                  ) -> tuple[SettleAnchor | None, list[tuple[np.ndarray, np.ndarray]]]:
+    """The OC's settle anchor if its cross-validation says it helps, and the held-out pairs it
+    gives: each fold's visits moved by the gain fitted on the other folds' (``fit_settle``), kept
+    when their pooled eps falls by ``PLATEAU_GAIN``. held_out: per fold, its rows (``pairs`` are
+    in that order). Returns (the anchor fitted on every pair, the pairs moved) or (None,
+    ``pairs``)."""
+    bounds = np.cumsum([0, *(len(h) for h in held_out)])
+    moved: list[tuple[np.ndarray, np.ndarray]] = []
+    for j in range(len(held_out)):
+        a = fit_settle([pairs[k] for k in range(len(pairs)) if not bounds[j] <= k < bounds[j + 1]])
+        for y, p in pairs[bounds[j]:bounds[j + 1]]:
+            moved.append((y, p if a is None else a.moved(y, p)))
+    final = fit_settle(pairs)
+    if final is None or final.gain == 0.0 or not pooled_eps(moved) < (1.0 - PLATEAU_GAIN) * pooled_eps(pairs):
+        return None, list(pairs)
+    return final, moved

@@ -48,7 +48,7 @@ from node.training.dataset import (
 )
 from node.training.envelope import band_factors, cv_outside, fit_envelope
 from node.training.features import Term, combine_terms, segment_term
-from node.training.plateau_fit import Visit, choose_shift, visit_tables
+from node.training.plateau_fit import Visit, choose_settle, choose_shift, visit_tables
 from node.training.runs import Run
 
 DEFAULT_GRIDS: dict[Method, dict[str, list]] = {
@@ -176,6 +176,7 @@ class OCData:
     # whether the shift is on the 1x vector; None: no shift learned
     plateaus: list[Visit | None] = field(default_factory=list)
     plateau_vector: bool | None = None
+    settle: bool = False  # learn the settle anchor (node.models.settle)
 
     def fold(self, run: int) -> int:
         """The CV fold of ``run``: the run itself (leave one run out) unless ``folds`` says otherwise."""
@@ -440,6 +441,11 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
                                       d.plateau_vector)
         if plateau is not None:
             pairs, cv_eps = moved, pooled_eps(moved)
+    settle = None
+    if d.settle and pairs:  # the re-anchor on the visit's own level, if the OC's CV says it helps
+        settle, moved = choose_settle([d.held_out(f) for f in folds], pairs)
+        if settle is not None:
+            pairs, cv_eps = moved, pooled_eps(moved)
     trajs = _trajs(d, all_rows, chosen)
     model = fit_oc_model(method, params, trajs)
     train_eps = pooled_eps(_predict_pairs(model, trajs))
@@ -459,7 +465,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     envelope = fit_envelope(d, all_rows, chosen)
     outside = cv_outside(d, folds, chosen, res, sigma) if calib is not None else None
     return OCResult(d.name, model, chosen, params, n_runs, train_eps, cv_eps, calib,
-                    ranking, cv_scores, note, envelope, outside, plateau)
+                    ranking, cv_scores, note, envelope, outside, plateau, settle)
 
 
 def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: list[str],
@@ -467,7 +473,8 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
                 history_s: float = RuntimeConfig().history_s,
                 curves: list[dict] | None = None, phase: bool = True,
                 proms: list[dict] | None = None, unranked: list[str] | None = None,
-                visits: list[dict[int, Visit]] | None = None, plateau_vector: bool = False) -> list[OCData]:
+                visits: list[dict[int, Visit]] | None = None, plateau_vector: bool = False,
+                settle: bool = False) -> list[OCData]:
     """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it.
 
     curves: each OC's curve candidates (``CURVE_CANDIDATES``; None: none). phase: the target's
@@ -488,7 +495,7 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
         d = OCData(name, target, list(candidates), [], [], [], [], switch=schedule.switch,
                    curves=[dict(c) for c in curves or []], proms=[dict(c) for c in proms or []],
                    unranked=list(unranked or []), folds=run_folds(len(runs)),
-                   plateau_vector=plateau_vector if visits is not None else None)
+                   plateau_vector=plateau_vector if visits is not None else None, settle=settle)
         for s in segments:
             if s.oc != j:
                 continue
@@ -605,7 +612,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           fleet: tuple[np.ndarray, np.ndarray] | None = None,
           config: RuntimeConfig | None = None, curves: bool = True,
           history: bool = False, phase: bool = True, prom: bool = True, prune: bool = True,
-          fade: bool = True, labels: list[Labels] | None = None, plateaus: bool = True) -> list[OCResult]:
+          fade: bool = True, labels: list[Labels] | None = None, plateaus: bool = True,
+          settle: bool = False) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
@@ -642,6 +650,10 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     (``node.models.plateau``; on the 1x vector with ``phase`` and the phase in every run), kept
     where its CV says it helps (``node.training.plateau_fit``).
 
+    settle: each OC also learns how much of what its model missed as the visit settled stays
+    for the rest of it (``node.models.settle``), kept where its CV says it helps
+    (``plateau_fit.choose_settle``).
+
     Alarm thresholds are set last, from every OC's CV peaks and the false-alarm budget
     (per hour of OC time in normal runs), see ``node.training.calibrate``.
     """
@@ -675,7 +687,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
                         history_s=(config or RuntimeConfig()).history_s,
                         curves=curve_candidates(fade) if curves else None, phase=phase,
                         proms=PROM_CANDIDATES if prom else None, unranked=unranked,
-                        visits=visits, plateau_vector=on_vector)
+                        visits=visits, plateau_vector=on_vector, settle=settle)
     workers = workers or min(2, os.cpu_count() or 1)
     jobs = [(d, method, grid, inputs, n_inputs, prune) for d in datas]
     results: list[OCResult | None] = [None] * len(jobs)
