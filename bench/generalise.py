@@ -214,7 +214,7 @@ GUARDED = (("no phase, guarded", 1), ("default, guarded", 3))  # the curve guard
 # (today's defaults), scored with the curve guard on (as the node runs)
 PLATEAUS: tuple[tuple[str, dict], ...] = (
     ("no phase, plateaus", {"phase": False, "settle": False}), ("default, plateaus", {"settle": False}),
-    ("no phase, settle", {"phase": False}), ("default, settle", {}))
+    ("no phase, settle", {"phase": False, "settle": True}), ("default, settle", {"settle": True}))
 LABELS = [n for n, _ in COLUMNS] + [n for n, _ in GUARDED] + [n for n, _ in PLATEAUS]
 
 
