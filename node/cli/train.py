@@ -93,7 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="each OC also learns how much of what its model missed as a visit settled (15 s "
                         "after the switch) stays for the rest of the visit, and moves its prediction by "
                         "it, kept where its cross-validation says it helps; --no-settle: the OC models as "
-                        "they are (default: not learnt)")
+                        "they are (default: learn it)")
     p.add_argument("--chirp-rate", action=argparse.BooleanOptionalAction, default=D["chirp_rate"],
                    help="offer the switch speed's rate (rpm/s over the last second, derived by the node: "
                         "the chirp rate of section 3.3) to the cross-validation as a candidate input "

@@ -54,7 +54,7 @@ DEFAULT_OPTIONS: dict[str, Any] = {
     "phase": True,
     "fade": True,
     "plateaus": True,  # each OC learns what the run's earlier plateaus add (node.models.plateau)
-    "settle": False,  # each OC learns its re-anchor on the visit's settled level (node.models.settle)
+    "settle": True,  # each OC learns its re-anchor on the visit's settled level (node.models.settle)
     "chirp_rate": False,  # the switch speed's rate (``node.runtime.chirp``) among the candidate inputs
     "tracker_s": 0.0,  # the vibration unit's order-tracker lag (s) the transient analysis undoes; 0: none
 }

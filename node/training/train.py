@@ -613,7 +613,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           config: RuntimeConfig | None = None, curves: bool = True,
           history: bool = False, phase: bool = True, prom: bool = True, prune: bool = True,
           fade: bool = True, labels: list[Labels] | None = None, plateaus: bool = True,
-          settle: bool = False) -> list[OCResult]:
+          settle: bool = True) -> list[OCResult]:
     """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
