@@ -22,6 +22,7 @@ from node.runtime.pipeline import MonitorPipeline
 from node.training.evaluation import predict_segments
 from node.training.plateau_fit import choose_settle, fit_settle
 from node.training.runs import read_runs
+from node.training.train import CURVE_CANDIDATES, OCData, train_oc
 
 AT, WINDOW = settle_mod.AT, settle_mod.WINDOW
 
@@ -137,3 +138,32 @@ def test_a_malformed_settle_anchor_is_one_line_naming_the_bundle(phased: Path, t
     manifest["ocs"][1]["settle"] = {"gain": 0.25}
     (tmp_path / "m" / "manifest.json").write_text(json.dumps(manifest))
     assert load_bundle(tmp_path / "m").ocs[1].settle == SettleAnchor(0.25)
+
+
+def _offset_runs(settle: bool) -> OCData:
+    """Six runs of one OC: the level a function of speed, plus an offset of each run's own that
+    comes 8 s after the switch, past any anchor at the switch, and stays."""
+    rng = np.random.default_rng(4)
+    d = OCData("OC1", "yB", ["nB"], [], [], [], [], switch="nB", curves=[dict(c) for c in CURVE_CANDIDATES],
+               settle=settle)
+    for r in range(6):
+        speed = np.r_[np.full(100, 2000.0), np.linspace(2000.0, 3500.0, 200), np.full(1000, 3500.0)]
+        y = 1.0 + speed / 1000.0 + rng.normal(0.0, 0.01, speed.size)
+        y[100 + 320:] += rng.normal(0.0, 0.6)
+        d.runs.append(r)
+        d.y.append(y)
+        d.X.append(speed[:, None])
+        d.start.append(100)
+        d.at.append(1000)
+    return d
+
+
+def test_the_band_keeps_the_scale_of_the_residuals_before_the_anchor():
+    """The anchor is learnt where a run's miss stays; the residual rule's sigma is the CV
+    residuals' before the move (the transition before AT_S keeps its band), the CV eps after."""
+    plain = train_oc(_offset_runs(False), "lasso", {"alpha": [1e-3]}, ["nB"], 1)
+    moved = train_oc(_offset_runs(True), "lasso", {"alpha": [1e-3]}, ["nB"], 1)
+    assert plain.settle is None and moved.settle is not None and moved.settle.gain > 0.9
+    assert moved.cv_eps < 0.7 * plain.cv_eps  # (the miss between 8 and 15 s stays)
+    assert moved.calibration is not None and plain.calibration is not None
+    assert moved.calibration.sigma == plain.calibration.sigma

@@ -442,6 +442,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         if plateau is not None:
             pairs, cv_eps = moved, pooled_eps(moved)
     settle = None
+    unsettled = pairs  # the residuals' scale: before the settle anchor (see below)
     if d.settle and pairs:  # the re-anchor on the visit's own level, if the OC's CV says it helps
         settle, moved = choose_settle([d.held_out(f) for f in folds], pairs)
         if settle is not None:
@@ -452,7 +453,11 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     calib = None
     if np.isfinite(cv_eps):
         res = [y - p for y, p in pairs]
-        sigma = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
+        # sigma from the residuals before the settle anchor: it moves a visit only from its 15th
+        # second on, so a sigma of the moved ones would narrow the band of the transition before
+        # it, where the first OC after a start misses most (issue 30: one false episode a
+        # few hours more with 8 training runs); the peaks are the moved residuals' over it
+        sigma = float(np.sqrt(np.mean(np.concatenate([y - p for y, p in unsettled]) ** 2)))
         sigma = max(sigma, 1e-9)
         rows = [i for f in folds for i in d.held_out(f)]  # the order of ``pairs``
         calib = Calibration(
