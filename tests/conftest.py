@@ -48,3 +48,18 @@ def phased(tmp_path_factory: pytest.TempPathFactory) -> Path:
                  str(d / "model"), "--method", "lasso", "--inputs", "nB", "--target", "yB", "--quiet",
                  "--workers", "1"]) == 0
     return d
+
+
+def node_messages(bundle, runs) -> list[dict]:
+    """The monitor messages of one ``MonitorPipeline`` stepped over ``runs`` (training ``Run``s,
+    each its own run), in order."""
+    from node.runtime.align import AlignedSample
+    from node.runtime.pipeline import MonitorPipeline
+
+    pipe = MonitorPipeline(bundle)
+    out = []
+    for run in runs:
+        for k in range(len(run.t)):
+            vals = {c: float(run.data[k, j]) for j, c in enumerate(run.channels)}
+            out.append(pipe.step(AlignedSample(float(run.t[k]), vals, k == 0))[0])
+    return out

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import node_messages
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -15,8 +16,6 @@ import node.runtime.plateaus as plateaus
 from node.contract import OrdervibError
 from node.models.bundle import load_bundle, save_bundle
 from node.models.plateau import PlateauShift
-from node.runtime.align import AlignedSample
-from node.runtime.pipeline import MonitorPipeline
 from node.runtime.plateaus import RunPlateaus, plateau_visits
 from node.training.evaluation import predict_segments
 from node.training.plateau_fit import choose_shift, fit_shift, run_levels, visit_tables
@@ -115,16 +114,6 @@ def _with_shifts(bundle, vector: bool, earlier: int = 0):
     return dataclasses.replace(bundle, ocs=ocs)
 
 
-def _node(bundle, runs) -> list[dict]:
-    pipe = MonitorPipeline(bundle)
-    out = []
-    for run in runs:
-        for k in range(len(run.t)):
-            vals = {c: float(run.data[k, j]) for j, c in enumerate(run.channels)}
-            out.append(pipe.step(AlignedSample(float(run.t[k]), vals, k == 0))[0])
-    return out
-
-
 @pytest.mark.parametrize("vector", [False, True])
 def test_the_node_and_the_evaluation_shift_alike(phased: Path, short_settle: None, tmp_path: Path, vector):
     """A bundle with plateau shifts: the node's predictions over two runs equal the evaluation's
@@ -136,7 +125,7 @@ def test_the_node_and_the_evaluation_shift_alike(phased: Path, short_settle: Non
     save_bundle(shifted, tmp_path / "m")
     loaded = load_bundle(tmp_path / "m")
     assert [r.plateau for r in loaded.ocs] == [r.plateau for r in shifted.ocs]
-    msgs, plain = _node(loaded, runs), _node(base, runs)
+    msgs, plain = node_messages(loaded, runs), node_messages(base, runs)
     preds = predict_segments(loaded.ocs, runs, loaded.schedule, loaded.target, loaded.curve, loaded.config)
     by_t = {m["t"]: m for m in msgs}
     moved = 0
@@ -149,7 +138,7 @@ def test_the_node_and_the_evaluation_shift_alike(phased: Path, short_settle: Non
     assert moved > 1000
     # a new run forgets the last one's plateaus: a shift on the last OC's plateau moves nothing
     # (each run holds it only at its end)
-    last = _node(_with_shifts(base, vector, len(base.schedule.names) - 1), runs)
+    last = node_messages(_with_shifts(base, vector, len(base.schedule.names) - 1), runs)
     assert [m["predicted"] for m in last] == [m["predicted"] for m in plain]
     levels = run_levels(runs[0], loaded.target, vector)
     assert levels.dtype == complex and (np.iscomplex(levels).any() == vector)

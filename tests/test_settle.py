@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import node_messages
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -17,8 +18,6 @@ import node.training.plateau_fit as fit_mod
 from node.contract import OrdervibError
 from node.models.bundle import load_bundle, save_bundle
 from node.models.settle import SettleAnchor
-from node.runtime.align import AlignedSample
-from node.runtime.pipeline import MonitorPipeline
 from node.training.evaluation import predict_segments
 from node.training.plateau_fit import choose_settle, fit_settle
 from node.training.runs import read_runs
@@ -85,16 +84,6 @@ def short_visits(monkeypatch: pytest.MonkeyPatch) -> None:
             monkeypatch.setattr(mod, name, {"AT": 160, "SETTLE_AT": 160, "MIN_FINITE": 20}.get(name, 40))
 
 
-def _node(bundle, runs) -> list[dict]:
-    pipe = MonitorPipeline(bundle)
-    out = []
-    for run in runs:
-        for k in range(len(run.t)):
-            vals = {c: float(run.data[k, j]) for j, c in enumerate(run.channels)}
-            out.append(pipe.step(AlignedSample(float(run.t[k]), vals, k == 0))[0])
-    return out
-
-
 def test_the_node_and_the_evaluation_settle_alike(phased: Path, short_visits: None, tmp_path: Path):
     """A bundle with settle anchors: the node's predictions over two runs equal the evaluation's
     (to rounding, as every model's step and batch paths), the anchor moved them from 4 s after
@@ -110,7 +99,7 @@ def test_the_node_and_the_evaluation_settle_alike(phased: Path, short_visits: No
     loaded = load_bundle(tmp_path / "m")
     assert [r.settle for r in loaded.ocs] == [r.settle for r in ocs]
     assert all(r.kind.endswith("+settle") for r in loaded.ocs if r.model is not None)
-    msgs, plain = _node(loaded, runs), _node(base, runs)
+    msgs, plain = node_messages(loaded, runs), node_messages(base, runs)
     preds = predict_segments(loaded.ocs, runs, loaded.schedule, loaded.target, loaded.curve, loaded.config)
     by_t = {m["t"]: m for m in msgs}
     plain_t = {m["t"]: m for m in plain}
