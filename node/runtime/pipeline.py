@@ -21,7 +21,9 @@ with the measured vectors. The monitor message then carries ``measured_phase``,
 
 An OC model with a plateau shift (``node.models.plateau``) has its prediction moved by what this
 run's earlier plateaus (``RunPlateaus``, stepped with every sample's measured level) add to the
-level before the switch, faded in after the switch.
+level before the switch, faded in after the switch; one with a settle anchor
+(``node.models.settle``), from 15 s after the switch, by a share of what it missed over the 2 s
+before. A predicted 1x vector moves with it, along its own direction.
 
 Each sample also steps the target's ``TransientWatch`` (``node.runtime.transient_watch``): at
 the end of a transition (a run-up, a coast-down, a ramp between plateaus; a run's last one at
@@ -255,7 +257,7 @@ class MonitorPipeline:
             u = env.clamp(u)
             if e > OUTSIDE:
                 model_id, widen = model_id + HELD, env.band_factor
-        pred = a.runtime.step(u)
+        pred = raw = a.runtime.step(u)
         if a.shift != 0.0:
             pred = pred + PlateauShift.ramp(a.since) * a.shift
         if a.settle is not None:
@@ -280,6 +282,9 @@ class MonitorPipeline:
         msg["envelope"] = e
         if a.vector is not None and not on:
             v = a.vector.vector
+            m = abs(v)
+            if pred != raw and m > 0.0:  # moved (plateau shift, settle anchor): along its own direction
+                v = v * ((m + (pred - raw)) / m)
             msg["predicted_phase"] = _num(lag_degrees(v))
             msg["vector_residual"] = _num(abs(z - v))
         if raised:
