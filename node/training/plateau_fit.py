@@ -1,4 +1,4 @@
-"""Learning each OC's plateau shift (``node.models.plateau``) and whether it helps.
+"""Learning each OC's plateau shift (``node.models.plateau``) and settle anchor, and whether they help.
 
 Per OC, from the training runs' visits (``plateau_visits``: the level before the switch, the
 run's earlier plateaus, the visit's own plateau): two ridge regressions of the plateau, on the
@@ -8,6 +8,10 @@ cross-validation: the shift fitted on each fold's other runs moves the chosen mo
 held-out predictions of that fold, and it is kept when their pooled eps falls by
 ``PLATEAU_GAIN`` (``choose_shift``), so an OC whose plateau the earlier ones do not tell keeps its
 model as it is.
+
+The settle anchor (``node.models.settle``) is learnt the same way from the chosen model's
+held-out visits alone: its gain by ``fit_settle``, kept by ``choose_settle`` where the OC's CV
+says it helps.
 """
 
 from __future__ import annotations
