@@ -142,17 +142,33 @@ def fit_settle(pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> SettleAnchor |
     >>> fit_settle([(y, p)]).gain
     0.5
     """
-    num = den = 0.0
+    return _gain(_settle_terms(pairs))
+
+
+def _settle_terms(pairs: Sequence[tuple[np.ndarray, np.ndarray]]) -> list[tuple[float, float]]:
+    """Each visit's share of ``fit_settle``'s normal equation: (window mean x the residuals' sum
+    after ``AT_S``, window mean squared x their count); (0, 0) for a visit that says nothing."""
+    out = []
     for y, p in pairs:
         if len(p) <= AT:
+            out.append((0.0, 0.0))
             continue
         m = SettleAnchor(1.0).offset((y[AT - WINDOW:AT] - p[AT - WINDOW:AT]).tolist())
         r = y[AT:] - p[AT:]
         ok = np.isfinite(r)
         if m == 0.0 or not ok.any():
+            out.append((0.0, 0.0))
             continue
-        num += m * float(r[ok].sum())
-        den += m * m * int(ok.sum())
+        out.append((m * float(r[ok].sum()), m * m * int(ok.sum())))
+    return out
+
+
+def _gain(terms: Sequence[tuple[float, float]]) -> SettleAnchor | None:
+    """The anchor of the visits' summed terms (``_settle_terms``), in order."""
+    num = den = 0.0
+    for a, b in terms:
+        num += a
+        den += b
     if not den > 0:
         return None
     return SettleAnchor(float(min(MAX_GAIN, max(0.0, num / den))))
@@ -166,12 +182,13 @@ def choose_settle(held_out: Sequence[Sequence[int]], pairs: Sequence[tuple[np.nd
     in that order). Returns (the anchor fitted on every pair, the pairs moved) or (None,
     ``pairs``)."""
     bounds = np.cumsum([0, *(len(h) for h in held_out)])
+    terms = _settle_terms(pairs)  # each visit's once; a fold's gain sums the others'
     moved: list[tuple[np.ndarray, np.ndarray]] = []
     for j in range(len(held_out)):
-        a = fit_settle([pairs[k] for k in range(len(pairs)) if not bounds[j] <= k < bounds[j + 1]])
+        a = _gain([t for k, t in enumerate(terms) if not bounds[j] <= k < bounds[j + 1]])
         for y, p in pairs[bounds[j]:bounds[j + 1]]:
             moved.append((y, p if a is None else a.moved(y, p)))
-    final = fit_settle(pairs)
+    final = _gain(terms)
     if final is None or final.gain == 0.0 or not pooled_eps(moved) < (1.0 - PLATEAU_GAIN) * pooled_eps(pairs):
         return None, list(pairs)
     return final, moved
