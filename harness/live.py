@@ -6,6 +6,7 @@
 * :func:`start_node` / :func:`stop_node` -- ``ordervib run`` as a separate process;
 * :func:`start_peer` / :func:`stop_peer` -- a bare Zenoh process (``python -m harness.live --peer``)
   that echoes one message per complete sample or only counts: the ceiling a node is set beside;
+  ``relay`` takes the node's intake and output path without its logic (:func:`relay_main`);
 * :func:`soak` -- hours of a recording's data pushed through ``ordervib run`` faster than real time:
   inputs lost, monitor coverage, the node's memory and latency over the whole push;
 * :class:`Runs` / :func:`load_runs` -- every run of a recording's sensor data slot by slot, as
@@ -230,6 +231,16 @@ def start_peer(mode: str, port: int, stream: Stream | None = None, needed: set[s
     return p
 
 
+def start_relay(port: int, beds: list[str], needed: set[str], target: str) -> subprocess.Popen:
+    """The :func:`relay_main` process listening on ``port``, ready."""
+    p = subprocess.Popen([sys.executable, "-m", "harness.live", "--peer", "relay", "--port", str(port),
+                          "--needed", ",".join(sorted(needed)), "--beds", ",".join(beds), "--target", target],
+                         cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    if p.stdout is None or p.stdout.readline().strip() != "ready":
+        raise SystemExit("the relay process did not start")
+    return p
+
+
 def stop_peer(p: subprocess.Popen) -> dict:
     out, _ = p.communicate("", timeout=30)
     return json.loads(out.strip().splitlines()[-1])
@@ -274,6 +285,66 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
     sys.stdin.read()
     sub.undeclare()
     print(json.dumps({"received": n[0]}), flush=True)
+    session.close()
+    return 0
+
+
+def relay_main(port: int, needed: set[str], beds: set[str], target: str) -> int:
+    """A node without its logic: the floor of the node's latency under the same load.
+
+    Listens on ``port`` and takes every sensor key as the node does (a Zenoh ``FifoChannel`` of
+    the node's default size, drained by one worker thread in passes of at most ``BATCH_MAX``,
+    sleeping ``POLL_S`` when it finds it empty, each message's key, payload and receive stamp
+    read as ``LiveNode._pull`` reads them). For each message of one of the ``beds`` on a
+    ``needed`` channel it publishes ``{"t": t, "c": channel}`` (``t`` from its payload) on
+    ``testbed/<bed>/monitor/<target>`` (``DROP``, as the node): the bench times the reply to
+    the channel that completed its sample (a sample may miss a channel, so the relay cannot
+    tell which one does); everything else is only taken. Runs until stdin closes, then prints
+    ``{"received": N, "published": M}``.
+    """
+    import threading
+
+    import zenoh
+
+    from node.contract import SENSOR_SUBSCRIPTION
+    from node.live.node import BATCH_MAX, POLL_S
+    from node.live.zenoh import json_publisher, open_session, zenoh_config
+    session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
+    sub = session.declare_subscriber(SENSOR_SUBSCRIPTION, zenoh.handlers.FifoChannel(1_000_000))
+    drop = zenoh.CongestionControl.DROP
+    pubs = {b: json_publisher(session, f"testbed/{b}/monitor/{target}", congestion_control=drop)
+            for b in beds}
+    n = [0, 0]
+    stop = threading.Event()
+
+    def work() -> None:
+        take = sub.try_recv
+        while not stop.is_set():
+            batch = []
+            for _ in range(BATCH_MAX):
+                sample = take()
+                if sample is None:
+                    break
+                batch.append((str(sample.key_expr), sample.payload.to_bytes(), sample.timestamp))
+            if not batch:
+                time.sleep(POLL_S)
+                continue
+            n[0] += len(batch)
+            for key, payload, _ in batch:
+                _, bed, _, ch = key.split("/", 3)
+                if bed not in beds or ch not in needed:
+                    continue
+                pubs[bed].put(orjson.dumps({"t": orjson.loads(payload)["t"], "c": ch}))
+                n[1] += 1
+
+    worker = threading.Thread(target=work, daemon=True)
+    worker.start()
+    print("ready", flush=True)
+    sys.stdin.read()
+    stop.set()
+    worker.join(5)
+    sub.undeclare()
+    print(json.dumps({"received": n[0], "published": n[1]}), flush=True)
     session.close()
     return 0
 
@@ -562,11 +633,15 @@ def bed_inputs(recording: str | Path, bed: str, out: str | Path) -> int:
 def main(argv: list[str] | None = None) -> int:
     """The peer process of :func:`start_peer`."""
     ap = argparse.ArgumentParser(prog="python -m harness.live")
-    ap.add_argument("--peer", choices=["echo", "count"], required=True)
+    ap.add_argument("--peer", choices=["echo", "count", "relay"], required=True)
     ap.add_argument("--port", type=int, required=True)
     ap.add_argument("--t0", type=float)
     ap.add_argument("--needed", default="")
+    ap.add_argument("--beds", default="", help="relay: the beds replied to, comma-separated")
+    ap.add_argument("--target", default="", help="relay: the monitor topic's target")
     args = ap.parse_args(argv)
+    if args.peer == "relay":
+        return relay_main(args.port, set(args.needed.split(",")), set(args.beds.split(",")), args.target)
     return peer_main(args.peer, args.port, args.t0, set(args.needed.split(",")))
 
 

@@ -153,6 +153,31 @@ def test_three_beds_at_40_hz_every_sample_gets_its_monitor_message(setup, tmp_pa
     assert seen == {b: n for b in beds}, f"monitor messages per bed {seen}, {n} samples each"
 
 
+def test_the_relay_takes_everything_and_answers_each_needed_channel_of_its_beds(setup):
+    """The hostile bench's floor (``bench hostile --floor``): a node without its logic takes every
+    sensor message and answers, for its own beds only, each message of a needed channel with its
+    time and channel, which is what the bench times."""
+    from harness.live import Bench, free_port, load_stream, start_relay, stop_peer, wait_for
+    stream = load_stream(str(setup / "test.mcap"), 1.0, 0.0, {"nB", "yB"})
+    port = free_port()
+    relay = start_relay(port, ["bedA"], {"nB", "yB"}, "yB")
+    bench = Bench(f"tcp/127.0.0.1:{port}", ["bedA", "bedB"], ["nB", "yB", "tF"], "testbed/*/monitor/**")
+    try:
+        bench.wait_matched()
+        sent = bench.publish(stream)
+        expected = sum(c in ("nB", "yB") for slot in stream.slots for c, _ in slot)
+        wait_for(lambda: len(bench.arrivals) >= expected, 20)
+        time.sleep(0.3)  # nothing more comes
+    finally:
+        bench.close()
+        report = stop_peer(relay)
+    assert report == {"received": sent["count"], "published": expected}
+    assert {k for k, _, _ in bench.arrivals} == {"testbed/bedA/monitor/yB"}
+    answered = [(orjson.loads(p)["t"], orjson.loads(p)["c"]) for _, p, _ in bench.arrivals]
+    assert answered == [(orjson.loads(payload)["t"], c) for slot in stream.slots for c, payload in slot
+                        if c in ("nB", "yB")]
+
+
 def test_three_targets_live_equal_replay_for_each_target(tmp_path, monkeypatch):
     """One model of yA, yB and yC, with their phases: the live node's monitor messages of every
     target equal offline replay's to the last bit, vector fields included, and so do its
