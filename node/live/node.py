@@ -20,7 +20,7 @@ core admits a message only on a valid sensor key of a bed the ``beds`` pattern n
 ``max_beds`` beds and ``max_channels`` channels per bed; the refused are counted per reason,
 never recorded, never a bed, a topic or an MCAP channel (``NodeCore.route``). A bed silent
 for ``bed_expiry_s`` (receive time) is freed: its waiting samples run, a last health message
-says ``expired: true``, its publishers are undeclared. The recording's channel table is
+says ``expired: true``. The recording's channel table is
 bounded too (``RecordingWriter.max_channels``): a topic beyond it is refused and counted, the
 recording goes on. What belongs to no bed (refusals, beds tracked and expired, the worker's
 lag) goes to the node's own health, ``ordervib/node/<id>/health``
@@ -86,9 +86,7 @@ from node.contract import (
     log_time_ns,
     log_times_ns,
     node_health_key,
-    oc_key,
     sensor_subscription,
-    transient_key,
 )
 from node.live.analyses import TransientAnalyses
 from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
@@ -215,7 +213,6 @@ class LiveNode:
         self.stats = LiveStats()
         self.token: Any = None
         self._stop = threading.Event()
-        self._publishers: dict[str, Any] = {}
         self._lag: dict[str, deque[float]] = {}  # bed -> receive-to-publish latencies, ms
         self._lag_max: dict[str, float] = {}  # bed -> the largest latency since its last health, ms
         self._last_recv: dict[str, int] = {}  # bed -> receive time of its newest message, ns
@@ -289,11 +286,6 @@ class LiveNode:
     def _publish(self, key: str, msg: dict | Any) -> None:
         self._publish_many(((key, msg),))
 
-    def _publisher(self, key: str) -> Any:
-        pub = self._publishers[key] = self.session.declare_publisher(
-            key, encoding=self._json, congestion_control=self._congestion)
-        return pub
-
     def _publish_many(self, outs: Sequence[tuple[str, dict | Any]]) -> None:
         """Publish (key, message) outputs in turn, then record them (in the same order)."""
         rows = self._send(outs)
@@ -301,16 +293,24 @@ class LiveNode:
 
     def _send(self, outs: Sequence[tuple[str, dict | Any]]) -> list[tuple[str, int, int, bytes]]:
         """Publish (key, message) outputs in turn; their rows for the recording, each stamped
-        with its publish time (``_record_many``'s rows)."""
-        pubs, dumps, clock, wall, log_ns = (self._publishers, orjson.dumps, time.perf_counter, time.time_ns,
-                                            log_time_ns)
+        with its publish time (``_record_many``'s rows).
+
+        Each goes by ``Session.put``: no publisher is declared per key. Every key a session
+        declares is a node of Zenoh's key tree, which its receive threads walk for each message on
+        a key they have not resolved before (a wildcard key above all): with the publishers of 256
+        flooded beds declared, Zenoh's receive threads took 40 % of a core in the hostile soak's
+        flood, against 5 % without (issue 31; docs/deployment.md). An undeclared put costs about
+        1 us more in this thread."""
+        put_key, dumps, clock, wall = self.session.put, orjson.dumps, time.perf_counter, time.time_ns
+        log_ns = log_time_ns
+        enc, congestion = self._json, self._congestion
         rows = []
         put = 0.0
         for key, msg in outs:
-            pub = pubs.get(key) or self._publisher(key)
             data = dumps(msg)
             t0 = clock()
-            pub.put(data)  # waits at most Zenoh's wait_before_drop for a congested subscriber
+            # waits at most Zenoh's wait_before_drop for a congested subscriber
+            put_key(key, data, encoding=enc, congestion_control=congestion)
             put += clock() - t0
             rows.append((key, log_ns(msg["t"]), wall(), data))
         self._spent["put"] += put
@@ -563,7 +563,7 @@ class LiveNode:
 
     def _expire(self, wall: float) -> None:
         """Free the beds silent (receive time) for ``bed_expiry_s``: their waiting samples run and
-        go out, a last health message says ``expired: true``, their publishers are undeclared."""
+        go out, a last health message says ``expired: true``."""
         now = time.time_ns()
         silence = int(self.bed_expiry_s * 1e9)
         gone = [name for name in self.core.beds if now - self._last_recv.setdefault(name, now) > silence]
@@ -576,10 +576,6 @@ class LiveNode:
                 last["expired"] = True
                 self._publish(health_key(name), last)
             self.core.forget(name)
-            for key in (*state.keys, oc_key(name), health_key(name), transient_key(name)):
-                pub = self._publishers.pop(key, None)
-                if pub is not None:
-                    pub.undeclare()
             for per_bed in (self._lag, self._lag_max, self._last_recv):
                 per_bed.pop(name, None)
         if gone:
