@@ -20,9 +20,9 @@ core admits a message only on a valid sensor key of a bed the ``beds`` pattern n
 ``max_beds`` beds and ``max_channels`` channels per bed; the refused are counted per reason,
 never recorded, never a bed, a topic or an MCAP channel (``NodeCore.route``). A bed silent
 for ``bed_expiry_s`` (receive time) is freed: its waiting samples run, a last health message
-says ``expired: true``. The recording's channel table is
-bounded too (``RecordingWriter.max_channels``): a topic beyond it is refused and counted, the
-recording goes on. What belongs to no bed (refusals, beds tracked and expired, the worker's
+says ``expired: true``. The recording's channel table is bounded too
+(``RecordingWriter.max_channels``): a topic beyond it is refused and counted, the recording
+goes on. What belongs to no bed (refusals, beds tracked and expired, the worker's
 lag) goes to the node's own health, ``ordervib/node/<id>/health``
 (``NodeHealthMessage``), once a second while it changes.
 
@@ -297,10 +297,10 @@ class LiveNode:
 
         Each goes by ``Session.put``: no publisher is declared per key. Every key a session
         declares is a node of Zenoh's key tree, which its receive threads walk for each message on
-        a key they have not resolved before (a wildcard key above all): with the publishers of 256
-        flooded beds declared, Zenoh's receive threads took 40 % of a core in the hostile soak's
-        flood, against 5 % without (issue 31; docs/deployment.md). An undeclared put costs about
-        1 us more in this thread."""
+        a key they have not resolved before (a wildcard key above all): with a publisher declared
+        per topic of the 256 beds a flood fills, Zenoh's receive threads took 34 % of a core in the
+        hostile soak, against 5 % without (issue 31; docs/deployment.md). An undeclared put costs
+        about 1 us more in this thread."""
         put_key, dumps, clock, wall = self.session.put, orjson.dumps, time.perf_counter, time.time_ns
         log_ns = log_time_ns
         enc, congestion = self._json, self._congestion
