@@ -43,26 +43,15 @@ SLOT_NS = round(1e9 / FS)
 SPREAD_NS = 10_000  # receive-time step between messages of a slot, ns
 
 
-class _Publisher:
-    """Stands in for a Zenoh publisher: hashes what it is given (key, bytes)."""
-
-    def __init__(self, key: str, digest: hashlib._Hash) -> None:
-        self.key = key.encode()
-        self.digest = digest
-
-    def put(self, data: bytes) -> None:
-        self.digest.update(self.key)
-        self.digest.update(data)
-
-
 class _Session:
-    """Stands in for a Zenoh session: publishers that hash."""
+    """Stands in for a Zenoh session: its puts hash what they are given (key, bytes)."""
 
     def __init__(self) -> None:
         self.digest = hashlib.sha256()
 
-    def declare_publisher(self, key: str, **_: object) -> _Publisher:
-        return _Publisher(key, self.digest)
+    def put(self, key: str, data: bytes, **_: object) -> None:
+        self.digest.update(key.encode())
+        self.digest.update(data)
 
 
 def batches(recording: str, needed: set[str], beds: int, seconds: float, offset: float,
