@@ -479,16 +479,18 @@ def run(args: argparse.Namespace, tmp: Path) -> dict:
         target = suffix.get(key[key.rfind("/monitor/"):])
         if target is None:
             return
-        if args.floor:  # the relay replies to each needed channel: the sample's last one counts
-            d = orjson.loads(payload)
-            got = sent_at.get(round(d["t"] * FS))
-            if got is None or d["c"] != got[2]:
-                return
+        if target != targets[0]:
+            counts[target] += 1
+            return
+        d = orjson.loads(payload)
+        slot = round(d["t"] * FS)
+        # the relay replies to each needed channel: the sample's last one counts
+        if args.floor and (slot not in sent_at or d["c"] != sent_at[slot][2]):
+            return
         counts[target] += 1
-        if target == targets[0]:
-            got = sent_at.pop(round(orjson.loads(payload)["t"] * FS), None)
-            if got is not None:
-                lat.append((got[1], got[0], (arrival - got[0]) / 1e6))
+        got = sent_at.pop(slot, None)
+        if got is not None:
+            lat.append((got[1], got[0], (arrival - got[0]) / 1e6))
 
     def on_node_health(sample) -> None:
         d = orjson.loads(sample.payload.to_bytes())
@@ -695,27 +697,39 @@ def latency_phases(r: dict) -> dict[str, np.ndarray]:
             "burst": np.array([x for p, ns, x in lat if p == "hostile" and in_burst(ns)])}
 
 
+def latency_row(name: str, a: np.ndarray) -> list[str]:
+    """A latency table's row: name, samples, p50 / p99 / max ms."""
+    return [name, f"{len(a):,}", f"{pct(a, 50):.2f}", f"{pct(a, 99):.2f}", f"{pct(a, 100):.2f}"]
+
+
+def cpu_figures(r: dict) -> str:
+    """The process under test's CPU quiet / hostile (of a core), the clients' while hostile, and
+    the machine's load."""
+    cpu, quiet_s = r["cpu"], r["quiet_s"]
+    at = next(((s, c) for s, c in cpu if s >= quiet_s), cpu[-1])
+
+    def share(a: tuple[float, float], b: tuple[float, float]) -> str:
+        return f"{(b[1] - a[1]) / max(b[0] - a[0], 1e-9) * 100:.0f} %"
+    clients = sum(rep.get("cpu_s", 0.0) for rep in r["reports"].values()) / r["hostile_s"]
+    return (f"{share(cpu[0], at)} / {share(at, cpu[-1])}; {clients * 100:.0f} %; {r['load']:.1f} on "
+            f"{os.cpu_count()} cores")
+
+
 def report_floor(args: argparse.Namespace, r: dict) -> None:
     """``--floor``: the relay's latency table, its ratio and the machine's figures."""
     from node.console.table import print_table
     phases = latency_phases(r)
     quiet, hostile = phases["quiet"], phases["hostile"]
-    rows = [[name, f"{len(phases[k]):,}", f"{pct(phases[k], 50):.2f}", f"{pct(phases[k], 99):.2f}",
-             f"{pct(phases[k], 100):.2f}"] for k, name in PHASE_ROWS.items()]
+    rows = [latency_row(name, phases[k]) for k, name in PHASE_ROWS.items()]
     print_table(["real bed tb01, relay (no node logic)", "samples", "p50 ms", "p99 ms", "max ms"], rows,
                 markdown=True, title="Floor: last needed channel published -> the relay's reply received "
                                      f"(each run's first {WARMUP} samples left out)")
-    cpu, quiet_s, hostile_s = r["cpu"], r["quiet_s"], r["hostile_s"]
-    at = next(((s, c) for s, c in cpu if s >= quiet_s), cpu[-1])
-    clients_cpu = sum(rep.get("cpu_s", 0.0) for rep in r["reports"].values()) / hostile_s
     print_table(["figure", "measured"], [
         ["hostile p99 / quiet p99", f"{pct(hostile, 99) / pct(quiet, 99):.2f} x (the node's criterion: "
          f"<= {P99_RATIO:g} x)"],
         ["replies / real samples published", f"{r['counts'].get(r['targets'][0], 0):,} / {r['published']:,}"],
         ["relay CPU, quiet / hostile (of a core); the clients', hostile; machine load (5 min)",
-         f"{(at[1] - cpu[0][1]) / max(at[0] - cpu[0][0], 1e-9) * 100:.0f} % / "
-         f"{(cpu[-1][1] - at[1]) / max(cpu[-1][0] - at[0], 1e-9) * 100:.0f} %; {clients_cpu * 100:.0f} %; "
-         f"{r['load']:.1f} on {os.cpu_count()} cores"],
+         cpu_figures(r)],
         ["real bed's publisher: largest delay behind its schedule, quiet / hostile",
          f"{r['late']['quiet'] * 1e3:.1f} / {r['late']['hostile'] * 1e3:.1f} ms"],
     ], markdown=True, title=f"Floor under the hostile clients ({args.minutes:g} min after "
@@ -735,8 +749,6 @@ def report(args: argparse.Namespace, r: dict, rec: dict, cmp: dict, replayed: in
     quiet, hostile = phases["quiet"], phases["hostile"]
     checks["latency"] = bool(len(quiet) and len(hostile)) and pct(hostile, 99) <= P99_RATIO * pct(quiet, 99)
 
-    def row(name: str, a: np.ndarray) -> list[str]:
-        return [name, f"{len(a):,}", f"{pct(a, 50):.2f}", f"{pct(a, 99):.2f}", f"{pct(a, 100):.2f}"]
     hostile_ns = r["hostile"] * 1e9
     own = [(ns, x) for ns, x in rec["internal"] if ns >= r["start"] * 1e9 + WARMUP / FS * 1e9]
     own_quiet = np.array([x for ns, x in own if ns < hostile_ns])
@@ -752,9 +764,9 @@ def report(args: argparse.Namespace, r: dict, rec: dict, cmp: dict, replayed: in
              ms=np.array([x for _, _, x in lat]), own_s=np.array([ns / 1e9 - r["start"] for ns, _ in own]),
              own_ms=np.array([x for _, x in own]))
     print_table(["real bed tb01", "samples", "p50 ms", "p99 ms", "max ms"],
-                [*(row(name, phases[k]) for k, name in PHASE_ROWS.items()),
-                 row("node's own share, quiet (its recording: receipt -> publish)", own_quiet),
-                 row("node's own share, hostile", own_hostile)], markdown=True,
+                [*(latency_row(name, phases[k]) for k, name in PHASE_ROWS.items()),
+                 latency_row("node's own share, quiet (its recording: receipt -> publish)", own_quiet),
+                 latency_row("node's own share, hostile", own_hostile)], markdown=True,
                 title="Latency: last needed channel published -> monitor message received "
                       f"(each run's first {WARMUP} samples left out)")
 
@@ -827,16 +839,9 @@ def report(args: argparse.Namespace, r: dict, rec: dict, cmp: dict, replayed: in
 
     flood = reports["flood"]
     sib = reports["siblings"]
-    cpu = r["cpu"]
-    cpu_at = next(((s, c) for s, c in cpu if s >= quiet_s), cpu[-1])
-
-    def share(a: tuple[float, float], b: tuple[float, float]) -> str:
-        return f"{(b[1] - a[1]) / max(b[0] - a[0], 1e-9) * 100:.0f} %"
-    clients_cpu = sum(rep.get("cpu_s", 0.0) for rep in reports.values()) / hostile_s
     print_table(["figure", "measured"], [
         ["node CPU, quiet / hostile (of a core); the clients' processes, hostile; machine load (5 min)",
-         f"{share(cpu[0], cpu_at)} / {share(cpu_at, cpu[-1])}; {clients_cpu * 100:.0f} %; {r['load']:.1f} "
-         f"on {os.cpu_count()} cores"],
+         cpu_figures(r)],
         ["real bed's publisher: largest delay behind its 40 Hz schedule, quiet / hostile",
          f"{r['late']['quiet'] * 1e3:.1f} / {r['late']['hostile'] * 1e3:.1f} ms"],
         ["node RSS at the start (quiet) / hostile start / largest / end",
