@@ -640,9 +640,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--beds", default="", help="relay: the beds replied to, comma-separated")
     ap.add_argument("--target", default="", help="relay: the monitor topic's target")
     args = ap.parse_args(argv)
-    if args.peer == "relay":
-        return relay_main(args.port, set(args.needed.split(",")), set(args.beds.split(",")), args.target)
-    return peer_main(args.peer, args.port, args.t0, set(args.needed.split(",")))
+    needed, beds = set(filter(None, args.needed.split(","))), set(filter(None, args.beds.split(",")))
+    if args.peer == "relay":  # (no beds: it only takes, the intake's floor)
+        return relay_main(args.port, needed, beds, args.target)
+    return peer_main(args.peer, args.port, args.t0, needed)
 
 
 if __name__ == "__main__":
