@@ -36,7 +36,6 @@ COMMAND_MODULES: tuple[str, ...] = (
     "node.cli.recover",
     "node.cli.ingest",
     "node.cli.router",
-    "node.cli.native",
 )
 
 
