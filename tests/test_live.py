@@ -178,6 +178,25 @@ def test_the_relay_takes_everything_and_answers_each_needed_channel_of_its_beds(
                         if c in ("nB", "yB")]
 
 
+def test_the_relay_of_no_bed_only_takes_the_intake_floor(setup):
+    """``bench live``'s intake floor: the relay given no bed (an empty ``--beds``) takes every
+    sensor message and publishes nothing."""
+    from harness.live import Bench, free_port, load_stream, start_relay, stop_peer
+    stream = load_stream(str(setup / "test.mcap"), 0.5, 0.0, {"nB"})
+    port = free_port()
+    relay = start_relay(port, [], set(), "yB")
+    bench = Bench(f"tcp/127.0.0.1:{port}", ["bedA"], ["nB", "yB", "tF"], "testbed/*/monitor/**")
+    try:
+        bench.wait_matched()
+        sent = bench.publish(stream)
+        time.sleep(0.5)  # the relay drains its FIFO
+    finally:
+        bench.close()
+        report = stop_peer(relay)
+    assert sent["count"] > 0 and report == {"received": sent["count"], "published": 0}
+    assert bench.arrivals == []
+
+
 def test_three_targets_live_equal_replay_for_each_target(tmp_path, monkeypatch):
     """One model of yA, yB and yC, with their phases: the live node's monitor messages of every
     target equal offline replay's to the last bit, vector fields included, and so do its
