@@ -34,6 +34,9 @@ def main(argv: list[str]) -> int:
     if not argv or argv[0] not in BENCHMARKS:
         print("usage: python -m bench {" + "|".join(BENCHMARKS) + "} [options]", file=sys.stderr)
         return 2
+    from node import native
+    # every figure is of the modules that ran: the compiled ones or the pure Python ones (node.native)
+    print(f"per-sample modules: {native.state()} (ordervib native state)", file=sys.stderr)
     mod = importlib.import_module(BENCHMARKS[argv[0]])
     return int(mod.main(argv[1:]) or 0)
 

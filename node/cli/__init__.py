@@ -36,6 +36,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "node.cli.recover",
     "node.cli.ingest",
     "node.cli.router",
+    "node.cli.native",
 )
 
 

@@ -117,8 +117,9 @@ def clock_policy(jump: float | None, hold: float | None) -> ClockPolicy:
     """The clock guard ``--clock-jump`` and ``--clock-hold`` ask for (the others: the defaults);
     a value ``ClockPolicy`` refuses is one line naming the option."""
     try:
-        return ClockPolicy(max_jump_s=ClockPolicy.max_jump_s if jump is None else jump,
-                           hold_s=ClockPolicy.hold_s if hold is None else hold)
+        default = ClockPolicy()
+        return ClockPolicy(max_jump_s=default.max_jump_s if jump is None else jump,
+                           hold_s=default.hold_s if hold is None else hold)
     except ValueError as exc:
         option = "--clock-jump" if str(exc).startswith("max_jump_s") else "--clock-hold"
         raise OrdervibError(f"{option}: {exc}") from None

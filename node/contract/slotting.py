@@ -90,8 +90,7 @@ class ChannelPhase:
         x = t * self._fs
         q = round((x - math.floor(x)) * Q) % Q
         if self.phi is None:
-            self._start(q)
-            return round(x - self.phi)  # type: ignore[operator]  # set by _start
+            return round(x - self._start(q))
         k = round(x - self.phi)
         self._bx += _COS[q]
         self._by += _SIN[q]
@@ -111,8 +110,7 @@ class ChannelPhase:
         lens: list[int] = []
         i = 0
         if self.phi is None:
-            self._start(int(q[0]))
-            phis.append(self.phi)  # type: ignore[arg-type]  # set by _start
+            phis.append(self._start(int(q[0])))
             lens.append(1)
             i = 1
         if i < m:
@@ -122,7 +120,9 @@ class ChannelPhase:
             bx = np.add.reduceat(COS[q], starts).tolist()  # exact integer sums
             by = np.add.reduceat(SIN[q], starts).tolist()
             for a, b, sx, sy in zip(starts, ends, bx, by, strict=True):
-                phis.append(self.phi)  # type: ignore[arg-type]  # set by the first sample
+                phi = self.phi  # this block's (_fold moves it)
+                assert phi is not None  # set by the first sample
+                phis.append(phi)
                 lens.append(b - a)
                 self._bx += sx
                 self._by += sy
@@ -131,11 +131,12 @@ class ChannelPhase:
                     self._fold()
         return np.rint(x - np.repeat(phis, lens)).astype(np.int64)
 
-    def _start(self, q: int) -> None:
-        """The first sample (quantised phase q): phi is its phase."""
-        self.phi = _wrap(q / Q)
+    def _start(self, q: int) -> float:
+        """The first sample (quantised phase q): phi is its phase (returned)."""
+        phi = self.phi = _wrap(q / Q)
         self._ex, self._ey = _COS[q] / SCALE, _SIN[q] / SCALE
         self.n = 1
+        return phi
 
     def _fold(self) -> None:
         """A full block moves the mean vector, and phi follows its angle (continuously)."""

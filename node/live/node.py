@@ -76,6 +76,7 @@ from typing import Any
 import numpy as np
 import orjson
 
+from node import native
 from node.contract import (
     HealthMessage,
     NodeHealthMessage,
@@ -638,7 +639,8 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
                   max_beds=max_beds, max_channels=max_channels, bed_expiry_s=bed_expiry_s,
                   clock=clock) as node:
         where = listen or connect or f"the endpoints of {config_file}"
-        log.info("ordervib node on %s, serving beds %s; recording to %s; Ctrl-C stops", where, beds, record)
+        log.info("ordervib node on %s, serving beds %s; recording to %s; per-sample modules %s; Ctrl-C stops",
+                 where, beds, record, native.state())
         while node.thread.is_alive():  # the watchdog
             wait = WATCHDOG_S if deadline is None else min(WATCHDOG_S, deadline - time.monotonic())
             if stop.wait(max(0.0, wait)) or (deadline is not None and time.monotonic() >= deadline):
