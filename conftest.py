@@ -1,7 +1,10 @@
-"""The test session runs the pure Python modules (``node.native``): the doctests are collected
-from the sources, and a compiled module may not be patched. ``tests/test_native.py`` runs the
-compiled ones beside them in subprocesses and asserts identical outputs."""
+"""The test session runs the modules the product runs: the compiled per-sample modules when they
+are built and current (``node.native``), else the pure Python ones. Compiled, their doctests
+cannot be collected from the extension modules: ``tests/test_native.py`` runs them from the
+sources in a pure Python subprocess, and replays a recording both ways to the bit."""
 
-import os
+from node import native
 
-os.environ["ORDERVIB_PURE"] = "1"  # before anything imports node; inherited by the node subprocesses
+# paths relative to this directory; empty when the pure Python modules run
+collect_ignore = ([str(native.source(m).relative_to(native.ROOT)) for m in native.COMPILED]
+                  if native.state() == "compiled" else [])

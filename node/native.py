@@ -49,7 +49,9 @@ STAMP_VERSION = 1
 
 # The modules compiled: the per-message and per-sample path. Left out: modules whose classes are
 # introspected (the contract's message schemas: typing.get_type_hints), that hold a complex
-# default (node.models.curve: mypyc 2.4 fails on it at import), or do I/O and threads (node.live).
+# default (node.models.curve: mypyc 2.4 fails on it at import), whose frozen dataclasses go to
+# other processes (node.models.envelope: a compiled one does not unpickle), or do I/O and
+# threads (node.live).
 COMPILED: tuple[str, ...] = (
     "node.contract.keys",
     "node.contract.payload",
@@ -57,7 +59,6 @@ COMPILED: tuple[str, ...] = (
     "node.contract.vector",
     "node.mcap.writer",
     "node.models.baseline",
-    "node.models.envelope",
     "node.runtime.alarms",
     "node.runtime.align",
     "node.runtime.chirp",

@@ -59,11 +59,6 @@ def test_the_pure_finder_loads_the_source_whatever_lies_beside_it(tmp_path: Path
     assert module.VALUE == "source"
 
 
-def test_the_test_session_runs_the_pure_modules() -> None:
-    import node.runtime.align as align
-    assert native.state() in ("off", "absent") and align.__file__.endswith("align.py")
-
-
 def run(args: list[str], pure: bool, cwd: Path) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k != native.PURE_ENV}
     if pure:
@@ -84,6 +79,17 @@ def campaign(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert main(["train", str(d / "train.mcap"), "--schedule", str(d / "train.schedule.toml"), "--out",
                  str(d / "m"), "--quiet", "--workers", "1"]) == 0
     return d
+
+
+def test_the_compiled_modules_doctests_pass_from_their_sources() -> None:
+    """Compiled, the session leaves these doctests out (``conftest.py``): here they run."""
+    files = [str(native.source(m)) for m in native.COMPILED]
+    r = run(["-m", "pytest", "-q", "-o", "addopts=", "--doctest-modules", "-p", "no:cacheprovider", *files],
+            pure=True, cwd=ROOT)
+    assert r.returncode == 0, r.stdout[-2000:]
+    passed = r.stdout.strip().splitlines()[-1]
+    assert passed.endswith(" passed") or " passed in " in passed, passed
+    assert int(passed.split()[0]) >= 40, passed  # the modules' doctests, not a few
 
 
 def test_the_compiled_modules_replay_to_the_bit_what_the_pure_ones_do(campaign: Path) -> None:

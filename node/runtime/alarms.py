@@ -135,6 +135,12 @@ class ResidualCheck:
         return self.score, self.raised
 
 
+def _isnan(z: complex) -> bool:
+    """Whether z (a float or complex, numpy's too) is NaN in either part: ``z != z`` as a bool
+    (numpy's scalars answer that with a ``numpy.bool``)."""
+    return math.isnan(z.real) or math.isnan(z.imag)
+
+
 class StepCheck:
     """Stateful step detector on one channel during steady plateaus (bounded memory).
 
@@ -192,11 +198,11 @@ class StepCheck:
         self._age += 1
         if self._age <= self.n_settle:
             return 0.0
-        if value != value:
+        if _isnan(value):
             value = self._last
-            if value != value:
+            if _isnan(value):
                 return 0.0
-        if self._last == self._last:
+        if not _isnan(self._last):
             d = value - self._last  # squared by products: a huge value gives inf, where ** raises
             d2 = 0.5 * (d.real * d.real + d.imag * d.imag)
             if self._ndiff >= self.n_long:  # clip outliers (the step itself) out of the noise
