@@ -5,8 +5,8 @@ transients), the contract's slotting, payload decoding and keys, the MCAP writer
 envelope and fleet baselines run once per message or per sample, in plain Python: most of a
 message's cost is the interpreter's own (attribute and dict lookups, boxed floats, calls), not
 numpy's. mypyc compiles these typed modules, unchanged, into extension modules (``build``): the
-node's logic costs 35 % less a message (``bench worker-speed``) and offline replay runs 1.7x as
-fast (``bench replay-speed``), with outputs identical to the bit (CPython's floats are C doubles
+node's logic costs a third less a message (``bench worker-speed``) and offline replay's logic runs
+1.46x as fast (``bench replay-speed``), with outputs identical to the bit (CPython's floats are C doubles
 either way; ``tests/test_native.py`` replays the sample runs both ways). No rule is written twice:
 there is one source, and the pure Python modules stay the reference.
 
