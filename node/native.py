@@ -1,8 +1,8 @@
 """The per-sample path compiled by mypyc: the very same source, as C extension modules.
 
 The node's runtime (``node.runtime``: aligner, OC detection, pipelines, guards, alarms,
-transients), the contract's slotting, payload decoding and keys, the MCAP writer and the models'
-envelope and fleet baselines run once per message or per sample, in plain Python: most of a
+transients), the contract's slotting, payload decoding and keys, the MCAP writer and the fleet
+baselines run once per message or per sample, in plain Python: most of a
 message's cost is the interpreter's own (attribute and dict lookups, boxed floats, calls), not
 numpy's. mypyc compiles these typed modules, unchanged, into extension modules (``build``): the
 node's logic costs a third less a message (``bench worker-speed``) and offline replay's logic runs
@@ -75,7 +75,7 @@ COMPILED: tuple[str, ...] = (
     "node.runtime.transient_watch",
 )
 
-State = Literal["compiled", "pure", "stale", "off", "absent"]
+State = Literal["compiled", "stale", "off", "absent"]
 
 
 def source(module: str, root: Path = ROOT) -> Path:
