@@ -18,7 +18,7 @@ on the same batches) measured in the same run, and a digest of every output's ke
 its N costliest functions by own time.
 
 Without ``--model`` a Lasso bundle is trained on the committed sample runs first. The figure
-beside the target (10 us a message for the whole node, issue 35) is the worker's share only:
+beside the target (10 us a message for the whole node, the live target) is the worker's share only:
 Zenoh's receive side costs about the bare subscriber's figure on top (``bench live``).
 """
 
@@ -38,7 +38,7 @@ from pathlib import Path
 from harness.live import ROOT, load_stream
 from node.contract import FS, sensor_key
 
-TARGET_US = 10.0  # the whole node a message (issue 35); the worker must stay well under it
+TARGET_US = 10.0  # the whole node a message (the live target); the worker must stay well under it
 SLOT_NS = round(1e9 / FS)
 SPREAD_NS = 10_000  # receive-time step between messages of a slot, ns
 

@@ -15,7 +15,7 @@ analysis (``monitor/transient``) runs in a process of its own at the lowest prio
 (``NodeCore(defer_transients=True)``, ``PendingTransient``, ``node.live.analyses``): its message
 goes out once done, in the order the transitions ended.
 
-Hostile and broken clients (issue 31): whatever arrives, the node's state stays bounded. The
+Hostile and broken clients (``bench hostile``): whatever arrives, the node's state stays bounded. The
 core admits a message only on a valid sensor key of a bed the ``beds`` pattern names, within
 ``max_beds`` beds and ``max_channels`` channels per bed; the refused are counted per reason,
 never recorded, never a bed, a topic or an MCAP channel (``NodeCore.route``). A bed silent
@@ -33,7 +33,7 @@ Failures (docs/deployment.md, "What the node does when things go wrong"):
   (``BLOCK``) or drop at their side (``DROP``, counted there). Health shows it as the worker's
   lag: how long the intake has not been found empty (``worker_lag_s``). With a Python callback
   per message the node cost 48 us a message at 20 beds, 10 of them the callback thread and its
-  contention with the worker (issue 35);
+  contention with the worker (``bench live``);
 - a malformed payload is counted and recorded at its receive time; it never
   reaches code that can throw;
 - a recording that fails (disk full, I/O error) stops being written: the node
@@ -300,7 +300,7 @@ class LiveNode:
         declares is a node of Zenoh's key tree, which its receive threads walk for each message on
         a key they have not resolved before (a wildcard key above all): with a publisher declared
         per topic of the 256 beds a flood fills, Zenoh's receive threads took 34 % of a core in the
-        hostile soak, against 5 % without (issue 31; docs/deployment.md). An undeclared put costs
+        hostile soak, against 5 % without (docs/deployment.md). An undeclared put costs
         about 1 us more in this thread."""
         put_key, dumps, clock, wall = self.session.put, orjson.dumps, time.perf_counter, time.time_ns
         log_ns = log_time_ns
