@@ -58,7 +58,7 @@ def config_file_endpoints(config_file: str | None) -> bool:
 
 def json_publisher(session, key: str, **options):
     """A publisher on ``key`` whose samples say they are JSON: Zenoh encoding
-    ``application/json`` (INTERFACE.md section 2; a bare ``put`` says ``zenoh/bytes``).
+    ``application/json`` (docs/contract.md section 2; a bare ``put`` says ``zenoh/bytes``).
     ``options`` go to ``declare_publisher`` (congestion control, priority, ...)."""
     import zenoh
     return session.declare_publisher(key, encoding=zenoh.Encoding.APPLICATION_JSON, **options)
