@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from node.contract import ORDER_CHANNELS, PHASE_CHANNELS, SENSOR_CHANNELS, phase_channel
+from node.contract import ORDER_CHANNELS, PHASE_CHANNELS, SENSOR_CHANNELS, engine_off, phase_channel
 from node.contract.vector import wrap_degrees
 from simulator import gaspath, rotor, thermal
 from simulator.engine import Engine, build_engine
@@ -42,7 +42,6 @@ from simulator.schedule import (
 FAULTS = ("imbalance", "imbalance-90", "stiffness", "stiffness-mode", "stuck-sensor", "drift")
 STIFFNESS_FAULTS = ("stiffness", "stiffness-mode")
 CAMPAIGN_START = 1767600000.0  # 2026-01-05 08:00:00 UTC, epoch seconds
-OFF_FRACTION = 0.05  # contract: engine off when every shaft speed is below 5 % of its maximum
 MAX_SPEEDS = {"nA": gaspath.NA_TOP, "nB": gaspath.NB_TOP, "nC": gaspath.NC_TOP}
 
 # Sensor noise: sigma = (absolute + relative * |value|) x noise scale (default 1); then
@@ -111,10 +110,10 @@ def _noise_spec(channel: str) -> tuple[float, float, int]:
 
 
 def _first_on(speeds: dict[str, np.ndarray]) -> tuple[int, int]:
-    """Indices of the first and last sample where some shaft speed is >= 5 % of its maximum."""
-    on = np.zeros(len(speeds["nB"]), dtype=bool)
-    for name, top in MAX_SPEEDS.items():
-        on |= speeds[name] >= OFF_FRACTION * top
+    """Indices of the first and last sample where the engine is on (not ``engine_off``: some
+    shaft speed is >= 5 % of its maximum)."""
+    on = ~engine_off(np.column_stack([speeds[name] for name in MAX_SPEEDS]),
+                     np.array(list(MAX_SPEEDS.values()), dtype=float))
     idx = np.flatnonzero(on)
     return int(idx[0]), int(idx[-1])
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.contract.vector import wrap_degrees
+from node.contract.vector import order_lags
 from simulator.lag import lag
 
 T_REF = 15.0  # metal temperature at which the modes have their cold critical speed, °C
@@ -132,9 +132,10 @@ def tracked_phase(vector: np.ndarray) -> np.ndarray:
 
     A response ``A cos(W t - phi)`` with the once-per-rev mark at ``W t = 0`` has the complex
     order ``A exp(-1j phi)`` and the phase ``phi``, which grows by about 180 degrees through
-    each critical speed. 0 where the vector is 0 (shaft at rest; a unit gives no phase there).
+    each critical speed. ``order_lags``: NaN where the vector is 0 (shaft at rest; a unit gives
+    no phase there).
 
     >>> tracked_phase(tracked(np.full(400, 2.0 * np.exp(-1j * np.pi / 3))))[-1].round(6)
     np.float64(60.0)
     """
-    return wrap_degrees(-np.degrees(np.angle(vector)))
+    return order_lags(vector)

@@ -25,12 +25,14 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from enum import StrEnum
+from typing import TypeVar
 
 import numpy as np
 
 FS = 40.0  # nominal sample rate per channel, Hz (section 1)
 RUN_GAP = 60.0  # s without data separate two runs (section 3)
 OFF_FRACTION = 0.05  # the engine is off when every shaft speed is below this fraction of its maximum
+_Top = TypeVar("_Top", float, np.ndarray)  # a shaft's maximum speed, or an array of them
 
 # Section 1, in table order.
 SPEED_CHANNELS: tuple[str, ...] = ("nA", "nB", "nC")
@@ -59,12 +61,38 @@ def run_starts(t: np.ndarray) -> np.ndarray:
     """Where a new run starts in sorted times t (K,) s by the gap rule of section 3 (a gap of
     ``RUN_GAP`` s or more): the indices i (int64, ascending, never 0) with t[i] - t[i-1] >= 60 s.
     The other half of the rule (every shaft speed below ``OFF_FRACTION`` of its maximum) needs
-    the speeds: ``node.training.runs``.
+    the speeds: ``engine_off``.
 
     >>> run_starts(np.array([0.0, 0.025, 59.0, 119.0, 119.025])).tolist()
     [3]
     """
     return np.flatnonzero(np.diff(np.asarray(t, dtype=float)) >= RUN_GAP) + 1
+
+
+def off_speed(top: _Top, fraction: float = OFF_FRACTION) -> _Top:
+    """The speed (unit of ``top``) below which a shaft counts as off: ``fraction`` of its maximum
+    ``top`` (section 3). The one engine-off rule: run splitting (``engine_off``, each shaft's
+    maximum over the recording) and the causal OC detector (the switch shaft, its highest
+    plateau standing for its maximum) both compare a speed with this level.
+
+    >>> off_speed(9800.0)
+    490.0
+    """
+    return fraction * top
+
+
+def engine_off(speeds: np.ndarray, tops: np.ndarray, fraction: float = OFF_FRACTION) -> np.ndarray:
+    """(K,) bool: the engine is off at each row of ``speeds`` (K, S), every shaft speed below
+    ``off_speed`` of its maximum ``tops`` (S,) (section 3). A missing (NaN) speed holds no
+    shaft on; a row with no speed at all is not known to be off.
+
+    >>> engine_off(np.array([[10.0, 600.0], [10.0, 20.0], [np.nan, 20.0], [np.nan, np.nan]]),
+    ...            np.array([9800.0, 9000.0])).tolist()
+    [False, True, True, False]
+    """
+    missing = np.isnan(speeds)
+    off: np.ndarray = np.all((speeds < off_speed(tops, fraction)) | missing, axis=1)
+    return off & ~np.all(missing, axis=1)
 
 
 PREFIX = "testbed"

@@ -3,7 +3,7 @@
 A phase channel gives the tracked order-1 phase as a lag from the shaft's once-per-rev
 mark, in degrees, in [-180, 180). The 1x vector of amplitude A and phase lag phi is
 A exp(-j phi): a lag turns it clockwise (90 degrees points it down, -Im). The node,
-training, the views and the benchmarks take the vector and the lag from here.
+training, the views, the simulator and the benchmarks take the vector and the lag from here.
 """
 
 from __future__ import annotations
@@ -49,6 +49,19 @@ def order_vectors(amplitude: np.ndarray, phase_deg: np.ndarray) -> np.ndarray:
     rad = np.radians(phase_deg)
     out: np.ndarray = amplitude * (np.cos(rad) - 1j * np.sin(rad))
     return np.where(np.isfinite(out), out, NAN_VECTOR)
+
+
+def order_lags(v: np.ndarray) -> np.ndarray:
+    """(K,) phase lags (degrees, in [-180, 180)) of 1x vectors v (K,) A exp(-j phase): ``lag_degrees``
+    over an array, to the bit; NaN where a vector is NaN or 0 (no phase).
+
+    >>> order_lags(np.array([order_vector(2.0, 90.0), -1 - 0j, 0j, NAN_VECTOR])).tolist()
+    [90.0, -180.0, nan, nan]
+    """
+    v = np.asarray(v, dtype=complex)
+    lag = -np.degrees(np.angle(v))
+    lag = np.where(lag >= 180.0, lag - 360.0, lag)
+    return np.where(np.isfinite(v) & (v != 0), lag, np.nan)
 
 
 def wrap_degrees(x: np.ndarray) -> np.ndarray:

@@ -32,7 +32,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any, NamedTuple
 
-from node.contract import FS
+from node.contract import FS, OFF_FRACTION
 
 V1_SETTINGS = {"align_wait_s": 0.1}  # where bundles of format version 1 differ from the defaults
 BEFORE_GUARD = {"guard_wait_s": 0.0}  # bundles stored before the curve guard keep it off
@@ -54,7 +54,8 @@ class RuntimeConfig:
         detector_confirm_s: time within the band of the expected plateau to call it steady.
         detector_depart_s: time beyond half the band to call a departure.
         detector_settle_s: time of near-constant speed to accept an unexpected plateau.
-        detector_off_fraction: below this fraction of the highest plateau the engine is off.
+        detector_off_fraction: below this fraction of the highest plateau the engine is off
+            (the contract's ``OFF_FRACTION`` of a shaft's maximum, ``node.contract.off_speed``).
         step_settle_s: the first seconds of a plateau the step rule leaves out.
         step_short_s: the step rule's recent window.
         step_long_s: its reference window, just before the recent one.
@@ -79,7 +80,7 @@ class RuntimeConfig:
     detector_confirm_s: float = 1.0
     detector_depart_s: float = 0.25
     detector_settle_s: float = 5.0
-    detector_off_fraction: float = 0.05
+    detector_off_fraction: float = OFF_FRACTION
     step_settle_s: float = 3.0
     step_short_s: float = 1.0
     step_long_s: float = 4.0

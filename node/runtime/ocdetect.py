@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from node.contract import FS, Phase
+from node.contract import FS, Phase, off_speed
 from node.contract.schedule import Schedule
 from node.models.config import RuntimeConfig
 
@@ -81,7 +81,9 @@ class OCDetector:
             steady), ``detector_depart_s`` (time beyond half the band around the plateau to
             call a departure), ``detector_settle_s`` (time of near-constant speed to accept
             an unexpected plateau) and ``detector_off_fraction`` (below this fraction of the
-            highest plateau the engine is off).
+            highest plateau the engine is off: the contract's engine-off rule, ``off_speed``, on
+            the switch shaft, whose highest plateau stands for the maximum a causal detector
+            cannot know yet).
         fs: sample rate, Hz.
 
     >>> from node.contract.schedule import OperatingCondition, Schedule
@@ -104,7 +106,7 @@ class OCDetector:
         self.n_confirm = max(1, round(c.detector_confirm_s * fs))
         self.n_depart = max(1, round(c.detector_depart_s * fs))
         self.n_settle = max(self.n_confirm, round(c.detector_settle_s * fs))
-        self.off_level = c.detector_off_fraction * float(self.speeds.max())
+        self.off_level = off_speed(float(self.speeds.max()), c.detector_off_fraction)  # rpm
         self.reset()
 
     def reset(self) -> None:

@@ -55,6 +55,7 @@ from scipy.optimize import least_squares
 from scipy.signal import lfilter, savgol_filter
 
 from node.contract import FS
+from node.contract.vector import order_vectors
 
 HALF_POWER = 1.0 / math.sqrt(2.0)
 NOISE_DROP = 6.0  # a peak's drop to half power must be this many noise sigmas
@@ -281,11 +282,6 @@ def _near_gaps(bad: np.ndarray, longest: float, reach: int) -> np.ndarray:
     return out
 
 
-def vectors(amplitude: np.ndarray, phase: np.ndarray) -> np.ndarray:
-    """1x vectors A exp(-j phase) (K,) complex from amplitudes and phase lags in degrees (K,)."""
-    return np.asarray(amplitude, dtype=float) * np.exp(-1j * np.radians(np.asarray(phase, dtype=float)))
-
-
 def bode(speed: np.ndarray, amplitude: np.ndarray, phase: np.ndarray | None = None, *,
          fs: float = FS, tracker_tau: float = 0.0, velocity: bool = True,
          bin_fraction: float = 0.002, slow_roll: complex | None = None) -> Bode:
@@ -307,7 +303,7 @@ def bode(speed: np.ndarray, amplitude: np.ndarray, phase: np.ndarray | None = No
     v_all = None
     if phase is not None:
         ph = np.asarray(phase, dtype=float)
-        v_all = np.where(np.isfinite(ph), vectors(amplitude, np.where(np.isfinite(ph), ph, 0.0)), np.nan)
+        v_all = order_vectors(amplitude, np.where(np.isfinite(ph), ph, np.nan))  # (no warning for inf)
         v_all = untracked(v_all, tracker_tau, fs)
     amp_all = untracked(amplitude, tracker_tau, fs)
     top = float(np.max(s[ok]))
@@ -350,7 +346,7 @@ def slow_roll_vector(speed: np.ndarray, amplitude: np.ndarray, phase: np.ndarray
     sel = (s >= band[0]) & (s <= band[1]) & np.isfinite(amp) & np.isfinite(ph) & (s > 0)
     if not sel.any():
         return None
-    v = vectors(amp[sel], ph[sel]) / (s[sel] if velocity else 1.0)
+    v = order_vectors(amp[sel], ph[sel]) / (s[sel] if velocity else 1.0)
     return complex(np.mean(v))
 
 

@@ -17,10 +17,10 @@ import numpy as np
 
 from node.contract import (
     FS,
-    OFF_FRACTION,
     SENSOR_CHANNELS,
     SPEED_CHANNELS,
     decode_samples,
+    engine_off,
     parse_sensor_key,
     run_starts,
 )
@@ -91,15 +91,14 @@ def _ffill(x: np.ndarray) -> np.ndarray:
 
 
 def _split_on(data: np.ndarray, speed_cols: list[int], tops: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) row ranges where the engine is on (some speed >= 5 % of its maximum).
+    """[start, stop) row ranges where the engine is on (not ``engine_off``: some speed >= 5 % of
+    its maximum ``tops``).
 
     A dropout of a speed holds its last value, so it cannot fake a shutdown.
     """
     if not speed_cols:
         return [(0, len(data))]
-    speeds = _ffill(data[:, speed_cols])
-    off = np.all((speeds < OFF_FRACTION * tops) | np.isnan(speeds), axis=1)
-    off &= ~np.all(np.isnan(speeds), axis=1)  # no speed at all: not known to be off
+    off = engine_off(_ffill(data[:, speed_cols]), tops)
     on = np.concatenate([[False], ~off, [False]])
     edges = np.flatnonzero(np.diff(on.astype(np.int8)))
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]

@@ -33,6 +33,7 @@ from matplotlib.figure import Figure
 from matplotlib.projections.polar import PolarAxes
 from matplotlib.ticker import MaxNLocator
 
+from node.contract.vector import order_lags
 from node.runtime.transient import Span, analyse, find_transitions
 from replay.views.view_data import Vectors
 
@@ -179,7 +180,7 @@ def _compensated(v: Vectors, sel: np.ndarray,
     if not slow.any():
         return amp, ph
     z = z - np.mean(z[slow])
-    return np.abs(z), np.degrees(-np.angle(z))
+    return np.abs(z), order_lags(z)
 
 
 def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str,
