@@ -369,6 +369,6 @@ def replay_model_file(recording: str, model: str, out: str | None = None, worker
     bundle = load_model(model)
     engines = None
     if engine_state is not None:
-        from node.live.engine_file import load_given_engine_states
+        from node.edges.engine_file import load_given_engine_states
         engines = load_given_engine_states(engine_state)
     return replay(recording, bundle, out, workers, engines, progress)

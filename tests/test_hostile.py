@@ -198,7 +198,7 @@ class Watcher:
     wildcard keys included."""
 
     def __init__(self, endpoint: str) -> None:
-        from node.live.zenoh import open_session, zenoh_config
+        from node.edges.zenoh import open_session, zenoh_config
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.got: list[tuple[str, dict]] = []
         self.subs = [self.session.declare_subscriber(k, self._on) for k in ("testbed/**", "ordervib/**")]
@@ -216,7 +216,7 @@ class Watcher:
 
 
 def _client(endpoint: str):
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     return open_session(zenoh_config(None, [endpoint]))
 
 

@@ -76,7 +76,7 @@ def test_live_node_equals_offline_replay_and_records_every_input(setup):
     assert len(live) > 1000
     assert live == offline  # predicted values equal to the last bit
     # the engine history it kept is the one the node's logic derives from the same messages
-    from node.live.engine_file import load_engine_states
+    from node.edges.engine_file import load_engine_states
     from node.runtime.core import NodeCore
     core = NodeCore(load_bundle(setup / "m"))
     for m in iter_messages(setup / "test.mcap"):
@@ -99,7 +99,7 @@ def test_sigterm_finishes_the_recording(setup, tmp_path):
 def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
     import orjson
 
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     from replay.publish import publish_recording
     rec = tmp_path / "k.mcap"
     proc, port = start_node(setup / "m", rec)
@@ -354,7 +354,7 @@ def test_publish_max_gap_shortens_the_standing_between_runs(caplog):
     import logging
 
     from node.cli.logs import Progress
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     from replay.publish import publish_recording
 
     rec = str(Path(__file__).resolve().parents[1] / "recordings" / "engine1_runs.mcap")

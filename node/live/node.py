@@ -41,7 +41,7 @@ Failures (docs/deployment.md, "What the node does when things go wrong"):
   counted (health ``recording: false``, ``unrecorded: N``), one error line is
   logged, the unfinished file is left for ``ordervib recover``, and ``run_node``
   ends with an ``OrdervibError`` (``ordervib run`` exits non-zero);
-- an engine-state save that fails (``node.live.engine_file``) is logged once and shown in
+- an engine-state save that fails (``node.edges.engine_file``) is logged once and shown in
   health (``engine_state: false``) while monitoring goes on; if the last save failed too,
   ``run_node`` ends with an ``OrdervibError``;
 - outputs are published with Zenoh's ``CongestionControl.DROP``: a subscriber that stops
@@ -89,10 +89,10 @@ from node.contract import (
     node_health_key,
     sensor_subscription,
 )
+from node.edges.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
+from node.edges.zenoh import open_session, zenoh_config
 from node.live.analyses import TransientAnalyses
-from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
 from node.live.intake import FairIntake
-from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle, Model
@@ -192,7 +192,7 @@ class LiveNode:
             raise ValueError(f"bed_expiry_s must be > 0, got {bed_expiry_s}")
         self.beds = beds  # the beds this node serves (a key-expression chunk, see sensor_subscription)
         self.bed_expiry_s = bed_expiry_s
-        self.engine_file = engine_file  # each bed's engine history (node.live.engine_file)
+        self.engine_file = engine_file  # each bed's engine history (node.edges.engine_file)
         self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None,
                              beds=beds, max_beds=max_beds, max_channels=max_channels, clock=clock,
                              defer_transients=True)
