@@ -69,7 +69,6 @@ import time
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from itertools import compress
 from types import TracebackType
 from typing import Any
 
@@ -97,7 +96,7 @@ from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle, Model
 from node.runtime.clock import ClockPolicy
-from node.runtime.core import MAX_BEDS, MAX_CHANNELS, NodeCore, recording_order
+from node.runtime.core import MAX_BEDS, MAX_CHANNELS, NodeCore, Row, recording_rows
 
 log = logging.getLogger(__name__)
 
@@ -253,7 +252,7 @@ class LiveNode:
         self.thread.start()
 
     # -- recording: a failure stops it, never the node
-    def _record_many(self, messages: Iterable[tuple[str, int, int, bytes]], n: int) -> None:
+    def _record_many(self, messages: Iterable[Row], n: int) -> None:
         """n (key, log time ns, receive time ns, payload) messages at once."""
         if self.stats.recording_error is None:
             try:
@@ -292,7 +291,7 @@ class LiveNode:
         rows = self._send(outs)
         self._record_many(rows, len(rows))
 
-    def _send(self, outs: Sequence[tuple[str, dict | Any]]) -> list[tuple[str, int, int, bytes]]:
+    def _send(self, outs: Sequence[tuple[str, dict | Any]]) -> list[Row]:
         """Publish (key, message) outputs in turn; their rows for the recording, each stamped
         with its publish time (``_record_many``'s rows).
 
@@ -367,7 +366,7 @@ class LiveNode:
 
     def _handle(self, batch: list[tuple[str, bytes, int]]) -> None:
         """One batch: each admitted input recorded, then the outputs it completed published and
-        recorded (``recording_order``); refused inputs are counted by the core, nothing more."""
+        recorded (``recording_rows``); refused inputs are counted by the core, nothing more."""
         keys, payloads, recv = zip(*batch, strict=True)
         self.stats.received += len(batch)
         t0 = time.perf_counter()
@@ -382,23 +381,22 @@ class LiveNode:
             log_ns = [round((x if x == x else r / 1e9) * 1e9) for x, r in zip(result.t.tolist(), recv)]
         else:
             log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
-        keep = None if result.refused is None else (~result.refused).tolist()
-        rows: list[tuple[str, int, int, bytes]] = []  # the batch's recording, written at once
-        for start, stop, outs in recording_order(len(batch), result.done):
-            if stop > start:  # the inputs up to the one that completed these outputs
-                part = zip(keys[start:stop], log_ns[start:stop], recv[start:stop], payloads[start:stop])
-                rows += part if keep is None else compress(part, keep[start:stop])
-            if outs:
-                i = stop - 1
-                rows += self._send(outs)
-                lag = (time.time_ns() - recv[i]) / 1e6
-                bed = self._bed(keys[i]) or ""
-                lags = self._lag.get(bed)
-                if lags is None:
-                    lags = self._lag[bed] = deque(maxlen=LAG_KEPT)
-                lags.append(lag)
-                if lag > self._lag_max.get(bed, 0.0):
-                    self._lag_max[bed] = lag
+
+        def publish(i: int, outs: Sequence[tuple[str, dict | Any]]) -> list[Row]:
+            """The outputs input i completed, published now; their latency noted on its bed."""
+            rows = self._send(outs)
+            lag = (time.time_ns() - recv[i]) / 1e6
+            bed = self._bed(keys[i]) or ""
+            lags = self._lag.get(bed)
+            if lags is None:
+                lags = self._lag[bed] = deque(maxlen=LAG_KEPT)
+            lags.append(lag)
+            if lag > self._lag_max.get(bed, 0.0):
+                self._lag_max[bed] = lag
+            return rows
+
+        # the batch's recording, written at once
+        rows = recording_rows(list(zip(keys, log_ns, recv, payloads)), result.done, result.refused, publish)
         if rows:
             self._record_many(rows, len(rows))
 
