@@ -107,13 +107,13 @@ def test_a_full_intake_holds_the_links_back_and_loses_nothing(setup, tmp_path, m
     from node.live.node import LiveNode
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint], queue_size=16)
-    held, handle = threading.Event(), node._handle
+    held, handle = threading.Event(), node.handle_batch
 
     def slow(batch):
         held.wait(30)
         handle(batch)
 
-    monkeypatch.setattr(node, "_handle", slow)
+    monkeypatch.setattr(node, "handle_batch", slow)
     node.start()
     client = _client(endpoint)
     keys = [sensor_key("b1", "nB")] * 400
@@ -148,7 +148,7 @@ def test_hundreds_of_beds_health_is_spread_over_the_second(tmp_path):
         return [(k, 0, 0, orjson.dumps(m)) for k, m in outs]
     node._send = send  # no Zenoh session: record what would be published
     beds = [f"h{i:02d}" for i in range(40)]
-    node._handle([(f"testbed/{b}/sensor/nB", GOOD, time.time_ns()) for b in beds])
+    node.handle_batch([(f"testbed/{b}/sensor/nB", GOOD, time.time_ns()) for b in beds])
     n = live.HEALTH_PER_PASS
     node._tick()
     assert sum(map(len, sent)) == n  # the tick's own pass: a slice
@@ -405,14 +405,14 @@ def test_a_bed_behind_a_siblings_backlog_is_handled_first(setup, tmp_path, monke
     from node.live.node import BATCH_MAX, DRAIN_MAX, LiveNode
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint])
-    held, handle, seen = threading.Event(), node._handle, []
+    held, handle, seen = threading.Event(), node.handle_batch, []
 
     def slow(batch):
         held.wait(30)
         seen.extend((k.split("/")[1], orjson.loads(p)["t"]) for k, p, _ in batch)
         handle(batch)
 
-    monkeypatch.setattr(node, "_handle", slow)
+    monkeypatch.setattr(node, "handle_batch", slow)
     node.start()
     client = _client(endpoint)
     t0 = 1_700_000_000.0

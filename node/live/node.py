@@ -241,15 +241,23 @@ class LiveNode:
 
     def start(self) -> None:
         import zenoh
-        self.session = open_session(self.conf)
-        self._json = zenoh.Encoding.APPLICATION_JSON
-        self._congestion = zenoh.CongestionControl.DROP  # see the module: never BLOCK on a subscriber
+        # see the module: never BLOCK on a subscriber
+        self.attach(open_session(self.conf), zenoh.Encoding.APPLICATION_JSON, zenoh.CongestionControl.DROP)
         self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
         quiet_gc()  # set up: what lives on is frozen before the first message
         intake: Any = zenoh.handlers.FifoChannel(self.queue_size)  # full: Zenoh holds the links back
         self.sub = self.session.declare_subscriber(self.subscription, intake)
         self.thread = threading.Thread(target=self._work, name="ordervib-node", daemon=True)
         self.thread.start()
+
+    def attach(self, session: Any, encoding: Any = None, congestion: Any = None) -> None:
+        """Publish on ``session`` (its ``put(key, bytes, encoding=, congestion_control=)``) with
+        ``encoding`` and ``congestion`` control, without subscribing or starting the worker:
+        ``start`` attaches a Zenoh session so; a benchmark or a test attaches a stand-in and drives
+        ``handle_batch`` and ``publish`` itself."""
+        self.session = session
+        self._json = encoding
+        self._congestion = congestion
 
     # -- recording: a failure stops it, never the node
     def _record_many(self, messages: Iterable[Row], n: int) -> None:
@@ -284,10 +292,11 @@ class LiveNode:
             abandon()
 
     def _publish(self, key: str, msg: dict | Any) -> None:
-        self._publish_many(((key, msg),))
+        self.publish(((key, msg),))
 
-    def _publish_many(self, outs: Sequence[tuple[str, dict | Any]]) -> None:
-        """Publish (key, message) outputs in turn, then record them (in the same order)."""
+    def publish(self, outs: Sequence[tuple[str, dict | Any]]) -> None:
+        """Publish (key, message) outputs in turn, then record them (in the same order), each
+        stamped with its publish time."""
         rows = self._send(outs)
         self._record_many(rows, len(rows))
 
@@ -364,9 +373,10 @@ class LiveNode:
         route = self.core.known(key)
         return route[0] if route else None
 
-    def _handle(self, batch: list[tuple[str, bytes, int]]) -> None:
-        """One batch: each admitted input recorded, then the outputs it completed published and
-        recorded (``recording_rows``); refused inputs are counted by the core, nothing more."""
+    def handle_batch(self, batch: Sequence[tuple[str, bytes, int]]) -> None:
+        """One batch of messages (key, payload, receive time ns), as the worker takes them: the
+        node's logic over it, each admitted input recorded, then the outputs it completed published
+        and recorded (``recording_rows``); refused inputs are counted by the core, nothing more."""
         keys, payloads, recv = zip(*batch, strict=True)
         self.stats.received += len(batch)
         t0 = time.perf_counter()
@@ -417,7 +427,7 @@ class LiveNode:
                 spent = self._spent = dict.fromkeys(self._spent, 0.0)
                 batch = self._drain()
                 if batch:
-                    self._handle(batch)
+                    self.handle_batch(batch)
                 if self._health_due:
                     self._publish_health(HEALTH_PER_PASS)
                 self._publish_analysed()
@@ -425,7 +435,7 @@ class LiveNode:
                     now = None if self._behind else self._last_empty_ns  # behind, a silence is not known
                     if now is not None:  # (every message received before now is handled)
                         next_idle = time.monotonic() + IDLE_CHECK_S
-                        self._publish_many(self.core.flush_idle(now, IDLE_MARGIN_NS))
+                        self.publish(self.core.flush_idle(now, IDLE_MARGIN_NS))
                 if time.monotonic() >= next_tick:
                     next_tick = max(next_tick + 1.0, time.monotonic())  # no burst after a long batch
                     self._tick()
@@ -436,7 +446,7 @@ class LiveNode:
                                 took, len(batch), ", ".join(f"{k} {v:.2f} s" for k, v in spent.items()), rest)
             self._publish_health(len(self._health_due))  # this second's last ones
             self._publish_analysed(wait=True)  # every transition before the stream's end first
-            self._publish_many(self.core.finish())
+            self.publish(self.core.finish())
             self._publish_analysed(wait=True)  # the runs' last ones
         except BaseException as exc:  # the node is dead: say so at once, never look alive
             self.stats.worker_error = f"{type(exc).__name__}: {exc}"
@@ -547,7 +557,7 @@ class LiveNode:
         self._submit_analyses()
         outs = [self.core.resolved(key, msg) for key, msg in self._analyses.done(wait)]
         if outs:
-            self._publish_many(outs)
+            self.publish(outs)
 
     def _publish_health(self, n: int) -> None:
         """The health of the next ``n`` beds due this second (``_tick``), each still tracked."""
@@ -558,7 +568,7 @@ class LiveNode:
             if bed in beds:  # (not expired since the tick)
                 outs.append((health_key(bed), self.health(bed, time.time())))
         if outs:
-            self._publish_many(outs)
+            self.publish(outs)
 
     def _expire(self, wall: float) -> None:
         """Free the beds silent (receive time) for ``bed_expiry_s``: their waiting samples run and
