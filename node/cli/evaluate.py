@@ -115,29 +115,32 @@ def _tables(bundle: Bundle, runs: list[Run], kinds: list[str]) -> list[SegmentPr
 def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word: str) -> None:
     """Print the per-OC table of one target's bundle over the predictions ``preds`` of some of
     ``runs``, their eps_td named ``word`` (e.g. held-out), and its mean line."""
-    from node.training.evaluation import curve_eps, score_segments
+    from node.training.evaluation import coverage, curve_eps, score_segments
 
     evals = score_segments(bundle.ocs, bundle.schedule, preds)
     base_eps = [float("nan")] * len(evals)
     if bundle.curve is not None:
         base_eps = curve_eps(bundle.curve, runs, preds, bundle.schedule, bundle.target)
-    header = ["OC", "model", "segments", f"{word} eps_td", "CV eps_td", "baseline eps_td", "outside",
-              "on the curve"]
+    header = ["OC", "model", "segments", "coverage", f"{word} eps_td", "CV eps_td", "baseline eps_td",
+              "outside", "on the curve"]
     rows = []
     hold, base = [], []
     for e, b in zip(evals, base_eps):
         res = bundle.oc(e.name)
-        rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps),
-                     _f(res.cv_eps if res else float("nan")), _f(b), _share(e.outside, e.samples),
-                     _share(e.guarded, e.samples)])
+        rows.append([e.name, res.kind if res else "-", str(e.n_segments), _share(e.predicted, e.samples),
+                     _f(e.eps), _f(res.cv_eps if res else float("nan")), _f(b),
+                     _share(e.outside, e.predicted), _share(e.guarded, e.predicted)])
         if np.isfinite(e.eps):
             hold.append(e.eps)
             base.append(b)
     print_table(header, rows)
     if hold:
-        print(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
-              f"(characteristic-curve baseline {np.nanmean(base):.3f})")
-    outside, samples = sum(e.outside for e in evals), sum(e.samples for e in evals if np.isfinite(e.eps))
+        print(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} segments, every sample scored (one "
+              f"without a prediction a miss) (characteristic-curve baseline {np.nanmean(base):.3f})")
+    covered, total = coverage(runs, bundle.schedule, preds, bundle.config)
+    if total:
+        print(f"coverage light-off to standstill: {_share(covered, total)} of {total} samples predicted")
+    outside, samples = sum(e.outside for e in evals), sum(e.predicted for e in evals)
     if samples:
         print(f"outside the training runs' envelope: {_share(outside, samples)} of {samples} modelled "
               f"samples (predicted with the inputs held at its edge, the band widened)")
@@ -159,7 +162,7 @@ def _plot(bundle: Bundle, preds: list[SegmentPrediction], png: Path) -> bool:
     """Predicted against measured per OC, written to png; False when no OC was found."""
     from replay.report.figures import segments_figure
 
-    fig = segments_figure(bundle.schedule.names, preds, bundle.target)
+    fig = segments_figure(bundle.schedule.segments, preds, bundle.target)
     if fig is None:
         log.warning("no OC of the model in the recordings: no plot")
         return False

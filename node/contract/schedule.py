@@ -8,6 +8,10 @@ from dataclasses import dataclass
 
 from node.contract.errors import OrdervibError
 
+# The segment after the last plateau, from its departure (fuel off) to standstill (section 4):
+# monitored like an OC, under this name, which no OC of a schedule may take.
+RUNDOWN = "rundown"
+
 
 @dataclass(frozen=True)
 class OperatingCondition:
@@ -18,7 +22,16 @@ class OperatingCondition:
 @dataclass(frozen=True)
 class Schedule:
     """OCs in test order; ``switch`` names the speed channel, ``tolerance`` the
-    relative band around a plateau speed that counts as steady."""
+    relative band around a plateau speed that counts as steady.
+
+    ``names`` and ``ocs`` are the plateaus; ``segments`` the names of everything monitored: the
+    OCs (the first one's transition is the start, from light-off) and then ``RUNDOWN``, whose
+    index is ``len(ocs)``.
+
+    >>> s = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0)))
+    >>> s.segments, s.index("B"), s.index(RUNDOWN)
+    (('A', 'B', 'rundown'), 1, 2)
+    """
 
     ocs: tuple[OperatingCondition, ...]
     switch: str = "nB"
@@ -33,6 +46,9 @@ class Schedule:
         dup = {n for n in names if names.count(n) > 1}
         if dup:
             raise OrdervibError(f"schedule repeats OC name(s) {sorted(dup)}")
+        if RUNDOWN in names:
+            raise OrdervibError(f"schedule names an OC {RUNDOWN!r}: that name is reserved for the "
+                                "segment after the last plateau")
         for oc in self.ocs:
             if not oc.speed > 0:
                 raise OrdervibError(f"OC {oc.name!r} has a non-positive speed {oc.speed}")
@@ -41,8 +57,19 @@ class Schedule:
     def names(self) -> tuple[str, ...]:
         return tuple(oc.name for oc in self.ocs)
 
+    @property
+    def segments(self) -> tuple[str, ...]:
+        """The monitored segments' names: the OCs', then ``RUNDOWN`` (index ``len(ocs)``)."""
+        return (*self.names, RUNDOWN)
+
+    @property
+    def rundown(self) -> int:
+        """The rundown's segment index (``len(ocs)``)."""
+        return len(self.ocs)
+
     def index(self, name: str) -> int:
-        return self.names.index(name)
+        """The segment index of an OC name or ``RUNDOWN`` (ValueError: neither)."""
+        return self.segments.index(name)
 
     def to_dict(self) -> dict:
         return {"switch": self.switch, "tolerance": self.tolerance,

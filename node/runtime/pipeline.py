@@ -3,7 +3,10 @@
 Live (Zenoh) and offline replay feed the very same ``MonitorPipeline``, so
 they give the very same numbers. Per sample: the OC detector steps on the
 switch speed; at an OC switch the OC's model is seeded from the measured
-past (a bounded ring buffer) and then steps once per sample; its residual
+past (a bounded ring buffer) and then steps once per sample (the start is
+the first OC's transition; after the last plateau the rundown, ``oc``
+"rundown", has its model like an OC where the bundle holds one: a bundle
+trained without one leaves it ``no-model``); its residual
 goes to the OC's ``ResidualCheck`` (``reason`` "residual"). Model-free checks
 flag, with or without a model, an abrupt step of the measured target during a
 steady plateau (``StepCheck``, ``reason`` "step") and a target stuck on one value
@@ -114,7 +117,7 @@ class MonitorPipeline:
             raise ValueError("a shared OC detector must have the pipeline's schedule and settings")
         self._follows = detector is not None  # another pipeline steps the detector
         self.detector = detector or OCDetector(bundle.schedule, cfg, FS)
-        self._names = bundle.schedule.names  # a tuple built on each access: keep one
+        self._names = bundle.schedule.segments  # (the rundown last) a tuple built on each access: keep one
         self._uses_history = any(c in HISTORY_CHANNELS for c in bundle.inputs)
         slow = SLOW_TEMPERATURES if self._uses_history or slow_temperatures else ()
         # the vector rule: a sliding and an anchored StepCheck on the 1x vector (either may be off);
@@ -126,7 +129,7 @@ class MonitorPipeline:
         pooled = self._drift.threshold if self._drift is not None else math.inf
         per_oc = bundle.checks.get("vector_drift_thresholds") or {}
         self._drift_thr = [float(per_oc.get(n, pooled)) or math.inf  # 0: off in that OC
-                           for n in bundle.schedule.names]
+                           for n in self._names]
         self._phase_ch = phase_channel(self.target)
         vector_models = any(predicts_vector(r.model) for r in bundle.ocs)
         shifts = [r.plateau for r in bundle.ocs if r.plateau is not None]
@@ -167,7 +170,7 @@ class MonitorPipeline:
         # the chirp rate (node.runtime.chirp), when a model takes it as input
         self._chirp = ChirpRate() if CHIRP_RATE in self.channels else None
         # this run's plateaus, when an OC model's plateau shift reads them (node.runtime.plateaus)
-        self._plateaus = RunPlateaus(len(self._names)) if shifts else None
+        self._plateaus = RunPlateaus(len(bundle.schedule.names)) if shifts else None
 
     def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
         self.transient = None

@@ -911,8 +911,8 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
                 continue
             j = keys[key]
             p = msg["predicted"]
-            if msg["oc"] is not None:
-                oc[k] = index[msg["oc"]]
+            if msg["oc"] is not None:  # (the rundown, no plateau OC: -1, as outside every OC)
+                oc[k] = index.get(msg["oc"], -1)
             ph = msg.get("predicted_phase")
             e = msg.get("envelope")
             if e is not None:

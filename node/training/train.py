@@ -39,6 +39,7 @@ from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, pea
 from node.training.dataset import (
     Labels,
     Segment,
+    first_seen,
     label_runs,
     run_arrays,
     segment_runs,
@@ -480,7 +481,8 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
                 proms: list[dict] | None = None, unranked: list[str] | None = None,
                 visits: list[dict[int, Visit]] | None = None, plateau_vector: bool = False,
                 settle: bool = False) -> list[OCData]:
-    """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it.
+    """Per-OC arrays from runs (``Schedule.segments``: every OC, then the rundown), each
+    segment with up to ``history_s`` of past before it.
 
     curves: each OC's curve candidates (``CURVE_CANDIDATES``; None: none). phase: the target's
     1x vectors too (``OCData.z``) when every run holds its phase channel. proms: the parametric
@@ -495,16 +497,21 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
     if not zs or len(zs) < len(runs):
         zs = []
     hist = int(history_s * FS)
+    seen = [first_seen(run, [target, schedule.switch]) for run in runs]
     out = []
-    for j, name in enumerate(schedule.names):
+    for j, name in enumerate(schedule.segments):
+        plateau = j < schedule.rundown  # the rundown has no plateau: no shift, no settle anchor
         d = OCData(name, target, list(candidates), [], [], [], [], switch=schedule.switch,
                    curves=[dict(c) for c in curves or []], proms=[dict(c) for c in proms or []],
                    unranked=list(unranked or []), folds=run_folds(len(runs)),
-                   plateau_vector=plateau_vector if visits is not None else None, settle=settle)
+                   plateau_vector=plateau_vector if visits is not None and plateau else None,
+                   settle=settle and plateau)
         for s in segments:
             if s.oc != j:
                 continue
-            lo = max(0, s.start - hist)
+            # the past the node seeds from: from the first row with the target and the switch
+            # measured (the node's rule also awaits the model's inputs, here not yet chosen)
+            lo = min(max(0, s.start - hist, seen[s.run]), s.start)
             ra = arrays[s.run]
             d.runs.append(s.run)
             d.y.append(ra.y[lo:s.stop])
@@ -619,7 +626,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           history: bool = False, phase: bool = True, prom: bool = True, prune: bool = True,
           fade: bool = True, labels: list[Labels] | None = None, plateaus: bool = True,
           settle: bool = True) -> list[OCResult]:
-    """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
+    """Train every OC of the schedule, and the rundown (``Schedule.segments``). ``inputs=None``
+    selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
     OC's model is evaluated seeded from ``config.history_s`` of past, as the node seeds it.
