@@ -119,6 +119,17 @@ def sensor_subscription(beds: str = "*") -> str:
     return f"{PREFIX}/{beds}/sensor/**"
 
 
+def monitor_subscription(beds: str = "*") -> str:
+    """The node-output key expression (monitor, oc, health, transient) of the beds matching
+    ``beds``, as ``sensor_subscription`` takes it (ValueError for a bad pattern).
+
+    >>> monitor_subscription("b1"), monitor_subscription() == MONITOR_SUBSCRIPTION
+    ('testbed/b1/monitor/**', True)
+    """
+    sensor_subscription(beds)  # ValueError for a bad pattern
+    return f"{PREFIX}/{beds}/monitor/**"
+
+
 def bed_matcher(beds: str = "*") -> Callable[[str], bool]:
     """Whether a bed name matches the pattern ``beds`` (as ``sensor_subscription`` takes it), as
     Zenoh matches the chunk: ``*`` any name, ``$*`` any run of characters (none too).
