@@ -11,7 +11,7 @@ count alarm episodes per hour. Then the first held-out run is simulated again wi
 each fault (imbalance, stiffness, stuck-sensor, drift), ``--instances`` times with
 different onsets (``--fault-seed``), and the delay from onset to the first alarm
 episode at or after it is measured; an episode the same run also raises without the
-fault (a false alarm that happens to follow the onset) does not count. Targets (issue 5): every fault flagged
+fault (a false alarm that happens to follow the onset) does not count. Targets: every fault flagged
 within 60 s, at most 1 false alarm per hour. Per fault it also prints how many onsets any rule
 found before the run ended (the coast-down's transient analysis included) and by which rules.
 

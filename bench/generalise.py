@@ -1,4 +1,4 @@
-"""Held-out accuracy on engines the defaults were not chosen on (issues 13 and 30's judge).
+"""Held-out accuracy on engines the defaults were not chosen on (the judge of the training defaults).
 
     python -m bench generalise [--set report|dev|all] [--workdir DIR] [--reuse]
 
@@ -13,7 +13,7 @@ prints the mean held-out eps_td of
 * ``no phase, held`` / ``no phase``: ``ordervib train --no-phase --no-plateaus --no-settle
   [--no-fade]``,
   the model on the amplitudes alone, its anchored curves held through the OC (the default
-  before issue 30) or learning how their anchor fades (``CurveModel.decay``),
+  before the phase was used) or learning how their anchor fades (``CurveModel.decay``),
 * ``default, held`` / ``default``: ``ordervib train --no-plateaus --no-settle [--no-fade]``, which
   use the order's phase (the recordings carry it: ``yB_ph``),
 * ``no phase, guarded`` / ``default, guarded``: the same models as ``no phase`` and

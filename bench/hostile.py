@@ -215,7 +215,7 @@ def category(key: str, keyflood: dict[str, str], siblings: set[str]) -> str:
 # -- the client processes (python -m bench.hostile --client KIND CONFIG)
 
 def _session(endpoint: str):
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     return open_session(zenoh_config(None, [endpoint]))
 
 
@@ -247,7 +247,7 @@ class Peak:
 def siblings_client(conf: dict) -> tuple[Callable[[float, float], dict], list]:
     import zenoh
 
-    from node.live.zenoh import json_publisher
+    from node.edges.zenoh import json_publisher
     runs = Runs.load(conf["runs"])
     beds = conf["beds"]
     session = _session(conf["endpoint"])
@@ -306,7 +306,7 @@ def siblings_client(conf: dict) -> tuple[Callable[[float, float], dict], list]:
 def clock_client(conf: dict) -> tuple[Callable[[float, float], dict], list]:
     import zenoh
 
-    from node.live.zenoh import json_publisher
+    from node.edges.zenoh import json_publisher
     runs = Runs.load(conf["runs"])
     channels = [c for c in runs.channels if c in set(conf["channels"])]
     dual_channel = channels[0]
@@ -367,7 +367,7 @@ def clock_client(conf: dict) -> tuple[Callable[[float, float], dict], list]:
 def flood_client(conf: dict) -> tuple[Callable[[float, float], dict], list]:
     import zenoh
 
-    from node.live.zenoh import json_publisher
+    from node.edges.zenoh import json_publisher
     session = _session(conf["endpoint"])
     probe = json_publisher(session, sensor_key("kf0", "nB"))
     _wait_matched(probe, "floods")

@@ -8,7 +8,7 @@ and with the exact beam: eps_td of the free run from rest under the training chi
 eps_fd of the frequency response over 1-150 Hz (eq. 6.22), both against the truth at
 the model's own p. Writes the poles plot of figure 6.4 as a PNG.
 
-Then modes that cross, nearly cross or veer (issue 32, ``harness.veering``): 2-DOF systems
+Then modes that cross, nearly cross or veer (``harness.veering``): 2-DOF systems
 fitted at p = -0.4, -0.2, 0.2, 0.4 and interpolated to the crossing / veering at p = 0,
 scored on a chirp no fit saw, beside the WDMD fitted at p = 0 and the nearest sample's model,
 with the matcher by continuation and veering groups fitted jointly over the samples (default),
@@ -44,7 +44,7 @@ FREQS = np.linspace(1.0, 150.0, 300)
 TEXT = {  # sections 6.3.1-6.3.2: eps_td, eps_fd
     "rom0": ("1.49e-2 (node 13)", "1.51e-2"), "rom3": ("3.93e-2", "2.16e-2"), "rom4": ("7.36e-2", "3.88e-2")}
 REFS = {("direct", "lagrange"): ("3.79e-2", "3.26e-2"),  # the text's pROM (eq. 6.10)
-        ("modal", "lagrange"): ("1.56e-2 (ref. impl.)", "-")}  # issue 14: reference implementations
+        ("modal", "lagrange"): ("1.56e-2 (ref. impl.)", "-")}  # reference implementations
 
 
 def truth(p: float) -> StateSpace:
@@ -140,7 +140,7 @@ def study(u: np.ndarray, noise: float, variants: list[tuple[str, str]],
 
 
 def veering_rows() -> list[list[str]]:
-    """One row per 2-DOF case and noise level (issue 32 item 4)."""
+    """One row per 2-DOF case and noise level."""
     rows = []
     for name, coupling in hv.CASES.items():
         for noise in (0.0, 0.01):
@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     plot_poles(args.png, rom, rom2, rom.at(TARGET).model_)
     print(f"Poles plot (fig. 6.4): {args.png}")
     td = errors(rom.at(TARGET).model_, TARGET, u)[0]
-    print(f"\nSection 6.3 at p = 2: this pROM (default) eps_td {td:.2e} (issue 32 target <= 1.5e-2); "
+    print(f"\nSection 6.3 at p = 2: this pROM (default) eps_td {td:.2e} (target <= 1.5e-2); "
           f"the text's pROM {REFS[('direct', 'lagrange')][0]}; the reference implementation 1.56e-2.")
     rows, _, _ = study(u, NOISE, variants[:2])
     print_table(header, rows, markdown=True, title=f"The same with {NOISE:.1%} white noise on every output")

@@ -1,4 +1,4 @@
-"""Predictions of planned runs within physics (issue 32): the bound on random plans, and the
+"""Predictions of planned runs within physics: the bound on random plans, and the
 interval's coverage on held-out runs.
 
     python -m bench plans [--seed 3 | --seeds 3,4,5,6] [--train-runs 8] [--held-out 10]
@@ -77,7 +77,7 @@ from node.training.prediction import (
 from node.training.runs import Run
 
 log = logging.getLogger("bench.plans")
-COVERAGE = (0.85, 0.95)  # the issue's target for the 90 % interval on held-out runs
+COVERAGE = (0.85, 0.95)  # the target for the 90 % interval on held-out runs
 SEEDS_MAX = 32  # engines in one run at most
 SPREAD_ENGINES = 20_000  # simulated engines for calibrated_spread
 
@@ -169,7 +169,7 @@ def random_plan(rng: np.random.Generator, schedule: Schedule, lo: float, hi: flo
 
 
 class BruteBound:
-    """The issue's rule read off the training runs directly: per target and OC (as
+    """The rule read off the training runs directly: per target and OC (as
     ``segment_runs`` cuts them), the samples sorted by speed (in the rule's 5 rpm steps); the
     largest within the window by a sparse table of maxima."""
 

@@ -1,4 +1,4 @@
-"""Parametric ROMs on the engine (issue 14 item 3, first question; dissertation section 6.4).
+"""Parametric ROMs on the engine (dissertation section 6.4).
 
     python -m bench prom-engine [--variant amp|res|cin] [--engines 23,24,25] [--data DIR]
                                 [--default DIR] [--quick] [--ocs B1,B6] [--why]

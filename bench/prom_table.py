@@ -1,4 +1,4 @@
-"""Table 6.1 on simulated engines (issue 14): per OC, held-out eps_td of the parametric model,
+"""Table 6.1 on simulated engines: per OC, held-out eps_td of the parametric model,
 generic WDMD, Delay-DMD, the characteristic curve and the default, which takes the parametric
 model where its CV error is the lowest of all candidates (by the curve margin).
 

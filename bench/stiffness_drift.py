@@ -1,4 +1,4 @@
-"""Issue 15 study: can any vector rule see a nominal stiffness loss within a minute?
+"""Study: can any vector rule see a nominal stiffness loss within a minute?
 
     python -m bench stiffness-drift [--workdir W[,W2]] [--seeds 14,15,16]
 

@@ -39,7 +39,7 @@ from node.training.fit import load_runs, model_options, train_model
 from replay.offline import replay
 
 TARGET = "yB"
-BUDGET_PER_H = 1.0  # the target for all rules together
+BUDGET_PER_H = 1.0  # the target for all rules together
 
 
 def _recordings(work: Path, seed: int, n: int, m: int) -> tuple[Path, Path]:

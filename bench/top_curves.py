@@ -1,4 +1,4 @@
-"""Issue 13 study: averages of an OC's best candidates, the dynamic model among them, against
+"""Study: averages of an OC's best candidates, the dynamic model among them, against
 the default.
 
     python -m bench top-curves [--set dev|report|all] [--workdir DIR]
@@ -13,7 +13,7 @@ predictions (averaged: an average's CV):
   ranked by CV eps, k in 1-3 by the CV eps of their average;
 * ``subset``: the subset of that pool (size 1-3) whose average has the lowest CV eps.
 
-Session 13 measured them against the default of then (averages of the 2-3 best curves
+They were measured against the former default (averages of the 2-3 best curves
 alone; development engines 0.1405, top 0.1366, subset 0.1385) and made ``top`` the default
 (``node.training.train._best_average``): since then its column reproduces the default's.
 

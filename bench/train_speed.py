@@ -1,4 +1,4 @@
-"""Training speed and held-out accuracy of the switching model (issue 4's figures).
+"""Training speed and held-out accuracy of the switching model (docs/results.md).
 
     python -m bench train-speed [--runs N] [--train T.mcap --test H.mcap --schedule S.toml]
 
@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     t_common = time.perf_counter() - t1  # what ordervib train does once before every method
     default = None
     for method in args.methods.split(","):
-        # as ordervib train does; without the curve candidates (the defaults before issue 13);
+        # as ordervib train does; without the curve candidates (the former defaults);
         # and without the derived run_curve either
         for curve, curves, label in ((fleet, True, method), (fleet, False, f"{method}, no curve candidates"),
                                      (None, False, f"{method}, neither")):

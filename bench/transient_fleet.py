@@ -1,4 +1,4 @@
-"""The transient rule against the fleet (issue 33, item 2): false alarms on healthy held-out runs
+"""The transient rule against the fleet: false alarms on healthy held-out runs
 and the stiffness losses it finds, for a choice of k sigma and floor.
 
     python -m bench transient-fleet [--seeds 1,2,3] [--train 4] [--held-out 2]

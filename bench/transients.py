@@ -1,5 +1,5 @@
 """Critical speeds and amplification factors read from ramps, against the simulator's own modes
-(issue 33, item 1, done-when: each critical within 1 %, each AF within 20 %).
+(the targets: each critical within 1 %, each AF within 20 %).
 
     python -m bench transients [--seeds 1,2,3,4,5] [--runs 2] [--plateau-scale 1]
         [--noise-scale 1] [--workdir W] [--rows all|fail|none]

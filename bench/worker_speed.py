@@ -9,7 +9,7 @@ stamped with receive times 25 ms a slot apart. The messages are cut into batches
 (the worker drains whatever is waiting: in a ``bench live`` run at 20 beds its batches held
 62.5 messages on average, median 3, 90th percentile 247: most messages come in batches of
 dozens to hundreds; ``--batch 4`` shows the per-batch overhead) and handed to the
-live node's own batch step (``LiveNode._handle``: the core's logic, recording every input,
+live node's own batch step (``LiveNode.handle_batch``: the core's logic, recording every input,
 encoding and "publishing" every output to a stand-in publisher that only hashes the bytes, and
 recording them). Prints the worker's CPU time a message (``time.process_time``, the best of
 ``--repeat`` runs, each a fresh node), beside the core's logic alone (``NodeCore.handle_batch``
@@ -18,7 +18,7 @@ on the same batches) measured in the same run, and a digest of every output's ke
 its N costliest functions by own time.
 
 Without ``--model`` a Lasso bundle is trained on the committed sample runs first. The figure
-beside the target (10 us a message for the whole node, issue 35) is the worker's share only:
+beside the target (10 us a message for the whole node, the live target) is the worker's share only:
 Zenoh's receive side costs about the bare subscriber's figure on top (``bench live``).
 """
 
@@ -38,7 +38,7 @@ from pathlib import Path
 from harness.live import ROOT, load_stream
 from node.contract import FS, sensor_key
 
-TARGET_US = 10.0  # the whole node a message (issue 35); the worker must stay well under it
+TARGET_US = 10.0  # the whole node a message (the live target); the worker must stay well under it
 SLOT_NS = round(1e9 / FS)
 SPREAD_NS = 10_000  # receive-time step between messages of a slot, ns
 
@@ -73,22 +73,21 @@ def batches(recording: str, needed: set[str], beds: int, seconds: float, offset:
 
 def run_worker(model: object, work: list[list[tuple[str, bytes, int]]], tmp: Path,
                profile: cProfile.Profile | None = None) -> tuple[float, str]:
-    """CPU seconds of ``LiveNode._handle`` over every batch, and the outputs' digest."""
+    """CPU seconds of ``LiveNode.handle_batch`` over every batch, and the outputs' digest."""
     from node.live.node import LiveNode, quiet_gc
     path = tmp / f"worker-{time.monotonic_ns()}.mcap"
     node = LiveNode(model, str(path))  # type: ignore[arg-type]
     session = _Session()
-    node.session = session
-    node._json = node._congestion = None  # type: ignore[assignment]  # the stand-in takes any
+    node.attach(session)  # publishes to the stand-in: no Zenoh, no worker thread
     quiet_gc()
-    handle: Callable[[list[tuple[str, bytes, int]]], None] = node._handle
+    handle: Callable[[list[tuple[str, bytes, int]]], None] = node.handle_batch
     if profile is not None:
         profile.enable()
     t0 = time.process_time()
     for batch in work:
         handle(batch)
-    for k, msg in node.core.finish():  # (the live node's end: its last samples, one by one)
-        node._publish(k, msg)
+    for out in node.core.finish():  # (the live node's end: its last samples, one by one)
+        node.publish((out,))
     cpu = time.process_time() - t0
     if profile is not None:
         profile.disable()

@@ -157,7 +157,7 @@ class Bench:
         """``on_reply(key, payload, arrival ns)`` instead of keeping every reply in ``arrivals``."""
         import zenoh
 
-        from node.live.zenoh import json_publisher, open_session, zenoh_config
+        from node.edges.zenoh import json_publisher, open_session, zenoh_config
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.beds = beds
         self.arrivals: list[tuple[str, bytes, int]] = []
@@ -261,7 +261,7 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
     import zenoh
 
     from node.contract import SENSOR_SUBSCRIPTION
-    from node.live.zenoh import json_publisher, open_session, zenoh_config
+    from node.edges.zenoh import json_publisher, open_session, zenoh_config
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
     pubs: dict[str, zenoh.Publisher] = {}
     counts: dict[tuple[str, int], int] = {}
@@ -313,8 +313,8 @@ def relay_main(port: int, needed: set[str], beds: set[str], target: str) -> int:
     import zenoh
 
     from node.contract import SENSOR_SUBSCRIPTION
+    from node.edges.zenoh import json_publisher, open_session, zenoh_config
     from node.live.node import BATCH_MAX, POLL_S
-    from node.live.zenoh import json_publisher, open_session, zenoh_config
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
     sub = session.declare_subscriber(SENSOR_SUBSCRIPTION, zenoh.handlers.FifoChannel(1_000_000))
     drop = zenoh.CongestionControl.DROP
@@ -479,7 +479,7 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
     bench = Bench(f"tcp/127.0.0.1:{port}", [], [], MONITOR_SUBSCRIPTION, on_reply)
     import zenoh
 
-    from node.live.zenoh import json_publisher
+    from node.edges.zenoh import json_publisher
     pubs = {topic: json_publisher(bench.session, topic, congestion_control=zenoh.CongestionControl.BLOCK)
             for topic in {k for k, _, _ in msgs}}
     rss: list[tuple[float, float]] = []

@@ -1,4 +1,4 @@
-"""Two-degree-of-freedom systems whose modes cross, nearly cross or veer (issue 32 item 4).
+"""Two-degree-of-freedom systems whose modes cross, nearly cross or veer.
 
 Unit masses, springs k1 (p) = w0^2 (1 + p) + k_c and k2 = w0^2 + k_c to ground, a coupling
 spring k_c = ``coupling`` w0^2 between them (w0 = 2 pi 3 Hz): at p = 0 the uncoupled

@@ -51,7 +51,7 @@ STAMP_VERSION = 1
 # introspected (the contract's message schemas: typing.get_type_hints), that hold a complex
 # default (node.models.curve: mypyc 2.4 fails on it at import), whose frozen dataclasses go to
 # other processes (node.models.envelope: a compiled one does not unpickle), or do I/O and
-# threads (node.live).
+# threads (node.live, node.edges).
 COMPILED: tuple[str, ...] = (
     "node.contract.keys",
     "node.contract.payload",

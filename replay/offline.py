@@ -5,9 +5,10 @@ messages. Each batch goes to ``NodeCore.handle_batch`` (decode, align, predict),
 with the messages' publish times as the receive times the live node stamped them with (a bed
 silent for the alignment wait on that clock has its waiting slots emitted before its next
 message, as the live node's timer did),
-which reports the messages that completed monitor messages; the batch's inputs
-are then written to the output recording with each monitor message right
-after the input that completed it, exactly where a live node records it.
+which reports the messages that completed monitor messages and those it refused; the
+batch's recording is then written by the live node's own rule (``recording_rows``): the
+inputs the node admitted, each monitor message right after the input that completed it,
+exactly where a live node records it.
 
 With ``workers=1`` (the default on a machine with two cores or more, where
 ``fork`` exists) the node's logic runs in one forked worker process while this
@@ -26,7 +27,7 @@ import os
 import queue
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from itertools import islice
 from operator import itemgetter
@@ -39,13 +40,16 @@ from node.contract import FS, OrdervibError, TopicKind, is_output_key, log_time_
 from node.mcap import ReadStats, RecordingWriter, iter_messages_fast, message_time_span, recorded_topics
 from node.models.bundle import Bundle, Model
 from node.runtime.clock import ClockPolicy
-from node.runtime.core import NodeCore, recording_order
+from node.runtime.core import NodeCore, Row, recording_rows
 
 BATCH = 4096  # messages per batch
 IN_FLIGHT = 2  # batches handed to the worker and not yet written
 
 _KEY, _LOG, _PUB, _PAYLOAD = (itemgetter(i) for i in range(4))  # fields of a Message
 Encoded = tuple[str, int, bytes]  # (key, log_time ns, JSON bytes) of a monitor message
+# what the logic did with a batch: (i, encoded outputs) of each message i that completed some,
+# and which messages it refused ((n,) bool, or None: none was; ``Batch.refused``)
+Done = tuple[list[tuple[int, list[Encoded]]], np.ndarray | None]
 
 
 @dataclass
@@ -77,8 +81,9 @@ class _Logic:
             return []
         return [(key, log_time_ns(msg["t"]), orjson.dumps(msg)) for key, msg in outs]
 
-    def batch(self, keys, payloads, recv) -> list[tuple[int, list[Encoded]]]:
-        return [(i, self._outputs(outs)) for i, outs in self.core.handle_batch(keys, payloads, recv).done]
+    def batch(self, keys, payloads, recv) -> Done:
+        b = self.core.handle_batch(keys, payloads, recv)
+        return [(i, self._outputs(outs)) for i, outs in b.done], b.refused
 
     def finish(self) -> tuple[list[Encoded], dict]:
         final = self._outputs(self.core.finish())
@@ -188,25 +193,21 @@ def default_workers() -> int:
     return 1 if ok else 0
 
 
-def _write_batch(writer: RecordingWriter, columns: tuple[list, np.ndarray, np.ndarray, list],
-                 done: list[tuple[int, list[Encoded]]]) -> None:
-    """The batch's inputs (keys, log times, publish times, payloads), each completing input
-    followed by its monitor messages (published when that input arrived): ``recording_order``."""
-    keys, logs, pubs, payloads = columns
-    if done:
-        k, pl, after, out_logs = [], [], [], []
-        for start, stop, outs in recording_order(len(keys), done):
-            k += keys[start:stop]
-            pl += payloads[start:stop]
-            for key, log, data in outs:
-                k.append(key)
-                pl.append(data)
-                after.append(stop - 1)
-                out_logs.append(log)
-        at = np.array(after, dtype=np.int64)
-        keys, payloads = k, pl
-        logs, pubs = np.insert(logs, at + 1, out_logs), np.insert(pubs, at + 1, logs[at])
-    writer.write_columns(keys, logs, pubs, payloads)
+def _write_batch(writer: RecordingWriter, batch: Sequence[Row], done: Done) -> None:
+    """The batch's recording (``recording_rows``, the live node's rule): its inputs as recorded
+    (key, log time, publish time, payload) but those the logic refused, each completing input
+    followed by its monitor messages, stamped as published when that input arrived (its log
+    time). Written as columns (``write_columns``: the fastest way)."""
+    outputs, refused = done
+
+    def stamp(i: int, outs: Sequence[Encoded]) -> list[Row]:
+        log_i = batch[i][1]
+        return [(key, log, log_i, data) for key, log, data in outs]
+
+    rows = recording_rows(batch, outputs, refused, stamp)
+    if rows:
+        keys, logs, pubs, payloads = zip(*rows, strict=True)
+        writer.write_columns(keys, _u64(logs, len(rows)), _u64(pubs, len(rows)), payloads)
 
 
 def _u64(values: Iterable[int], n: int) -> np.ndarray:
@@ -257,17 +258,14 @@ def replay(recording: str, bundle: Bundle | Model, out: str | None, workers: int
     n_in = 0
     try:
         writer = RecordingWriter(out, background=True) if out else None  # chunks packed in a thread
-        flight: deque = deque()  # columns of the batches handed over and not yet written
+        flight: deque = deque()  # the batches handed over and not yet written
 
         def submit(batch: list, keys: list[str]) -> None:
             payloads = list(map(_PAYLOAD, batch))
             n = len(batch)
             recv = _u64(map(_PUB, batch), n)  # receive times: the alignment wait on the node's clock
             engine.submit(keys, payloads, recv)
-            if writer:
-                flight.append((keys, _u64(map(_LOG, batch), n), recv, payloads))
-            else:
-                flight.append(None)
+            flight.append(batch if writer else None)
             while len(flight) > IN_FLIGHT:
                 drain()
 
@@ -369,6 +367,6 @@ def replay_model_file(recording: str, model: str, out: str | None = None, worker
     bundle = load_model(model)
     engines = None
     if engine_state is not None:
-        from node.live.engine_file import load_given_engine_states
+        from node.edges.engine_file import load_given_engine_states
         engines = load_given_engine_states(engine_state)
     return replay(recording, bundle, out, workers, engines, progress)

@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable
 
 from node.contract import OrdervibError, parse_sensor_key
-from node.live.zenoh import (
+from node.edges.zenoh import (
     DEFAULT_ENDPOINT,
     config_file_endpoints,
     json_publisher,

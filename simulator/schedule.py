@@ -2,7 +2,7 @@
 
 Also builds one run's speed command (rpm, on the 40 Hz grid) with run-to-run
 variation of the transition rates and plateau lengths, reads another schedule
-from a contract TOML file (``load_sim_schedule``: INTERFACE.md section 4, plus the
+from a contract TOML file (``load_sim_schedule``: docs/contract.md section 4, plus the
 optional keys ``plateau`` and ``rate`` per OC) and writes the schedule as the
 contract's TOML.
 """
@@ -145,7 +145,7 @@ def _number(d: dict, key: str, where: str) -> float | None:
 
 
 def load_sim_schedule(path: str | os.PathLike) -> SimSchedule:
-    """Read a contract schedule (INTERFACE.md section 4) for the simulator; one-line errors.
+    """Read a contract schedule (docs/contract.md section 4) for the simulator; one-line errors.
 
     Each ``[[oc]]`` may add ``plateau`` (nominal plateau length, s; default DEFAULT_PLATEAU)
     and ``rate`` (nominal transition rate into it, rpm/s; default DEFAULT_RATE); the node's
@@ -244,12 +244,12 @@ def schedule_toml(
     timing: bool = False,
     origin: str | None = None,
 ) -> str:
-    """The schedule in the contract's TOML form (INTERFACE.md section 4).
+    """The schedule in the contract's TOML form (docs/contract.md section 4).
 
     timing: also write each OC's nominal ``plateau`` (s) and ``rate`` (rpm/s), the
     simulator's extra keys (the node ignores them); origin: named in the header comment.
     """
-    head = "# Pass-off schedule of the ordervib simulator (INTERFACE.md section 4)"
+    head = "# Pass-off schedule of the ordervib simulator (docs/contract.md section 4)"
     lines = [
         head + (f", from {origin}." if origin else "."),
         f'switch = "{SWITCH}"',

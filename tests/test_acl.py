@@ -23,7 +23,7 @@ from test_tls import free_port, openssl  # the same helpers as the TLS test
 
 from node.cli import build_parser
 from node.cli.router import router_config
-from node.live.zenoh import open_session, zenoh_config
+from node.edges.zenoh import open_session, zenoh_config
 
 pytest.importorskip("zenoh")
 if shutil.which("openssl") is None:

@@ -272,7 +272,7 @@ def test_damaged_kept_runs_are_one_line(tmp_path: Path) -> None:
 
 # -- the engine-state file
 def test_a_replaced_engine_state_keeps_its_mode(tmp_path: Path) -> None:
-    from node.live.engine_file import load_engine_states, save_engine_states
+    from node.edges.engine_file import load_engine_states, save_engine_states
     from node.runtime.history import EngineState
     path = tmp_path / "engine.json"
     for mode in (0o444, 0o640):
@@ -304,7 +304,7 @@ def _fifo(path: Path) -> Iterator[Path]:
 
 def test_a_fifo_or_device_engine_state_is_refused_at_once(
         good: Path, rec: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from node.live.engine_file import load_engine_states, save_engine_states
+    from node.edges.engine_file import load_engine_states, save_engine_states
     out = tmp_path / "node.mcap"
     with _fifo(tmp_path / "engine.json") as fifo:
         for argv in (["run", "--model", str(good), "--record", str(out), "--engine-state", str(fifo),
@@ -329,7 +329,7 @@ def _chattr(flag: str, path: Path) -> bool:
 
 def test_an_engine_state_that_cannot_be_replaced_stops_run_before_it_starts(
         good: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from node.live.engine_file import save_engine_states
+    from node.edges.engine_file import save_engine_states
     path = tmp_path / "engine.json"
     save_engine_states(path, {})
     before = path.read_bytes()

@@ -85,8 +85,8 @@ def test_live_node_emits_a_silent_beds_last_slot_before_it_stops(tmp_path):
     import zenoh
 
     from harness.live import free_port, wait_for
+    from node.edges.zenoh import open_session, zenoh_config
     from node.live.node import IDLE_MARGIN_NS, LiveNode
-    from node.live.zenoh import open_session, zenoh_config
     from node.mcap import iter_messages
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(_bundle(), str(tmp_path / "n.mcap"), listen=[endpoint])

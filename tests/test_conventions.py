@@ -32,7 +32,7 @@ def test_replayed_sensor_samples_are_application_json(sim: Path) -> None:
     (a bare put would say zenoh/bytes)."""
     zenoh = pytest.importorskip("zenoh")
     from harness.live import wait_for
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     from replay.publish import publish_recording
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"

@@ -107,13 +107,13 @@ def test_a_full_intake_holds_the_links_back_and_loses_nothing(setup, tmp_path, m
     from node.live.node import LiveNode
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint], queue_size=16)
-    held, handle = threading.Event(), node._handle
+    held, handle = threading.Event(), node.handle_batch
 
     def slow(batch):
         held.wait(30)
         handle(batch)
 
-    monkeypatch.setattr(node, "_handle", slow)
+    monkeypatch.setattr(node, "handle_batch", slow)
     node.start()
     client = _client(endpoint)
     keys = [sensor_key("b1", "nB")] * 400
@@ -148,7 +148,7 @@ def test_hundreds_of_beds_health_is_spread_over_the_second(tmp_path):
         return [(k, 0, 0, orjson.dumps(m)) for k, m in outs]
     node._send = send  # no Zenoh session: record what would be published
     beds = [f"h{i:02d}" for i in range(40)]
-    node._handle([(f"testbed/{b}/sensor/nB", GOOD, time.time_ns()) for b in beds])
+    node.handle_batch([(f"testbed/{b}/sensor/nB", GOOD, time.time_ns()) for b in beds])
     n = live.HEALTH_PER_PASS
     node._tick()
     assert sum(map(len, sent)) == n  # the tick's own pass: a slice
@@ -198,7 +198,7 @@ class Watcher:
     wildcard keys included."""
 
     def __init__(self, endpoint: str) -> None:
-        from node.live.zenoh import open_session, zenoh_config
+        from node.edges.zenoh import open_session, zenoh_config
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.got: list[tuple[str, dict]] = []
         self.subs = [self.session.declare_subscriber(k, self._on) for k in ("testbed/**", "ordervib/**")]
@@ -216,7 +216,7 @@ class Watcher:
 
 
 def _client(endpoint: str):
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     return open_session(zenoh_config(None, [endpoint]))
 
 
@@ -343,9 +343,10 @@ def test_silent_beds_expire_and_say_so(setup, tmp_path):
     assert all(h["received"] == 4 for bed, h in health if bed != "s1" or h.get("expired"))
 
 
-def _flood_one_bed(setup, rec, until=None, **options):
+def _flood_one_bed(setup, rec, until=None, first=None, **options):
     """66,000 distinct channel keys on bed ``b`` into a LiveNode (``options``) recording to
-    ``rec``, every one received (and ``until(node)``, if given) before the node stops."""
+    ``rec``, sent once ``first(node)`` holds (if given), every one received (and ``until(node)``,
+    if given) before the node stops."""
     from node.live.node import LiveNode
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(rec), listen=[endpoint], **options)
@@ -354,6 +355,7 @@ def _flood_one_bed(setup, rec, until=None, **options):
     keys = [sensor_key("b", f"c{i}") for i in range(66_000)]
     try:
         _wait_matched(client, "testbed/b/sensor/nB")
+        assert first is None or wait_for(lambda: first(node), 10)
         _put_all(client, keys)
         assert wait_for(lambda: node.stats.received == len(keys), 60), node.stats
         assert until is None or wait_for(lambda: until(node), 10)
@@ -379,13 +381,22 @@ def test_a_flood_of_channel_keys_on_one_bed_is_refused_and_recorded_bounded(setu
 def test_the_recording_survives_more_keys_than_mcap_channels(setup, tmp_path):
     """With the channel bound per bed lifted, 66,000 keys reach the recorder: it keeps 65,535
     channels (MCAP's u16 ids), refuses the rest, counted in health, and the recording finishes
-    (it failed with "ushort format requires 0 <= number <= 65535", exit 2, before)."""
+    (it failed with "ushort format requires 0 <= number <= 65535", exit 2, before).
+
+    The flood starts once the node's first own health message (its first tick, a second after it
+    started) is recorded, so an output holds a channel before the inputs fill the table: with the
+    flood racing that tick, a machine that took the 65,535 first keys within the second recorded
+    inputs only, and the outputs' share of the table went untested."""
     from mcap.reader import make_reader
 
     def counted(node) -> bool:  # the node's own health said so
         return node._node_health.get("refused", {}).get("recording_channels", 0) > 0
 
-    node, keys = _flood_one_bed(setup, tmp_path / "n.mcap", until=counted, max_channels=70_000)
+    def health_recorded(node) -> bool:  # the first tick's messages are in the recording
+        return node.writer.count > 0
+
+    node, keys = _flood_one_bed(setup, tmp_path / "n.mcap", until=counted, first=health_recorded,
+                                max_channels=70_000)
     assert node.recording and node.stats.recording_error is None
     refused = node.writer.refused
     assert refused >= len(keys) - 65_535 and node.unrecorded == refused
@@ -405,14 +416,14 @@ def test_a_bed_behind_a_siblings_backlog_is_handled_first(setup, tmp_path, monke
     from node.live.node import BATCH_MAX, DRAIN_MAX, LiveNode
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(tmp_path / "n.mcap"), listen=[endpoint])
-    held, handle, seen = threading.Event(), node._handle, []
+    held, handle, seen = threading.Event(), node.handle_batch, []
 
     def slow(batch):
         held.wait(30)
         seen.extend((k.split("/")[1], orjson.loads(p)["t"]) for k, p, _ in batch)
         handle(batch)
 
-    monkeypatch.setattr(node, "_handle", slow)
+    monkeypatch.setattr(node, "handle_batch", slow)
     node.start()
     client = _client(endpoint)
     t0 = 1_700_000_000.0

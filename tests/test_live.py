@@ -76,7 +76,7 @@ def test_live_node_equals_offline_replay_and_records_every_input(setup):
     assert len(live) > 1000
     assert live == offline  # predicted values equal to the last bit
     # the engine history it kept is the one the node's logic derives from the same messages
-    from node.live.engine_file import load_engine_states
+    from node.edges.engine_file import load_engine_states
     from node.runtime.core import NodeCore
     core = NodeCore(load_bundle(setup / "m"))
     for m in iter_messages(setup / "test.mcap"):
@@ -84,6 +84,62 @@ def test_live_node_equals_offline_replay_and_records_every_input(setup):
     core.finish()
     kept = load_engine_states(engine_file)
     assert kept == core.engine_states() and all(s.last_on_t is not None for s in kept.values())
+
+
+class _Discard:
+    """Stands in for a Zenoh session: its puts go nowhere."""
+
+    def put(self, key: str, data: bytes, **_: object) -> None:
+        pass
+
+
+# keys the node refuses: a wildcard inside a chunk, an over-long chunk, a chunk too many, no sensor key
+REFUSED_KEYS = ["testbed/bed1/sensor/bad*key", "testbed/" + "b" * 65 + "/sensor/nB",
+                "testbed/bed1/sensor/nB/x", "other/key"]
+
+
+def test_replay_of_refused_keys_records_what_the_live_node_records(setup, tmp_path):
+    """A recording that holds keys the node refuses, among a test bed's messages: offline replay
+    records exactly what the live node's worker records from the same messages at the same
+    receive times (``LiveNode.handle_batch``, batches of ``BATCH_MAX``): every admitted input with
+    its times, each output right after the input that completed it, in the same order, byte for
+    byte; the refused keys in neither (replay recorded them before). Aside: the outputs' publish
+    times (the live node's clock) and the transitions' messages, which the live node publishes
+    once their analysis in its own process is done (compared in the three-targets test)."""
+    from node.live.node import BATCH_MAX, LiveNode
+    from node.mcap import RecordingWriter
+    from node.models.bundle import load_bundle
+    from replay.offline import replay
+    source = tmp_path / "hostile.mcap"
+    rows = []
+    for i, m in enumerate(iter_messages(setup / "test.mcap")):
+        rows.append((m.topic, m.log_time, m.publish_time, bytes(m.payload)))
+        if i % 7 == 3:  # a refused key now and then, inside batches, with a sample's payload
+            rows.append((REFUSED_KEYS[i % len(REFUSED_KEYS)], *rows[-1][1:]))
+    with RecordingWriter(str(source)) as w:
+        w.write_many(rows)
+    bundle = load_bundle(setup / "m")
+    node = LiveNode(bundle, str(tmp_path / "live.mcap"))
+    node.attach(_Discard())
+    for start in range(0, len(rows), BATCH_MAX):
+        node.handle_batch([(k, data, pub) for k, _, pub, data in rows[start:start + BATCH_MAX]])
+    node.publish(node.core.finish())
+    node.writer.close()
+    replay(str(source), bundle, str(tmp_path / "offline.mcap"))
+
+    def recorded(path: Path) -> list[tuple]:
+        return [(m.topic, m.log_time, m.publish_time if "/sensor/" in m.topic else None, bytes(m.payload))
+                for m in iter_messages(path) if not m.topic.endswith("/monitor/transient")]
+    live, offline = recorded(tmp_path / "live.mcap"), recorded(tmp_path / "offline.mcap")
+    refused = sum(k in REFUSED_KEYS for k, *_ in rows)
+    assert refused > 4000 and sum(node.core.refused.values()) == refused
+    assert offline == live  # to the bit, in the same order
+    assert [r for r in live if "/sensor/" in r[0]] == [(k, log, pub, data) for k, log, pub, data in rows
+                                                       if k not in REFUSED_KEYS]
+    assert sum("/monitor/yB" in r[0] for r in live) > 1000
+    transients = [m for m in iter_messages(tmp_path / "offline.mcap")
+                  if m.topic.endswith("/monitor/transient")]
+    assert len(node.core.pending) == len(transients) > 0  # the live node's, waiting for their analysis
 
 
 def test_sigterm_finishes_the_recording(setup, tmp_path):
@@ -99,7 +155,7 @@ def test_sigterm_finishes_the_recording(setup, tmp_path):
 def test_sigkill_then_recover_loses_at_most_the_last_second(setup, tmp_path):
     import orjson
 
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     from replay.publish import publish_recording
     rec = tmp_path / "k.mcap"
     proc, port = start_node(setup / "m", rec)
@@ -354,7 +410,7 @@ def test_publish_max_gap_shortens_the_standing_between_runs(caplog):
     import logging
 
     from node.cli.logs import Progress
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     from replay.publish import publish_recording
 
     rec = str(Path(__file__).resolve().parents[1] / "recordings" / "engine1_runs.mcap")

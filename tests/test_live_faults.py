@@ -51,7 +51,7 @@ class Client:
     """An independent Zenoh session beside the node: publishes, collects the node's outputs."""
 
     def __init__(self, endpoint: str) -> None:
-        from node.live.zenoh import open_session, zenoh_config
+        from node.edges.zenoh import open_session, zenoh_config
         self.session = open_session(zenoh_config(None, [endpoint]))
         self.out: list[tuple[str, bytes]] = []
         self.sub = self.session.declare_subscriber(
@@ -336,8 +336,8 @@ def test_a_hung_subscriber_never_stalls_the_node(setup, tmp_path):
     and every other subscriber waited too; now the hung one loses messages, nobody else."""
     import json
 
+    from node.edges.zenoh import open_session, zenoh_config
     from node.live.node import LiveNode
-    from node.live.zenoh import open_session, zenoh_config
     from node.models.bundle import load_bundle
     conf = tmp_path / "small.json5"
     conf.write_text(json.dumps({"transport": {"link": {"tcp": {"so_sndbuf": 4096, "so_rcvbuf": 4096}}}}))

@@ -42,8 +42,8 @@ def test_start_freezes_the_long_lived_and_raises_the_young_threshold(tmp_path, t
 def test_node_health_carries_cpu_per_message_and_worker_lag(tmp_path, tmp_path_factory):
     import zenoh
 
+    from node.edges.zenoh import open_session, zenoh_config
     from node.live.node import LiveNode
-    from node.live.zenoh import open_session, zenoh_config
     bundle = _bundle(tmp_path_factory)
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     before = gc.get_threshold()

@@ -181,7 +181,7 @@ def test_held_out_run_predicted_from_its_own_profile_against_its_measurement(mod
 
 
 def test_engine_state_file_needs_its_bed_named_when_it_holds_several(model, tmp_path, capsys):
-    from node.live.engine_file import save_engine_states
+    from node.edges.engine_file import save_engine_states
     from node.runtime.history import EngineState
     state = tmp_path / "engine.json"
     save_engine_states(state, {"b1": EngineState(0.0, 1000.0), "b2": EngineState()})

@@ -255,7 +255,7 @@ def test_publish_with_no_subscriber_fails(sim: Path, capsys: pytest.CaptureFixtu
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     # a Zenoh peer listening there, but nobody subscribing
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"]))
     try:
         code = main(["replay", str(sim), "--publish", "--connect", f"tcp/127.0.0.1:{port}", "--speed", "0",
@@ -309,7 +309,7 @@ def test_a_malformed_engine_state_stops_run_and_replay_before_any_output(
 
 
 def test_the_engine_state_file_is_replaced_whole(tmp_path: Path) -> None:
-    from node.live.engine_file import load_engine_states, save_engine_states
+    from node.edges.engine_file import load_engine_states, save_engine_states
     from node.runtime.history import EngineState
     path = tmp_path / "engine.json"
     assert load_engine_states(path) == {}  # absent: nothing known

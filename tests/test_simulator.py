@@ -397,7 +397,7 @@ def test_default_output_unchanged(tmp_path: Path) -> None:
     assert _digest(c) == GOLDEN[("drift", None)]
     # the sidecar of the default run, as it always was
     assert schedule_toml() == (
-        "# Pass-off schedule of the ordervib simulator (INTERFACE.md section 4).\n"
+        "# Pass-off schedule of the ordervib simulator (docs/contract.md section 4).\n"
         'switch = "nB"\ntolerance = 0.02\n\n'
         + "".join(f'[[oc]]\nname = "{o.name}"\nspeed = {o.speed:.1f}\n\n' for o in DEFAULT_OCS)
     )[:-1]

@@ -77,7 +77,7 @@ def setup(tmp_path_factory):
 
 
 def test_tls_node_serves_a_tls_test_bed_and_nobody_else(setup, tmp_path):
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     endpoint = f"tls/127.0.0.1:{free_port()}"
     node_conf = example_config("tls-node.json5", setup, endpoint, "tls/0.0.0.0:7447")
     bed_conf = example_config("tls-testbed.json5", setup, endpoint, "tls/localhost:7447")

@@ -96,6 +96,50 @@ def test_two_modes_recovered_separated_and_close() -> None:
         assert c.af == pytest.approx(1 / (2 * zeta), rel=0.2)
 
 
+def _criticals_of_two_modes(rel: float, seed: int) -> list[tuple[float, float]]:
+    """The criticals (speed, AF) of the three-mode coast-down above, its inputs scaled by
+    1 + rel * N(0, 1) sample by sample."""
+    speed = _ramp(2500.0, 9800.0, -90.0)
+    modes = [(4400.0, 0.07, 0.8), (8100.0, 0.045, -1.0), (9300.0, 0.03, 0.5)]
+    amp, ph = _amp_phase(_response(speed, modes))
+    rng = np.random.default_rng(seed)
+    jig = [1 + rel * rng.standard_normal(len(speed)) for _ in range(3)]
+    out = analyse(speed * jig[0], amp * jig[1], ph * jig[2])
+    return [(c.speed, c.af) for c in out.criticals]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_criticals_do_not_rest_on_the_last_bits(seed: int) -> None:
+    """Inputs perturbed by 1e-12 relative: the same criticals (no decision on a threshold that
+    rounding crosses)."""
+    base = _criticals_of_two_modes(0.0, 0)
+    got = _criticals_of_two_modes(1e-12, seed)
+    assert len(got) == len(base) == 3
+    for (s, af), (s0, af0) in zip(got, base, strict=True):
+        assert s == pytest.approx(s0, rel=1e-6)
+        assert af == pytest.approx(af0, rel=1e-4)
+
+
+def test_criticals_do_not_depend_on_the_blas_kernels() -> None:
+    """The same analysis with OpenBLAS's oldest x86-64 kernels (as on another processor)
+    finds the same criticals."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import json, sys; sys.path.insert(0, 'tests'); import test_transient as t; "
+            "print(json.dumps(t._criticals_of_two_modes(0.0, 0)))")
+    env = {**os.environ, "OPENBLAS_CORETYPE": "Prescott"}
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parent.parent, timeout=300, check=True)
+    other = json.loads(run.stdout.strip().splitlines()[-1])
+    here = _criticals_of_two_modes(0.0, 0)
+    assert len(other) == len(here) == 3
+    for (s, af), (s0, af0) in zip(other, here, strict=True):
+        assert s == pytest.approx(s0, rel=1e-5)
+        assert af == pytest.approx(af0, rel=1e-3)
+
+
 def test_noisy_ramp_within_the_targets() -> None:
     """The simulator's sensor noise (amplitude sigma 0.03 + 2 %, phase the same over the
     amplitude, 0.01 mm/s and 0.1 degree resolution) on a tracked two-mode run-up."""

@@ -60,7 +60,7 @@ def test_view_connect_streams_a_running_bed_into_a_rerun_file(node_rec: Path, tm
 
     import zenoh
 
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -140,7 +140,7 @@ def _engine(args: argparse.Namespace) -> EngineState | None:
         if args.bed is not None:
             raise OrdervibError("--bed names a bed of --engine-state: give the file too")
         return None
-    from node.live.engine_file import load_given_engine_states
+    from node.edges.engine_file import load_given_engine_states
     states = load_given_engine_states(args.engine_state)
     if args.bed is not None:
         if args.bed not in states:

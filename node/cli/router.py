@@ -34,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def router_config(args: argparse.Namespace):
     """The router's Zenoh config and where it listens: --listen, else the --zenoh-config file's
     endpoints (docs/zenoh/acl-router.json5: TLS only), else tcp/0.0.0.0:7447."""
-    from node.live.zenoh import config_file_endpoints, zenoh_config
+    from node.edges.zenoh import config_file_endpoints, zenoh_config
 
     listen = args.listen
     if not (listen or config_file_endpoints(args.zenoh_config)):
@@ -44,7 +44,7 @@ def router_config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.live.zenoh import open_session
+    from node.edges.zenoh import open_session
 
     if args.duration is not None and not args.duration > 0:
         raise OrdervibError("--duration must be > 0")

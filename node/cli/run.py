@@ -65,9 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from node.contract import sensor_subscription
-    from node.live.engine_file import check_engine_file
+    from node.edges.engine_file import check_engine_file
+    from node.edges.zenoh import DEFAULT_ENDPOINT, config_file_endpoints, zenoh_config
     from node.live.node import run_node
-    from node.live.zenoh import DEFAULT_ENDPOINT, config_file_endpoints, zenoh_config
     from node.mcap import RecordingWriter, RotatingRecorder
     from node.models.bundle import load_model
 

@@ -56,7 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--schedule",
         default=None,
         metavar="S.toml",
-        help="run the OCs of this contract schedule (INTERFACE.md section 4; switch \"nB\"; "
+        help="run the OCs of this contract schedule (docs/contract.md section 4; switch \"nB\"; "
         "speeds 2600-9800 rpm, in test order) instead of the built-in 12; each [[oc]] may add "
         "plateau = nominal plateau length in s (default 40) and rate = nominal transition rate "
         "in rpm/s (default 90). The sidecar REC.schedule.toml is then this schedule",

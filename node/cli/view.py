@@ -187,7 +187,7 @@ def _live(args: argparse.Namespace) -> tuple[LiveView, dict[str, int]]:
     import rerun as rr
 
     from node.contract import MONITOR_SUBSCRIPTION, SENSOR_SUBSCRIPTION
-    from node.live.zenoh import open_session, zenoh_config
+    from node.edges.zenoh import open_session, zenoh_config
     from replay.views.live_view import LiveView
 
     view = LiveView(args.bed, args.target, args.switch, _schedule_for(args))

@@ -1,11 +1,11 @@
-"""The contract with test beds, recordings and outside tools (``INTERFACE.md``), in one place.
+"""The contract with test beds, recordings and outside tools (``docs/contract.md``), in one place.
 
 Imports nothing else from the project. Keys and channels (``keys``), the sensor
 payload rule (``payload``), the published messages and their JSON Schemas
 (``messages``), the pass-off schedule file (``schedule``) and the one-line error
 every command ends with (``errors``). Imported by their module's path: the 1x vector
 and phase-lag rule (``vector``), the 40 Hz slot rule (``slotting``) and the project's
-own JSON files (``documents``).
+own JSON files (``documents``), and the published JSON Schema files (``schemas``).
 """
 
 from node.contract.errors import OrdervibError

@@ -1,4 +1,4 @@
-"""Key expressions, channels and timing of ``INTERFACE.md`` sections 1 to 3.
+"""Key expressions, channels and timing of ``docs/contract.md`` sections 1 to 3.
 
 Every key the node reads or writes is built and parsed here, and nowhere else.
 

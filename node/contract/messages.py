@@ -1,4 +1,4 @@
-"""The messages of ``INTERFACE.md`` section 2 as typed objects, and their JSON Schemas.
+"""The messages of ``docs/contract.md`` section 2 as typed objects, and their JSON Schemas.
 
 Each message kind is a ``TypedDict`` (a plain dict at run time: no cost on the
 per-sample path), annotated with its fields' meanings; ``json_schema`` derives the

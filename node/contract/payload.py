@@ -1,4 +1,4 @@
-"""The sensor payload rule (``INTERFACE.md`` section 1), in one scalar and one batch form.
+"""The sensor payload rule (``docs/contract.md`` section 1), in one scalar and one batch form.
 
 A sensor payload is a UTF-8 JSON object ``{"t": <number>, "v": <number or null>}``
 (further fields are ignored). It is *well formed* when ``t`` is a finite number

@@ -1,4 +1,4 @@
-"""The pass-off schedule (INTERFACE.md section 4): which OCs, in which order, at which speed."""
+"""The pass-off schedule (docs/contract.md section 4): which OCs, in which order, at which speed."""
 
 from __future__ import annotations
 

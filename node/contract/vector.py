@@ -1,4 +1,4 @@
-"""An order's 1x vector and its phase (``INTERFACE.md`` section 1, the ``<order>_ph`` channels).
+"""An order's 1x vector and its phase (``docs/contract.md`` section 1, the ``<order>_ph`` channels).
 
 A phase channel gives the tracked order-1 phase as a lag from the shaft's once-per-rev
 mark, in degrees, in [-180, 180). The 1x vector of amplitude A and phase lag phi is

@@ -1,4 +1,4 @@
-"""Unit conversions into the contract's units (``INTERFACE.md`` section 1), a short fixed table.
+"""Unit conversions into the contract's units (``docs/contract.md`` section 1), a short fixed table.
 
 A conversion is affine: contract value = source value x scale + offset. Each contract unit
 (``node.contract.CHANNEL_UNITS``) has the source units it converts from, by name; anything

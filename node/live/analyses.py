@@ -4,7 +4,7 @@ A transition's analysis (``monitor/transient``: the criticals' fits, 5 ms on ave
 and bed, up to 0.3 s) is Python and numpy that holds the interpreter's lock. On a thread of the
 node it slowed the worker whenever transitions ended: 20 test beds ending one together meant 60
 analyses, 1.3 s of CPU spread over 3 s of the lock, and the worker fell behind by up to half a
-second (bench live, 280 s, issue 35). Here each ``PendingTransient``'s ``job`` goes to one spawned
+second (bench live, 280 s). Here each ``PendingTransient``'s ``job`` goes to one spawned
 process at the lowest priority (``os.nice(19)``; ``message_of_job``: the same code, the same
 message to the last bit), started at the first transition; the messages come back in the order
 the transitions ended; it ends with the node, or within ``ORPHAN_CHECK_S`` of a node killed

@@ -8,7 +8,7 @@ each bed's state apart, and the recording is written in the order the worker han
 pass takes the lanes whole in the order their oldest messages arrived, but the big ones (more than
 half a batch and ``BIG_RATIO`` x the median lane waiting) after the others: a test bed sending at
 its nominal rate waits one pass, not behind a sibling bed that sends an hour of backlog at 20x
-(issue 31), while beds at the same rate, all behind alike, go oldest first, as they came. The big
+(``bench hostile``), while beds at the same rate, all behind alike, go oldest first, as they came. The big
 lanes get at least 1/``FULLEST_SHARE`` of every batch, so a backlog is never starved. Pure data,
 no I/O, no clock.
 

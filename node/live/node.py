@@ -15,7 +15,7 @@ analysis (``monitor/transient``) runs in a process of its own at the lowest prio
 (``NodeCore(defer_transients=True)``, ``PendingTransient``, ``node.live.analyses``): its message
 goes out once done, in the order the transitions ended.
 
-Hostile and broken clients (issue 31): whatever arrives, the node's state stays bounded. The
+Hostile and broken clients (``bench hostile``): whatever arrives, the node's state stays bounded. The
 core admits a message only on a valid sensor key of a bed the ``beds`` pattern names, within
 ``max_beds`` beds and ``max_channels`` channels per bed; the refused are counted per reason,
 never recorded, never a bed, a topic or an MCAP channel (``NodeCore.route``). A bed silent
@@ -33,7 +33,7 @@ Failures (docs/deployment.md, "What the node does when things go wrong"):
   (``BLOCK``) or drop at their side (``DROP``, counted there). Health shows it as the worker's
   lag: how long the intake has not been found empty (``worker_lag_s``). With a Python callback
   per message the node cost 48 us a message at 20 beds, 10 of them the callback thread and its
-  contention with the worker (issue 35);
+  contention with the worker (``bench live``);
 - a malformed payload is counted and recorded at its receive time; it never
   reaches code that can throw;
 - a recording that fails (disk full, I/O error) stops being written: the node
@@ -41,7 +41,7 @@ Failures (docs/deployment.md, "What the node does when things go wrong"):
   counted (health ``recording: false``, ``unrecorded: N``), one error line is
   logged, the unfinished file is left for ``ordervib recover``, and ``run_node``
   ends with an ``OrdervibError`` (``ordervib run`` exits non-zero);
-- an engine-state save that fails (``node.live.engine_file``) is logged once and shown in
+- an engine-state save that fails (``node.edges.engine_file``) is logged once and shown in
   health (``engine_state: false``) while monitoring goes on; if the last save failed too,
   ``run_node`` ends with an ``OrdervibError``;
 - outputs are published with Zenoh's ``CongestionControl.DROP``: a subscriber that stops
@@ -69,7 +69,6 @@ import time
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from itertools import compress
 from types import TracebackType
 from typing import Any
 
@@ -89,15 +88,15 @@ from node.contract import (
     node_health_key,
     sensor_subscription,
 )
+from node.edges.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
+from node.edges.zenoh import open_session, zenoh_config
 from node.live.analyses import TransientAnalyses
-from node.live.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
 from node.live.intake import FairIntake
-from node.live.zenoh import open_session, zenoh_config
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
 from node.models.bundle import Bundle, Model
 from node.runtime.clock import ClockPolicy
-from node.runtime.core import MAX_BEDS, MAX_CHANNELS, NodeCore, recording_order
+from node.runtime.core import MAX_BEDS, MAX_CHANNELS, NodeCore, Row, recording_rows
 
 log = logging.getLogger(__name__)
 
@@ -192,7 +191,7 @@ class LiveNode:
             raise ValueError(f"bed_expiry_s must be > 0, got {bed_expiry_s}")
         self.beds = beds  # the beds this node serves (a key-expression chunk, see sensor_subscription)
         self.bed_expiry_s = bed_expiry_s
-        self.engine_file = engine_file  # each bed's engine history (node.live.engine_file)
+        self.engine_file = engine_file  # each bed's engine history (node.edges.engine_file)
         self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None,
                              beds=beds, max_beds=max_beds, max_channels=max_channels, clock=clock,
                              defer_transients=True)
@@ -242,9 +241,8 @@ class LiveNode:
 
     def start(self) -> None:
         import zenoh
-        self.session = open_session(self.conf)
-        self._json = zenoh.Encoding.APPLICATION_JSON
-        self._congestion = zenoh.CongestionControl.DROP  # see the module: never BLOCK on a subscriber
+        # see the module: never BLOCK on a subscriber
+        self.attach(open_session(self.conf), zenoh.Encoding.APPLICATION_JSON, zenoh.CongestionControl.DROP)
         self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
         quiet_gc()  # set up: what lives on is frozen before the first message
         intake: Any = zenoh.handlers.FifoChannel(self.queue_size)  # full: Zenoh holds the links back
@@ -252,8 +250,17 @@ class LiveNode:
         self.thread = threading.Thread(target=self._work, name="ordervib-node", daemon=True)
         self.thread.start()
 
+    def attach(self, session: Any, encoding: Any = None, congestion: Any = None) -> None:
+        """Publish on ``session`` (its ``put(key, bytes, encoding=, congestion_control=)``) with
+        ``encoding`` and ``congestion`` control, without subscribing or starting the worker:
+        ``start`` attaches a Zenoh session so; a benchmark or a test attaches a stand-in and drives
+        ``handle_batch`` and ``publish`` itself."""
+        self.session = session
+        self._json = encoding
+        self._congestion = congestion
+
     # -- recording: a failure stops it, never the node
-    def _record_many(self, messages: Iterable[tuple[str, int, int, bytes]], n: int) -> None:
+    def _record_many(self, messages: Iterable[Row], n: int) -> None:
         """n (key, log time ns, receive time ns, payload) messages at once."""
         if self.stats.recording_error is None:
             try:
@@ -285,14 +292,15 @@ class LiveNode:
             abandon()
 
     def _publish(self, key: str, msg: dict | Any) -> None:
-        self._publish_many(((key, msg),))
+        self.publish(((key, msg),))
 
-    def _publish_many(self, outs: Sequence[tuple[str, dict | Any]]) -> None:
-        """Publish (key, message) outputs in turn, then record them (in the same order)."""
+    def publish(self, outs: Sequence[tuple[str, dict | Any]]) -> None:
+        """Publish (key, message) outputs in turn, then record them (in the same order), each
+        stamped with its publish time."""
         rows = self._send(outs)
         self._record_many(rows, len(rows))
 
-    def _send(self, outs: Sequence[tuple[str, dict | Any]]) -> list[tuple[str, int, int, bytes]]:
+    def _send(self, outs: Sequence[tuple[str, dict | Any]]) -> list[Row]:
         """Publish (key, message) outputs in turn; their rows for the recording, each stamped
         with its publish time (``_record_many``'s rows).
 
@@ -300,7 +308,7 @@ class LiveNode:
         declares is a node of Zenoh's key tree, which its receive threads walk for each message on
         a key they have not resolved before (a wildcard key above all): with a publisher declared
         per topic of the 256 beds a flood fills, Zenoh's receive threads took 34 % of a core in the
-        hostile soak, against 5 % without (issue 31; docs/deployment.md). An undeclared put costs
+        hostile soak, against 5 % without (docs/deployment.md). An undeclared put costs
         about 1 us more in this thread."""
         put_key, dumps, clock, wall = self.session.put, orjson.dumps, time.perf_counter, time.time_ns
         log_ns = log_time_ns
@@ -365,9 +373,10 @@ class LiveNode:
         route = self.core.known(key)
         return route[0] if route else None
 
-    def _handle(self, batch: list[tuple[str, bytes, int]]) -> None:
-        """One batch: each admitted input recorded, then the outputs it completed published and
-        recorded (``recording_order``); refused inputs are counted by the core, nothing more."""
+    def handle_batch(self, batch: Sequence[tuple[str, bytes, int]]) -> None:
+        """One batch of messages (key, payload, receive time ns), as the worker takes them: the
+        node's logic over it, each admitted input recorded, then the outputs it completed published
+        and recorded (``recording_rows``); refused inputs are counted by the core, nothing more."""
         keys, payloads, recv = zip(*batch, strict=True)
         self.stats.received += len(batch)
         t0 = time.perf_counter()
@@ -382,23 +391,22 @@ class LiveNode:
             log_ns = [round((x if x == x else r / 1e9) * 1e9) for x, r in zip(result.t.tolist(), recv)]
         else:
             log_ns = log_times_ns(np.where(np.isnan(result.t), np.array(recv) / 1e9, result.t)).tolist()
-        keep = None if result.refused is None else (~result.refused).tolist()
-        rows: list[tuple[str, int, int, bytes]] = []  # the batch's recording, written at once
-        for start, stop, outs in recording_order(len(batch), result.done):
-            if stop > start:  # the inputs up to the one that completed these outputs
-                part = zip(keys[start:stop], log_ns[start:stop], recv[start:stop], payloads[start:stop])
-                rows += part if keep is None else compress(part, keep[start:stop])
-            if outs:
-                i = stop - 1
-                rows += self._send(outs)
-                lag = (time.time_ns() - recv[i]) / 1e6
-                bed = self._bed(keys[i]) or ""
-                lags = self._lag.get(bed)
-                if lags is None:
-                    lags = self._lag[bed] = deque(maxlen=LAG_KEPT)
-                lags.append(lag)
-                if lag > self._lag_max.get(bed, 0.0):
-                    self._lag_max[bed] = lag
+
+        def publish(i: int, outs: Sequence[tuple[str, dict | Any]]) -> list[Row]:
+            """The outputs input i completed, published now; their latency noted on its bed."""
+            rows = self._send(outs)
+            lag = (time.time_ns() - recv[i]) / 1e6
+            bed = self._bed(keys[i]) or ""
+            lags = self._lag.get(bed)
+            if lags is None:
+                lags = self._lag[bed] = deque(maxlen=LAG_KEPT)
+            lags.append(lag)
+            if lag > self._lag_max.get(bed, 0.0):
+                self._lag_max[bed] = lag
+            return rows
+
+        # the batch's recording, written at once
+        rows = recording_rows(list(zip(keys, log_ns, recv, payloads)), result.done, result.refused, publish)
         if rows:
             self._record_many(rows, len(rows))
 
@@ -419,7 +427,7 @@ class LiveNode:
                 spent = self._spent = dict.fromkeys(self._spent, 0.0)
                 batch = self._drain()
                 if batch:
-                    self._handle(batch)
+                    self.handle_batch(batch)
                 if self._health_due:
                     self._publish_health(HEALTH_PER_PASS)
                 self._publish_analysed()
@@ -427,7 +435,7 @@ class LiveNode:
                     now = None if self._behind else self._last_empty_ns  # behind, a silence is not known
                     if now is not None:  # (every message received before now is handled)
                         next_idle = time.monotonic() + IDLE_CHECK_S
-                        self._publish_many(self.core.flush_idle(now, IDLE_MARGIN_NS))
+                        self.publish(self.core.flush_idle(now, IDLE_MARGIN_NS))
                 if time.monotonic() >= next_tick:
                     next_tick = max(next_tick + 1.0, time.monotonic())  # no burst after a long batch
                     self._tick()
@@ -438,7 +446,7 @@ class LiveNode:
                                 took, len(batch), ", ".join(f"{k} {v:.2f} s" for k, v in spent.items()), rest)
             self._publish_health(len(self._health_due))  # this second's last ones
             self._publish_analysed(wait=True)  # every transition before the stream's end first
-            self._publish_many(self.core.finish())
+            self.publish(self.core.finish())
             self._publish_analysed(wait=True)  # the runs' last ones
         except BaseException as exc:  # the node is dead: say so at once, never look alive
             self.stats.worker_error = f"{type(exc).__name__}: {exc}"
@@ -549,7 +557,7 @@ class LiveNode:
         self._submit_analyses()
         outs = [self.core.resolved(key, msg) for key, msg in self._analyses.done(wait)]
         if outs:
-            self._publish_many(outs)
+            self.publish(outs)
 
     def _publish_health(self, n: int) -> None:
         """The health of the next ``n`` beds due this second (``_tick``), each still tracked."""
@@ -560,7 +568,7 @@ class LiveNode:
             if bed in beds:  # (not expired since the tick)
                 outs.append((health_key(bed), self.health(bed, time.time())))
         if outs:
-            self._publish_many(outs)
+            self.publish(outs)
 
     def _expire(self, wall: float) -> None:
         """Free the beds silent (receive time) for ``bed_expiry_s``: their waiting samples run and

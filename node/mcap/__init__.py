@@ -1,4 +1,4 @@
-"""Recordings: the contract's MCAP layout (INTERFACE.md sections 1 and 3), written and read here.
+"""Recordings: the contract's MCAP layout (docs/contract.md sections 1 and 3), written and read here.
 
 - ``format``: opcodes, magic, record layouts, compressions (the only place they are written);
 - ``writer``: ``RecordingWriter`` (one topic per key expression, JSON payloads) over ``McapWriter``;

@@ -1,6 +1,6 @@
 """Writing recordings: ``RecordingWriter`` (the contract's layout) over ``McapWriter`` (MCAP records).
 
-``RecordingWriter`` (INTERFACE.md sections 1 and 3): one MCAP topic per key
+``RecordingWriter`` (docs/contract.md sections 1 and 3): one MCAP topic per key
 expression, JSON payloads, ``jsonschema`` schemas of ``"type": "object"`` (one per
 topic kind), ``log_time`` = round(t * 1e9).
 

@@ -1,5 +1,5 @@
 """What a run's earlier plateaus say of this OC's plateau: a learned shift of the OC model's
-prediction (issue 30: the error left above the noise floor is mostly a level missed on the
+prediction (``bench generalise``: the error left above the noise floor is mostly a level missed on the
 plateau).
 
 A rotor's 1x vector at a speed is its response to a few forcing vectors at once (the run's

@@ -1,5 +1,5 @@
 """The visit's own level as it settles: a learned re-anchor of the OC model's prediction
-(issue 30: the first OC after a start, where a bowed rotor's vector is, misses its plateau's
+(``bench generalise``: the first OC after a start, where a bowed rotor's vector is, misses its plateau's
 level most, and nothing earlier in the run tells it).
 
 At ``AT_S`` after an OC switch, when the transition has ended, the prediction's mean residual

@@ -1,4 +1,4 @@
-"""A bed's sensor clock, robust to one bad time (issue 31, finding 3).
+"""A bed's sensor clock, robust to one bad time.
 
 The bed's clock is the time its aligner has reached: the newest sensor time it took. A
 sample within ``max_jump_s`` of that clock goes on to the aligner. A sample further from it
@@ -11,10 +11,10 @@ confirmed, the bed's clock moves to it and its samples go to the aligner in arri
   much of the node's receipt time where the node stamped them, and no sample was taken on the
   bed's clock since it began (the old clock fell silent: a bed of one or two publishing channels
   whose clock moved). The span keeps a burst of a second publisher's samples, delivered together
-  before the bed's next one, from passing for silence (issue 31: 25 samples of a key 2 s ahead
+  before the bed's next one, from passing for silence (in the hostile soak 25 samples of a key 2 s ahead
   arrived in 64 ms and moved the bed's clock); on receipt time too, because a publisher starved
   of CPU for a while sends a burst that spans seconds of its own time in a few milliseconds
-  (issue 31's soak on a loaded machine: 83 samples of a second publisher taken as the bed's).
+  (the hostile soak on a loaded machine: 83 samples of a second publisher taken as the bed's).
 
 A candidate not confirmed once the bed's clock has gone ``hold_s`` past its start is dropped:
 its samples are counted as clock faults (a lone sample stamped 9e9, a clock that jumped on one

@@ -11,7 +11,7 @@ stepped once per sample by the first); it returns
 each message's decoded time and the monitor messages each message completed. ``handle`` is
 a batch of one. Malformed payloads are counted (per bed) and skipped; channels no model needs
 are ignored. The live node and offline replay both drive this class, through ``handle_batch``,
-and record what it did in ``recording_order``.
+and record what it did by one rule, ``recording_rows``.
 
 Admission (``route``, the one parse and cache of input keys): a message is taken only on a
 sensor key by the contract's name rule (``parse_sensor_key``), of a bed the ``beds`` pattern
@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import compress
 from types import MappingProxyType
 from typing import NamedTuple, TypeVar
 
@@ -57,6 +58,7 @@ from node.runtime.transient_watch import PendingTransient
 
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
 Route = tuple[str, str]  # (bed, channel) of an admitted sensor key
+Row = tuple[str, int, int, bytes]  # a recorded message: key, log time ns, publish time ns, JSON bytes
 
 MAX_BEDS = 256  # beds tracked at once at most, by default (ordervib run --max-beds)
 MAX_CHANNELS = 64  # channels of a bed at most, by default, the model's among them (--max-channels)
@@ -96,6 +98,36 @@ def recording_order(n: int, done: Iterable[tuple[int, Sequence[Out]]]
         start = i + 1
     if start < n:
         yield start, n, ()
+
+
+def recording_rows(inputs: Sequence[Row], done: Iterable[tuple[int, Sequence[Out]]],
+                   refused: np.ndarray | None,
+                   outputs: Callable[[int, Sequence[Out]], Iterable[Row]]) -> list[Row]:
+    """A batch's recording, the one rule of the live node and offline replay: the batch's inputs
+    in arrival order, each refused one left out (never recorded), and right after each input i
+    that completed outputs the rows ``outputs(i, outs)`` gives them (``recording_order``).
+
+    inputs: the batch's n messages as rows; done: (i, outputs) in message order, as
+    ``Batch.done``; refused: ``Batch.refused`` ((n,) bool, or None: none was). ``outputs``
+    stamps the outputs: log time their ``t`` (``log_time_ns``), publish time the moment the live
+    node published them, or, offline, the log time of the input that completed them.
+
+    >>> rows = [("a", 1, 1, b""), ("bad*key", 2, 2, b""), ("b", 3, 3, b"")]
+    >>> def stamp(i, outs):
+    ...     return [(key, 9, rows[i][1], b"") for key in outs]
+    >>> [(r[0], r[2]) for r in recording_rows(rows, [(0, ["m"]), (2, ["n"])], None, stamp)]
+    [('a', 1), ('m', 1), ('bad*key', 2), ('b', 3), ('n', 3)]
+    >>> [r[0] for r in recording_rows(rows, [(2, ["n"])], np.array([False, True, False]), stamp)]
+    ['a', 'b', 'n']
+    """
+    keep = None if refused is None else (~refused).tolist()
+    out: list[Row] = []
+    for start, stop, outs in recording_order(len(inputs), done):
+        if stop > start:  # the inputs up to the one that completed these outputs
+            out += inputs[start:stop] if keep is None else compress(inputs[start:stop], keep[start:stop])
+        if outs:
+            out += outputs(stop - 1, outs)
+    return out
 
 
 @dataclass

@@ -10,7 +10,7 @@ curve's, and by the model again when the model's falls below the curve's over ``
 (the hysteresis keeps it from switching back and forth at every sample). The decision for a
 sample uses the errors up to the one before it: causal, the same live and offline.
 
-Chosen on development engines (``bench generalise``'s dev set, issue 30 item 3) among a
+Chosen on development engines (``bench generalise``'s dev set) among a
 decision once after a few seconds, a blend weighted by the errors and this switch: the switch
 with a 5 s wait gained most there, a margin of 0 to 0.5 all alike.
 

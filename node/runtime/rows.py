@@ -3,7 +3,7 @@
 A pipeline keeps its measured past (``history_s`` of samples) to seed an OC's model at a switch.
 Held as a deque of tuples, the switch converted it all at once (``np.asarray`` of 2,400 rows of
 20 channels: 2.3 ms); with 20 test beds switching together that held the live worker 0.25 s
-(issue 35). ``RecentRows`` packs every ``block`` rows into an array as they come, so a switch
+(``bench live``). ``RecentRows`` packs every ``block`` rows into an array as they come, so a switch
 packs only the rows since the last block: the same numbers, the work spread over the samples.
 """
 

@@ -1,4 +1,4 @@
-"""A veering group's block fitted jointly over the parameter samples (issue 32 item 4).
+"""A veering group's block fitted jointly over the parameter samples.
 
 Interpolating each sample's block (A'^2, A' B', C' in a common basis) passes through every
 sample's identification error, and where two modes nearly cross the mixing at the new

@@ -106,7 +106,7 @@ def curve_candidates(fade: bool = True) -> list[dict]:
 CURVE_MARGIN = 0.5
 # With fewer training runs than FEW_RUNS the CV's optimism for a free-running model is larger
 # still (4 runs: one OC's WDMD with CV eps 0.04 over-predicted a resonance by 40 % on held-out
-# runs of other thermal states; issue 30): such a model is then never chosen alone, only as a
+# runs of other thermal states): such a model is then never chosen alone, only as a
 # member of the curves' average. (study: docs/tuning.md#few_runs)
 FEW_RUNS = 6
 
@@ -455,7 +455,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         res = [y - p for y, p in pairs]
         # sigma from the residuals before the settle anchor: it moves a visit only from its 15th
         # second on, so a sigma of the moved ones would narrow the band of the transition before
-        # it, where the first OC after a start misses most (issue 30: with 8 training runs 0.57
+        # it, where the first OC after a start misses most (``bench generalise``: with 8 training runs 0.57
         # false alarms per hour against 0.23); the peaks are the moved residuals' over it
         sigma = float(np.sqrt(np.mean(np.concatenate([y - p for y, p in unsettled]) ** 2)))
         sigma = max(sigma, 1e-9)

@@ -58,7 +58,7 @@ def config_file_endpoints(config_file: str | None) -> bool:
 
 def json_publisher(session, key: str, **options):
     """A publisher on ``key`` whose samples say they are JSON: Zenoh encoding
-    ``application/json`` (INTERFACE.md section 2; a bare ``put`` says ``zenoh/bytes``).
+    ``application/json`` (docs/contract.md section 2; a bare ``put`` says ``zenoh/bytes``).
     ``options`` go to ``declare_publisher`` (congestion control, priority, ...)."""
     import zenoh
     return session.declare_publisher(key, encoding=zenoh.Encoding.APPLICATION_JSON, **options)
@@ -68,8 +68,8 @@ def zenoh_words(exc: BaseException) -> str:
     """A Zenoh error in one line of its own words: the message inside a Rust debug dump, without
     the build machine's source paths.
 
-    >>> zenoh_words(Exception('Json5Err(Message { msg: "bad thing: x at /root/.cargo/a/b.rs:615.", '
-    ...                       'location: None }) at /root/.cargo/c.rs:86.'))
+    >>> zenoh_words(Exception('Json5Err(Message { msg: "bad thing: x at /cargo/registry/a/b.rs:615.", '
+    ...                       'location: None }) at /cargo/registry/c.rs:86.'))
     'bad thing: x'
     >>> zenoh_words(Exception(' --> 1:8\\n  |\\n1 | {mode: \\n  = expected a value at /x/lib.rs:1486.'))
     'line 1, column 8: expected a value'
