@@ -121,14 +121,14 @@ def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word
     base_eps = [float("nan")] * len(evals)
     if bundle.curve is not None:
         base_eps = curve_eps(bundle.curve, runs, preds, bundle.schedule, bundle.target)
-    header = ["OC", "model", "segments", "coverage", f"{word} eps_td", "CV eps_td", "baseline eps_td",
+    header = ["OC", "model", "segments", f"{word} eps_td", "coverage", "CV eps_td", "baseline eps_td",
               "outside", "on the curve"]
     rows = []
     hold, base = [], []
     for e, b in zip(evals, base_eps):
         res = bundle.oc(e.name)
-        rows.append([e.name, res.kind if res else "-", str(e.n_segments), _share(e.predicted, e.samples),
-                     _f(e.eps), _f(res.cv_eps if res else float("nan")), _f(b),
+        rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps),
+                     _share(e.predicted, e.samples), _f(res.cv_eps if res else float("nan")), _f(b),
                      _share(e.outside, e.predicted), _share(e.guarded, e.predicted)])
         if np.isfinite(e.eps):
             hold.append(e.eps)

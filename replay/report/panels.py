@@ -390,7 +390,7 @@ def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[S
     """The bar charts and the table of eps_td and R^2 per OC over ``preds`` (the model's) and
     ``base`` (the characteristic curve's on the same samples), their runs named ``word``."""
     scores = oc_scores(bundle, schedule, preds, base)
-    rows = [[s.name, s.kind, str(s.segments), _pct(s.coverage), _f(s.eps), _f(s.r2), _f(s.curve_eps),
+    rows = [[s.name, s.kind, str(s.segments), _f(s.eps), _f(s.r2), _pct(s.coverage), _f(s.curve_eps),
              _f(s.curve_r2), _f(s.cv_eps), str(s.alarm_samples), s.outside_share, s.guarded_share]
             for s in scores]
     return [
@@ -401,7 +401,7 @@ def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[S
                   f"{target}, {word} runs: per OC, the model (blue) and the characteristic curve (grey) "
                   "over the same samples: relative error eps_td (lower is better) and R\u00b2 (1 is a "
                   f"perfect fit; below {R2_FLOOR:g} cut, its value written)"),
-        Table(["OC", "model", "segments", "coverage", f"{word} eps_td", f"{word} R\u00b2", "curve eps_td",
+        Table(["OC", "model", "segments", f"{word} eps_td", f"{word} R\u00b2", "coverage", "curve eps_td",
                "curve R\u00b2", "CV eps_td", "alarm samples", "outside the envelope", "on the curve"], rows,
               f"{target}: the {word} runs' OC segments and rundowns, pooled (free run from the OC switch, "
               "seeded from the measured past, as the node runs it; every sample scored, one without a "
