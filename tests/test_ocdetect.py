@@ -187,3 +187,23 @@ def test_a_recording_that_begins_mid_run():
     speed = profile([(0, 6000), (20, 6000), (10, 8000), (20, 8000)])[1:]
     assert events(speed)[:2] == ["BS", "DT"]
     assert _first(speed, 1, Phase.STEADY.code) >= 5 * FS - 1  # (settle_s: an unexpected plateau)
+
+
+def test_the_start_has_its_model_until_it_leaves_the_speed_it_held():
+    # models=True: the start's model index (len(ocs) + 1) from light-off until the speed leaves
+    # the idle it held, the first OC's from there; the OCs as the contract labels them unchanged
+    speed = profile([(10, 2500), (30, 2500), (10, 4000), (20, 4000)], noise=8.0)
+    det = OCDetector(SCHED, fs=FS)
+    seg, ph = det.label(speed, models=True)
+    oc, ph2 = OCDetector(SCHED, fs=FS).label(speed)
+    own = seg != SCHED.start
+    assert (ph == ph2).all() and (oc[~own] == 0).all() and (seg[own] == oc[own]).all()
+    leave = int(40 * FS)  # the ramp from idle begins
+    switch = int(np.flatnonzero(seg == 0)[0])
+    assert 0 < switch - leave <= 2 * FS
+    assert (seg[int(2 * FS):switch] == SCHED.start).all()
+    # without a hold the start's model runs up to the plateau
+    seg, _ = OCDetector(SCHED, fs=FS).label(profile([(20, 4000), (20, 4000)]), models=True)
+    first_a = int(np.flatnonzero(seg == 0)[0])
+    assert (seg[first_a - 10:first_a] == SCHED.start).all()
+    assert SCHED.models[SCHED.start] == "A:start"

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import node.runtime.plateaus as plateaus
-from node.contract import RUNDOWN, OrdervibError
+from node.contract import OrdervibError
 from node.models.bundle import load_bundle, save_bundle
 from node.models.plateau import PlateauShift
 from node.runtime.plateaus import RunPlateaus, plateau_visits
@@ -108,10 +108,10 @@ def short_settle(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def _with_shifts(bundle, vector: bool, earlier: int = 0):
     """Every OC but the first given a shift on the run's plateau of OC ``earlier`` (a hand-made law;
-    the rundown, which training never gives one, none)."""
+    the rundown and the start, which training never gives one, none)."""
     law = PlateauShift((earlier,), (0.2, 0.5, 0.1), (0.3, 0.2), vector, 5.0)
-    ocs = [dataclasses.replace(r, plateau=law) if i and r.model is not None and r.name != RUNDOWN else r
-           for i, r in enumerate(bundle.ocs)]
+    ocs = [dataclasses.replace(r, plateau=law) if r.model is not None and r.name in bundle.schedule.names[1:]
+           else r for r in bundle.ocs]
     return dataclasses.replace(bundle, ocs=ocs)
 
 

@@ -115,7 +115,7 @@ def _tables(bundle: Bundle, runs: list[Run], kinds: list[str]) -> list[SegmentPr
 def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word: str) -> None:
     """Print the per-OC table of one target's bundle over the predictions ``preds`` of some of
     ``runs``, their eps_td named ``word`` (e.g. held-out), and its mean line."""
-    from node.training.evaluation import coverage, curve_eps, score_segments
+    from node.training.evaluation import coverage, curve_eps, score_segments, start_evaluation
 
     evals = score_segments(bundle.ocs, bundle.schedule, preds)
     base_eps = [float("nan")] * len(evals)
@@ -137,6 +137,13 @@ def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word
     if hold:
         print(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} segments, every sample scored (one "
               f"without a prediction a miss) (characteristic-curve baseline {np.nanmean(base):.3f})")
+    start = start_evaluation(bundle.ocs, bundle.schedule, preds)
+    if start is not None:
+        res = bundle.oc(start.name)
+        cv = res.cv_eps if res else float("nan")
+        print(f"of {bundle.schedule.names[0]}, its start until the speed leaves the speed it held (model "
+              f"{start.name}): {res.kind if res else '-'}, {word} eps_td {_f(start.eps)}, coverage "
+              f"{_share(start.predicted, start.samples)}, CV eps_td {_f(cv)}")
     covered, total = coverage(runs, bundle.schedule, preds, bundle.config)
     if total:
         print(f"coverage light-off to standstill: {_share(covered, total)} of {total} samples predicted")
@@ -162,7 +169,7 @@ def _plot(bundle: Bundle, preds: list[SegmentPrediction], png: Path) -> bool:
     """Predicted against measured per OC, written to png; False when no OC was found."""
     from replay.report.figures import segments_figure
 
-    fig = segments_figure(bundle.schedule.segments, preds, bundle.target)
+    fig = segments_figure(bundle.schedule.models, preds, bundle.target)
     if fig is None:
         log.warning("no OC of the model in the recordings: no plot")
         return False

@@ -13,6 +13,11 @@ from node.contract.errors import OrdervibError
 RUNDOWN = "rundown"
 
 
+def start_name(first: str) -> str:
+    """The name of the start's model, of a schedule whose first OC is ``first``."""
+    return f"{first}:start"
+
+
 @dataclass(frozen=True)
 class OperatingCondition:
     name: str
@@ -29,8 +34,8 @@ class Schedule:
     index is ``len(ocs)``.
 
     >>> s = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0)))
-    >>> s.segments, s.index("B"), s.index(RUNDOWN)
-    (('A', 'B', 'rundown'), 1, 2)
+    >>> s.segments, s.index("B"), s.index(RUNDOWN), s.models[s.start]
+    (('A', 'B', 'rundown'), 1, 2, 'A:start')
     """
 
     ocs: tuple[OperatingCondition, ...]
@@ -49,6 +54,9 @@ class Schedule:
         if RUNDOWN in names:
             raise OrdervibError(f"schedule names an OC {RUNDOWN!r}: that name is reserved for the "
                                 "segment after the last plateau")
+        if start_name(names[0]) in names:
+            raise OrdervibError(f"schedule names an OC {start_name(names[0])!r}: that name is reserved "
+                                "for the first OC's start")
         for oc in self.ocs:
             if not oc.speed > 0:
                 raise OrdervibError(f"OC {oc.name!r} has a non-positive speed {oc.speed}")
@@ -67,9 +75,22 @@ class Schedule:
         """The rundown's segment index (``len(ocs)``)."""
         return len(self.ocs)
 
+    @property
+    def models(self) -> tuple[str, ...]:
+        """The names of the models a bundle holds: ``segments``, then the start's (index
+        ``len(ocs) + 1``, ``start``): the first OC's transition from light-off until it leaves the
+        speed it held (idle) has a model of its own, the OC's from there, as a transition
+        from a held speed (the node's ``oc`` is the first OC's in both)."""
+        return (*self.segments, start_name(self.names[0]))
+
+    @property
+    def start(self) -> int:
+        """The start's model index (``len(ocs) + 1``, see ``models``)."""
+        return len(self.ocs) + 1
+
     def index(self, name: str) -> int:
-        """The segment index of an OC name or ``RUNDOWN`` (ValueError: neither)."""
-        return self.segments.index(name)
+        """The index of an OC name, ``RUNDOWN`` or the start's model (``models``; ValueError: none)."""
+        return self.models.index(name)
 
     def to_dict(self) -> dict:
         return {"switch": self.switch, "tolerance": self.tolerance,

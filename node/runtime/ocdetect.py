@@ -13,7 +13,9 @@ States, per sample:
   past its target's band is re-targeted the same way. The start is the first
   OC's transition: from the first speed above the off level (light-off), when
   it lies below the first OC's band, to that OC's plateau; a speed held on the
-  way (idle) does not end it (light-off: the speed above the off level for ``depart_s``);
+  way (idle) does not end it (light-off: the speed above the off level for ``depart_s``).
+  Until it leaves that held speed (or, without one, reaches the plateau) the start has a
+  model of its own (``segment``, ``Schedule.start``), the OC's model from there;
 * ``transition`` in the rundown (index ``len(schedule.ocs)``, ``Schedule.rundown``):
   a departure downward with no later OC in that direction (fuel off), to standstill;
   a speed held on the way that is no scheduled plateau does not end it, a departure
@@ -119,6 +121,7 @@ class OCDetector:
         self.n_settle = max(self.n_confirm, round(c.detector_settle_s * fs))
         self.off_level = off_speed(float(self.speeds.max()), c.detector_off_fraction)  # rpm
         self.rundown = schedule.rundown  # the rundown's OC index (len(schedule.ocs))
+        self.start = schedule.start  # the start's model index (``segment``)
         self._start_below = float(self.speeds[0]) * (1.0 - self.tol)  # a light-off below it starts OC 0
         self.reset()
 
@@ -214,12 +217,12 @@ class OCDetector:
             if near.size:
                 later = [int(j) for j in near if j > self._last]
                 self._arrive(later[0] if later else int(near[0]))
-            elif not self._start:  # (idle in the start: still the start)
-                self._anchor = s  # held there: the rundown goes on, anything else is off
-                if oc != self.rundown:
+            else:
+                self._anchor = s  # held there: the start and the rundown go on, anything else is off
+                if oc != self.rundown and not self._start:
                     self._set(OCState(None, Phase.OFF))
             return self.state
-        if (phase is Phase.OFF or oc == self.rundown) and self._anchor is not None:
+        if (phase is Phase.OFF or oc == self.rundown or self._start) and self._anchor is not None:
             self._count_away(s, self._anchor)  # (from the rundown: up, into the OC ahead)
         return self.state
 
@@ -249,6 +252,7 @@ class OCDetector:
 
     def _depart(self, s: float, direction: float | None = None) -> None:
         assert self._anchor is not None
+        self._start = False  # (a start's departure from its hold: the first OC's model from here)
         self._direction = math.copysign(1.0, s - self._anchor) if direction is None else direction
         target = self._target(self._direction)
         self._away = 0
@@ -265,15 +269,24 @@ class OCDetector:
             self._start = False  # (set again by a light-off)
         self.state = state
 
-    def label(self, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    @property
+    def segment(self) -> int | None:
+        """The model in force (``Schedule.models``): the OC's (or the rundown's), but the start's
+        (``Schedule.start``) in the first OC's transition from light-off until it leaves the
+        speed it held (or reaches the plateau)."""
+        return self.start if self._start else self.state.oc
+
+    def label(self, speed: np.ndarray, models: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Run over a speed series (K,): OC index per sample (-1: none) and phase codes.
 
         Phase codes: 0 off, 1 transition, 2 steady. Continues from the current state.
+        models: the model index (``segment``) instead of the OC's: the start's apart.
         """
         oc = np.empty(len(speed), dtype=np.int64)
         ph = np.empty(len(speed), dtype=np.int8)
         for k, v in enumerate(np.asarray(speed, dtype=float)):
             st = self.step(v)
-            oc[k] = -1 if st.oc is None else st.oc
+            seg = self.segment if models else st.oc
+            oc[k] = -1 if seg is None else seg
             ph[k] = st.phase.code
         return oc, ph

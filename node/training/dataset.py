@@ -27,7 +27,8 @@ from node.training.runs import Run
 
 @dataclass(frozen=True)
 class Segment:
-    """Samples [start, stop) of run ``run`` belong to OC ``oc`` (schedule index)."""
+    """Samples [start, stop) of run ``run`` belong to OC ``oc`` (schedule index; the rundown's,
+    ``Schedule.rundown``; with labels by model, the start's, ``Schedule.start``)."""
 
     run: int
     oc: int
@@ -61,14 +62,16 @@ def fill_gaps(X: np.ndarray) -> np.ndarray:
 Labels = tuple[np.ndarray, np.ndarray]  # a run's (K,) OC index per sample (-1: none), (K,) Phase code
 
 
-def label_runs(runs: list[Run], schedule: Schedule) -> list[Labels]:
+def label_runs(runs: list[Run], schedule: Schedule, models: bool = False) -> list[Labels]:
     """Every run labelled by the causal OC detector (default settings, a fresh one per run), as
-    the node labels it: once per training, for the segments, run_curve and the checks alike."""
+    the node labels it: once per training, for the segments, run_curve and the checks alike.
+    models: by the model in force (``OCDetector.segment``: the start's apart from the first OC's,
+    as training and the node's models cut them), not the OC."""
     out: list[Labels] = []
     for r, run in enumerate(runs):
         if schedule.switch not in run.channels:
             raise OrdervibError(f"run {r} has no {schedule.switch!r} channel, needed to find the OCs")
-        out.append(OCDetector(schedule).label(run.column(schedule.switch)))
+        out.append(OCDetector(schedule).label(run.column(schedule.switch), models))
     return out
 
 

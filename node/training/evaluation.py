@@ -103,8 +103,9 @@ def derived_runs(runs: list[Run], schedule: Schedule, target: str, channels: lis
 def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedule,
                      target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
                      config: RuntimeConfig | None = None) -> list[SegmentPrediction]:
-    """Free-run predictions of every segment found in ``runs`` (each OC's, the rundown's),
-    predicted NaN where its OC has no model (a miss when scored).
+    """Free-run predictions of every segment found in ``runs`` (each OC's, the rundown's, the
+    start's: ``Schedule.models``, ``oc`` their index), predicted NaN where its OC has no model
+    (a miss when scored).
 
     fleet: the bundle's characteristic curve, needed when a model takes ``run_curve``.
     config: the bundle's settings (the measured past seeding each segment, ``history_s``;
@@ -123,7 +124,7 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
     guard = guard_of(fleet, config)
     if guard is not None:  # what the node sees: the target as measured, the switch speed held
         seen = [(run.column(target), hold_last(run.column(schedule.switch))) for run in runs]
-    labels = label_runs(runs, schedule)
+    labels = label_runs(runs, schedule, models=True)  # (as the node switches its models)
     shifts = [r.plateau for r in by_oc.values() if r.plateau is not None]
     visits = visit_tables(runs, [codes for codes, _ in labels], target, len(schedule.names),
                           shifts[0].vector) if shifts else None  # the run's plateaus, as the node's
@@ -173,13 +174,14 @@ def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
 def score_segments(results: list[OCResult], schedule: Schedule, preds: list[SegmentPrediction]
                    ) -> list[OCEvaluation]:
     """Per OC (schedule order), then the rundown (``Schedule.segments``): eps pooled over every
-    sample of the segments of ``preds`` (a sample without a prediction a miss: ``scored_pairs``),
-    the share predicted, and the samples the alarm rule flags there (e.g. only the held-out runs'
-    predictions: see ``node.training.provenance``)."""
+    sample of the segments of ``preds`` (a sample without a prediction a miss: ``scored_pairs``;
+    the first OC's with its start's, ``pooled``), the share predicted, and the samples the alarm
+    rule flags there, each by its own model's rule (e.g. only the held-out runs' predictions:
+    see ``node.training.provenance``)."""
     by_name = {r.name: r for r in results}
     out = []
     for j, name in enumerate(schedule.segments):
-        mine = [p for p in preds if p.oc == j]
+        mine = [p for p in preds if p.oc in pooled(schedule, j)]
         res = by_name.get(name)
         samples = sum(p.t.size for p in mine)
         covered = sum(p.covered for p in mine)
@@ -187,11 +189,45 @@ def score_segments(results: list[OCResult], schedule: Schedule, preds: list[Segm
         if not mine or res is None or res.calibration is None:
             out.append(OCEvaluation(name, eps, len(mine), 0, samples, predicted=covered))
             continue
-        alarms = sum(int(alarm_mask(p.widened(res), res).sum()) for p in mine)
+        alarms = _alarm_samples(by_name, schedule, mine)
         outside = sum(int(np.sum(p.envelope > OUTSIDE)) for p in mine if p.envelope is not None)
         guarded = sum(int(np.sum(p.guarded)) for p in mine if p.guarded is not None)
         out.append(OCEvaluation(name, eps, len(mine), alarms, samples, outside, guarded, covered))
     return out
+
+
+def pooled(schedule: Schedule, j: int) -> tuple[int, ...]:
+    """The model indices (``Schedule.models``) whose segments segment ``j`` (``Schedule.segments``)
+    pools: the first OC's with its start's (the contract's first OC holds its start).
+
+    >>> from node.contract.schedule import OperatingCondition
+    >>> s = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0)))
+    >>> pooled(s, 0), pooled(s, 2)
+    ((0, 3), (2,))
+    """
+    return (j, schedule.start) if j == 0 else (j,)
+
+
+def start_evaluation(results: list[OCResult], schedule: Schedule, preds: list[SegmentPrediction]
+                     ) -> OCEvaluation | None:
+    """The start's part of the first OC (its own model, ``Schedule.start``) scored alone, as
+    ``score_segments`` scores an OC; None: no start in ``preds``."""
+    mine = [p for p in preds if p.oc == schedule.start]
+    if not mine:
+        return None
+    alarms = _alarm_samples({r.name: r for r in results}, schedule, mine)
+    return OCEvaluation(schedule.models[schedule.start], pooled_eps(scored_pairs(mine)), len(mine), alarms,
+                        sum(p.t.size for p in mine), predicted=sum(p.covered for p in mine))
+
+
+def _alarm_samples(by_name: dict[str, OCResult], schedule: Schedule, preds: list[SegmentPrediction]) -> int:
+    """The samples of ``preds`` the alarm rule flags, each segment by its own model's rule."""
+    n = 0
+    for p in preds:
+        res = by_name.get(schedule.models[p.oc])
+        if res is not None and res.calibration is not None:
+            n += int(alarm_mask(p.widened(res), res).sum())
+    return n
 
 
 def scored_pairs(preds: list[SegmentPrediction]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -234,7 +270,7 @@ def baseline_eps(train_runs: list[Run], test_runs: list[Run], schedule: Schedule
     cc = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in tr]),
                                    np.concatenate([a.y for a in tr]))
     te = [run_arrays(r, target, [sw]) for r in test_runs]
-    segs = segment_runs(test_runs, schedule)
+    segs = segment_runs(test_runs, schedule)  # (by OC: the first's with its start)
     out = []
     for j in range(len(schedule.segments)):
         pairs = [(te[s.run].y[s.start:s.stop], cc.predict(te[s.run].U[s.start:s.stop, 0]))
@@ -265,7 +301,7 @@ def curve_eps(curve: tuple[np.ndarray, np.ndarray], runs: list[Run], preds: list
     base = curve_predictions(curve, runs, preds, schedule.switch, target)
     out = []
     for j in range(len(schedule.segments)):
-        mine = [(p.measured, b) for p, b in zip(preds, base) if p.oc == j]
+        mine = [(p.measured, b) for p, b in zip(preds, base) if p.oc in pooled(schedule, j)]
         num = sum(float(np.sum((m - b) ** 2)) for m, b in mine)
         den = sum(float(np.sum(m ** 2)) for m, _ in mine)
         out.append(float(np.sqrt(num / den)) if den else float("nan"))

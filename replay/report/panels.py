@@ -27,6 +27,7 @@ from node.training.evaluation import (
     SegmentPrediction,
     curve_predictions,
     derived_runs,
+    pooled,
     predict_segments,
     score_segments,
     scored_pairs,
@@ -373,8 +374,8 @@ def oc_scores(bundle: Bundle, schedule: Schedule, preds: list[SegmentPrediction]
     out = []
     for j, e in enumerate(score_segments(bundle.ocs, schedule, preds)):
         res = bundle.oc(e.name)
-        pairs = scored_pairs([p for p in preds if p.oc == j])
-        curve_pairs = [(p.measured, b) for p, b in zip(preds, base) if p.oc == j]
+        pairs = scored_pairs([p for p in preds if p.oc in pooled(schedule, j)])
+        curve_pairs = [(p.measured, b) for p, b in zip(preds, base) if p.oc in pooled(schedule, j)]
         out.append(OCScore(
             e.name, res.kind if res else "-", e.n_segments, e.eps,
             pooled_r2(pairs) if pairs else float("nan"),
@@ -427,7 +428,7 @@ def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     blocks: list[Block] = [Paragraph(_provenance_text(runs.labels, kinds))]
     for kind in (k for k in PROVENANCES if k in kinds):
         blocks += _score_blocks(bundle, schedule, target, *scores.of(kind), TABLE_WORDS[kind])
-    seg_fig = segments_figure(schedule.segments, scores.preds, target, run_colours(len(runs.runs)))
+    seg_fig = segments_figure(schedule.models, scores.preds, target, run_colours(len(runs.runs)))
     if seg_fig is not None:
         blocks.append(Figure.of(seg_fig, f"{target} measured (solid) and predicted (dashed) per OC, "
                                 "from each OC switch; a colour per run, as in panels I and II"))
