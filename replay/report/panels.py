@@ -22,7 +22,7 @@ from node.models.baseline import CharacteristicCurve
 from node.models.bundle import Bundle
 from node.runtime.history import HISTORY_CHANNELS
 from node.sysid.metrics import pooled_eps, pooled_r2
-from node.training.dataset import Segment, segment_runs
+from node.training.dataset import Segment, label_runs, segment_runs
 from node.training.evaluation import (
     SegmentPrediction,
     curve_predictions,
@@ -174,7 +174,7 @@ def _oc_parameters(bundle: Bundle, runs: list[Run], schedule: Schedule, target: 
     inputs = sorted({c for r in bundle.ocs if r.model is not None for c in r.inputs})
     full = derived_runs(runs, schedule, target, [*inputs, *HISTORY_CHANNELS], bundle.curve,
                         bundle.config)
-    segs = segment_runs(full, schedule)
+    segs = segment_runs(full, schedule, labels=label_runs(full, schedule, models=True))  # (each model's)
     out = []
     for res in bundle.ocs:
         if res.model is None:
