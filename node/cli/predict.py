@@ -15,7 +15,8 @@ from node.contract.errors import OrdervibError
 if TYPE_CHECKING:
     from node.models.bundle import Model
     from node.runtime.history import EngineState
-    from node.training.prediction import AmplitudeBound, InputFill, IntervalWidths, Prediction, Profile
+    from node.training.prediction import Prediction, Profile
+    from node.training.prediction_aids import AmplitudeBound, InputFill, IntervalWidths
     from node.training.runs import Run
 
 log = logging.getLogger(__name__)
@@ -120,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _profile(args: argparse.Namespace, model: Model) -> Profile:
     """The planned profile: a schedule's plateaus (.toml) or a CSV (validated, one-line errors)."""
-    from node.training.prediction import read_profile, schedule_profile
+    from node.training.prediction import schedule_profile
+    from node.training.prediction_csv import read_profile
 
     if args.profile.endswith(".toml"):
         from node.contract.schedule import load_schedule
@@ -178,7 +180,8 @@ def _fill(args: argparse.Namespace, model: Model, profile: Profile, runs: list[R
     """The InputFill of the channels the profile lacks, from the training ``runs``; None when
     the profile holds every channel the node needs."""
     from node.runtime.history import SLOW_TEMPERATURES
-    from node.training.prediction import InputFill, needed_channels
+    from node.training.prediction import needed_channels
+    from node.training.prediction_aids import InputFill
 
     need = needed_channels(model)
     lacking = [c for c in need if c not in profile.channels]
@@ -203,7 +206,8 @@ def _limits(model: Model, runs: list[Run], source: str
     """The upper bound, the interval's widths and the targets' mean amplitude per OC (for the
     1x-vector models' mean modulus) from the training ``runs`` (none: no bound above, the
     interval from the CV residuals alone, the fleet curve; said once)."""
-    from node.training.prediction import AmplitudeBound, InputFill, IntervalWidths
+    from node.training.prediction import fit_interval_widths
+    from node.training.prediction_aids import AmplitudeBound, InputFill
 
     if not runs:
         log.warning("%s: the prediction is bounded at 0 only, not above, and its interval is the CV "
@@ -212,7 +216,7 @@ def _limits(model: Model, runs: list[Run], source: str
     bound = AmplitudeBound.fit(runs, model.schedule, model.targets)
     levels = InputFill.fit(runs, model.schedule, model.targets, source)
     log.info("interval: the chained prediction of %d %s", len(runs), source)
-    return bound, IntervalWidths.fit(model, runs, bound, levels=levels), levels
+    return bound, fit_interval_widths(model, runs, bound, levels=levels), levels
 
 
 def _training_recordings(model: Model) -> list[str]:
@@ -247,7 +251,7 @@ def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
     import numpy as np
 
     from node.console.table import print_table
-    from node.training.prediction import write_csv
+    from node.training.prediction_csv import write_csv
 
     with replacing(args.out) as tmp:
         with open(tmp, "w", newline="") as f:
