@@ -36,6 +36,7 @@ from node.models.ocmodel import Method
 from node.runtime.history import HISTORY_CHANNELS
 from node.sysid.metrics import pooled_eps
 from node.training import train as T
+from node.training.ocdata import OCData
 
 Pairs = list[tuple[np.ndarray, np.ndarray]]
 Member = tuple[str, dict, Pairs]  # method, params, CV pairs
@@ -49,7 +50,7 @@ class CVSpy:
     """Keeps every CV's (measured, predicted) pairs per OC while installed."""
 
     def __init__(self) -> None:
-        self.seen: dict[str, tuple[T.OCData, dict[tuple[str, str], tuple[str, dict, Pairs]]]] = {}
+        self.seen: dict[str, tuple[OCData, dict[tuple[str, str], tuple[str, dict, Pairs]]]] = {}
         self._cv = T._cross_validate
 
     def __enter__(self) -> CVSpy:
@@ -69,7 +70,7 @@ def _avg_eps(members: tuple[Member, ...]) -> float:
     return pooled_eps([(y, sum(m[2][n][1] for m in members) / k) for n, (y, _) in enumerate(members[0][2])])
 
 
-def pool(d: T.OCData, seen: dict[tuple[str, str], tuple[str, dict, Pairs]], method: str) -> list[Member]:
+def pool(d: OCData, seen: dict[tuple[str, str], tuple[str, dict, Pairs]], method: str) -> list[Member]:
     """The 3 CV-best curves and the grid's CV-best model, best first."""
     def ranked(keep: object) -> list[Member]:
         out = [(m, p, pr) for m, p, pr in seen.values() if pr and keep(m) and np.isfinite(pooled_eps(pr))]

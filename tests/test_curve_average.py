@@ -21,10 +21,10 @@ from node.models.ocmodel import RUN_CURVE, Method, Trajectory
 from node.models.result import Calibration, OCResult
 from node.sysid.metrics import pooled_eps
 from node.training.evaluation import predict_segments
+from node.training.ocdata import OCData
 from node.training.train import (
     CURVE_AVERAGE,
     CURVE_CANDIDATES,
-    OCData,
     _cross_validate,
     _curve_inputs,
     run_folds,

@@ -19,9 +19,9 @@ from hypothesis import strategies as st
 from node.models.curve import DECAY_TAUS, FADE_SHARES, CurveModel, Variant, direction_codes
 from node.models.kinds import fit_oc_model
 from node.models.ocmodel import Method, Trajectory
+from node.training.ocdata import OCData
 from node.training.train import (
     CURVE_CANDIDATES,
-    OCData,
     _cross_validate,
     _curve_inputs,
     _predict_pairs,

@@ -195,7 +195,8 @@ def test_fold_rankings_from_shared_segment_terms_equal_ranking_each_fold_afresh(
     """Leave-one-run-out CV ranks the inputs of every fold from per-segment MS-DPCCA terms
     computed once: each fold's scores equal rank_inputs over its own segments to the last bit."""
     from node.training.features import rank_inputs
-    from node.training.train import OCData, _choose_inputs, _ranking_terms
+    from node.training.ocdata import OCData
+    from node.training.train import _choose_inputs, _ranking_terms
 
     rng = np.random.default_rng(4)
     d = OCData("OC1", "yB", ["nB", "tF", "tI", "hist_energy"], [], [], [], [], switch="nB",

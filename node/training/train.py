@@ -16,7 +16,6 @@ import signal
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -48,6 +47,7 @@ from node.training.dataset import (
 )
 from node.training.envelope import band_factors, cv_outside, fit_envelope
 from node.training.features import Term, combine_terms, segment_term
+from node.training.ocdata import OCData
 from node.training.plateau_fit import Visit, choose_settle, choose_shift, visit_tables
 from node.training.runs import Run
 
@@ -152,46 +152,6 @@ def grid_points(grid: dict[str, list]) -> list[dict]:
     return [dict(zip(keys, vals)) for vals in itertools.product(*(grid[k] for k in keys))]
 
 
-
-
-@dataclass
-class OCData:
-    """Everything one OC's CV needs, per training run: the candidate channels' arrays."""
-
-    name: str
-    target: str
-    candidates: list[str]
-    runs: list[int]  # run index of each segment
-    y: list[np.ndarray]  # target from the history start to the segment end
-    X: list[np.ndarray]  # candidates, same rows
-    start: list[int]  # index of the OC's first sample in y / X
-    at: list[int] = field(default_factory=list)  # index of the OC's first sample in its run
-    switch: str = ""  # the schedule's switch channel
-    curves: list[dict] = field(default_factory=list)  # curve candidates (CurveModel params)
-    z: list[np.ndarray] = field(default_factory=list)  # the target's 1x vectors, y's rows (empty: no phase)
-    proms: list[dict] = field(default_factory=list)  # parametric candidates (ParametricOCModel params)
-    unranked: list[str] = field(default_factory=list)  # candidates only the parametric models take
-    folds: dict[int, int] = field(default_factory=dict)  # run -> its CV fold (``run_folds``; empty: its own)
-    # each row's visit for the plateau shift (node.training.plateau_fit; None: not known), and
-    # whether the shift is on the 1x vector; None: no shift learned
-    plateaus: list[Visit | None] = field(default_factory=list)
-    plateau_vector: bool | None = None
-    settle: bool = False  # learn the settle anchor (node.models.settle)
-
-    def fold(self, run: int) -> int:
-        """The CV fold of ``run``: the run itself (leave one run out) unless ``folds`` says otherwise."""
-        return self.folds.get(run, run)
-
-    def fold_ids(self) -> list[int]:
-        return sorted({self.fold(r) for r in self.runs})
-
-    def held_out(self, f: int) -> list[int]:
-        """The segments (rows) fold ``f`` holds out."""
-        return [i for i, r in enumerate(self.runs) if self.fold(r) == f]
-
-    def fitted_on(self, f: int) -> list[int]:
-        """The segments (rows) fold ``f`` fits on: every other fold's."""
-        return [i for i, r in enumerate(self.runs) if self.fold(r) != f]
 
 
 # Leave-one-run-out CV up to MAX_FOLDS training runs; beyond, MAX_FOLDS folds of contiguous
