@@ -41,7 +41,7 @@ from scipy.signal import firwin, kaiserord, resample_poly
 
 from ._checks import check_below_nyquist, check_fs, check_orders, check_rpm, check_signal
 from .angle import shaft_revolutions, time_at_revolutions
-from .result import OrderTrack
+from .result import OrderTrack, lag_degrees
 
 _PASS_FRACTION = 0.4  # highest usable order, as a fraction of samples per revolution
 _STOP_FRACTION = 0.6
@@ -113,8 +113,8 @@ def cot_orders(x: object, fs: float, rpm: object, orders: object, *,
 
     Returns
     -------
-    OrderTrack with times (K_out,) s at block centres, amplitudes and phases
-    (K_out, n_orders), rpm (K_out,) the speed at those times.
+    OrderTrack with times (K_out,) s at block centres, amplitudes and phases (lags, degrees in
+    [-180, 180)) (K_out, n_orders), rpm (K_out,) the speed at those times.
     """
     fs = check_fs(fs)
     sig = check_signal(x)
@@ -158,5 +158,5 @@ def cot_orders(x: object, fs: float, rpm: object, orders: object, *,
     centre_rev = starts + float(np.dot(w, j) / w.sum()) / n
     times = time_at_revolutions(rev, speed, fs, centre_rev)
     rpm_out = np.interp(times, np.arange(sig.size) / fs, speed)
-    return OrderTrack(times=times, amplitudes=np.abs(coeff), phases=np.angle(coeff),
+    return OrderTrack(times=times, amplitudes=np.abs(coeff), phases=lag_degrees(coeff),
                       orders=ords, rpm=rpm_out, method="cot")

@@ -6,7 +6,8 @@ Model (x: (K,) real signal at fs Hz; order k with reference angle theta_k (rad))
                               = sum_k u_k[n] cos(Θ_k[n]) - v_k[n] sin(Θ_k[n]) + e[n]
     structural equation  u_k[n] - 2 u_k[n+1] + u_k[n+2] = eps (same for v_k)
 
-with Θ_k = p_k theta_k and the complex envelope z_k = u_k + i v_k = a_k e^{i phi_k}.
+with Θ_k = p_k theta_k and the complex envelope z_k = u_k + i v_k = a_k e^{i phi_k} (the phase
+returned is the lag -phi_k in degrees, ``result.lag_degrees``).
 Writing the envelope as two real parts (instead of fitting x with a complex
 exponential only) models the negative-frequency half of each real order exactly, so
 slow orders and near-DC order frequencies carry no image error.
@@ -63,7 +64,7 @@ from ._checks import (
     check_signal,
 )
 from .angle import shaft_revolutions
-from .result import OrderTrack
+from .result import OrderTrack, lag_degrees
 
 DEFAULT_BANDWIDTH_HZ = 2.0
 _SOLVERS = ("banded", "spsolve")
@@ -185,8 +186,8 @@ def vkf_orders(x: object, fs: float, rpm: object, orders: object, *,
 
     Returns
     -------
-    OrderTrack with times (K,) = n/fs s, amplitudes and phases (K, n_orders), rpm
-    as given ((K,) or (K, n_orders)).
+    OrderTrack with times (K,) = n/fs s, amplitudes and phases (lags, degrees in
+    [-180, 180)) (K, n_orders), rpm as given ((K,) or (K, n_orders)).
     """
     fs = check_fs(fs)
     sig = check_signal(x)
@@ -217,4 +218,4 @@ def vkf_orders(x: object, fs: float, rpm: object, orders: object, *,
     env = z.reshape(sig.size, ords.size, 2)
     cplx = env[..., 0] + 1j * env[..., 1]
     return OrderTrack(times=np.arange(sig.size) / fs, amplitudes=np.abs(cplx),
-                      phases=np.angle(cplx), orders=ords, rpm=speed, method="vkf")
+                      phases=lag_degrees(cplx), orders=ords, rpm=speed, method="vkf")
