@@ -116,8 +116,8 @@ def test_planned_profile_gives_a_prediction_per_oc_and_history(model, tmp_path, 
     text = capsys.readouterr().out
     assert "OC13" in text and "prediction written to" in text
     notes, rows = _read(out)
-    assert list(rows[0]) == ["history", "t", "oc", "yB", "yB_lo", "yB_hi", "yB_envelope", *HISTORY_CHANNELS,
-                             "nB", "tF", "tH", "tI"]
+    assert list(rows[0]) == ["history", "t", "oc", "outside", "yB", "yB_lo", "yB_hi", "yB_envelope",
+                             *HISTORY_CHANNELS, "nB", "tF", "tH", "tI"]
     assert any(n.startswith("filled tF, tH, tI: from the 4 training runs the model keeps") for n in notes)
     assert any(n.startswith("bounds: amplitudes >= 0") for n in notes)
     assert any(n.startswith("interval: yB_lo..yB_hi: 90 % interval") for n in notes)

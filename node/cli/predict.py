@@ -10,6 +10,7 @@ import os
 from typing import TYPE_CHECKING
 
 from node.cli.outputs import check_output, replacing
+from node.cli.results import Results, add_json_option
 from node.contract.errors import OrdervibError
 
 if TYPE_CHECKING:
@@ -18,6 +19,8 @@ if TYPE_CHECKING:
     from node.training.prediction import Prediction, Profile
 
 log = logging.getLogger(__name__)
+
+OUTSIDE_STATUS = 3  # the exit status when the plan leaves what the model knows (rows marked)
 
 NAME = "predict"
 HELP = ("expected order amplitudes for a planned speed profile (CSV, or a schedule's plateaus) "
@@ -60,6 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="what the node is fed as the unmeasured target: the prediction so far (chain, "
                         "default) or nothing (absent: models start from rest)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_json_option(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,21 +101,22 @@ def run(args: argparse.Namespace) -> int:
         state = stated_history(setup.start, h, args.energy, engine)
         label = "" if h is None else f"{h:g}"
         preds.append(predict_profile(model, profile, state, setup.fill, args.seed, label, setup.bound,
-                                     setup.widths, setup.levels))
-        if not preds[-1].per_oc():
-            log.warning("the node found no OC of the schedule in the profile: nothing is predicted "
-                        "(does it hold each plateau for some seconds, within the schedule's tolerance?)")
+                                     setup.widths, setup.levels, setup.speeds))
+        stood = f" ({h:g} h stood)" if h is not None else ""
         for line in preds[-1].bound_notes():
-            stood = f" ({h:g} h stood)" if h is not None else ""
             (log.warning if "capped" in line else log.info)("bounds%s: %s", stood, line)
         for line in preds[-1].envelope_notes():
-            stood = f" ({h:g} h stood)" if h is not None else ""
             (log.warning if "OUTSIDE" in line else log.info)("envelope%s: %s", stood, line)
         if not args.quiet:
             log.info("predicted %d samples%s", preds[-1].t.size,
                      f" for {h:g} h stood" if h is not None else "")
-    _write(args, preds)
-    return 0
+    # the marks depend on the plan's speed and OCs alone, the same for every stated history: one line
+    note = preds[0].reach_note()
+    status = OUTSIDE_STATUS if note is not None else 0
+    if note is not None:
+        log.warning("%s; exit status %d", note, status)
+    _write(args, preds, status)
+    return status
 
 
 def _profile(args: argparse.Namespace, model: Model) -> Profile:
@@ -150,12 +155,13 @@ def _engine(args: argparse.Namespace) -> EngineState | None:
     return next(iter(states.values()))
 
 
-def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
-    """The CSV, the plots, and the per-OC table on stdout."""
+def _write(args: argparse.Namespace, preds: list[Prediction], status: int) -> None:
+    """The CSV, the plots, and the result on stdout: the per-OC table and the files written
+    (--json: with the rows marked outside, per mark, and the exit ``status``)."""
     import numpy as np
 
-    from node.console.table import print_table
     from node.training.prediction_csv import write_csv
+    from node.training.prediction_reach import MARK_WORDS
 
     with replacing(args.out) as tmp:
         with open(tmp, "w", newline="") as f:
@@ -168,8 +174,15 @@ def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
         for name, n, means in p.per_oc():
             cells = table.setdefault(name, [name, str(n)])
             cells.extend(f"{v:.3f}" if np.isfinite(v) else "-" for v in means)
-    print_table(header, list(table.values()))
-    print(f"prediction written to {args.out} ({rows} rows)")
+    out = Results(args.json)
+    out.table("ocs", header, list(table.values()))
+    out.line(f"prediction written to {args.out} ({rows} rows)", "out", args.out)
+    marks = np.concatenate([p.marks for p in preds])
+    out.value("rows", rows)
+    out.value("outside", {"rows": int(np.count_nonzero(marks)), "note": preds[0].reach_note(),
+                          **{w: int(np.sum(marks == m)) for m, w in MARK_WORDS.items() if w}})
+    out.value("exit_status", status)
+    plots = []
     if args.png or args.history_png:
         from replay.views.phase_plots import save_png
         from replay.views.prediction_plots import fig_history, fig_prediction
@@ -177,4 +190,6 @@ def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
             if path:
                 with replacing(path) as tmp:
                     save_png(fig(preds), tmp)
-                print(f"plot written to {path}")
+                plots.append(path)
+                out.line(f"plot written to {path}", "plots", plots)
+    out.done()

@@ -108,8 +108,10 @@ def run(args: argparse.Namespace) -> int:
                                   deferred=True, exclusive=not args.force)
     else:
         record = RecordingWriter(args.record, deferred=True, exclusive=not args.force)
-    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file, args.beds,
-             clock=clock, **limits)
+    s = run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file,
+                 args.beds, clock=clock, **limits)
+    print(f"stopped: {s.received} received, {s.published} published, {s.overflow} dropped; "
+          f"{args.record} finished")  # the result, on stdout
     return 0
 
 

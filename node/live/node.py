@@ -633,7 +633,8 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
              duration: float | None, engine_file: str | None = None, beds: str = "*",
              max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
              bed_expiry_s: float = BED_EXPIRY_S, clock: ClockPolicy | None = None) -> LiveStats:
-    """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged.
+    """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged, the
+    closing counts returned (``ordervib run`` prints them: its result).
 
     Raises ``OrdervibError`` (one line) when the worker thread died (the watchdog stops
     the node within ``WATCHDOG_S``) or when the recording failed.
@@ -661,10 +662,7 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
         raise OrdervibError(f"engine state {engine_file} not saved ({s.engine_file_error}): what the "
                             f"node learnt of the engines since its last save is lost; monitoring went on "
                             f"({s.received} received, {s.published} published), {record} finished")
-    if s.recording_error is None:
-        log.info("stopped: %d received, %d published, %d dropped; %s finished",
-                 s.received, s.published, s.overflow, record)
-    else:
+    if s.recording_error is not None:
         raise OrdervibError(f"the recording {record} failed ({s.recording_error}): {s.unrecorded} "
                             f"messages unrecorded; monitoring went on ({s.received} received, "
                             f"{s.published} published)")

@@ -85,6 +85,7 @@ from node.runtime.runcurve import hold_last
 from node.sysid.metrics import pooled_eps
 from node.training.dataset import Segment, segment_runs, time_order
 from node.training.prediction_aids import INTERVAL_LEVEL, AmplitudeBound, InputFill, IntervalWidths
+from node.training.prediction_reach import SpeedRange, finite_speeds, plan_marks, reach_note
 from node.training.runs import Run
 
 log = logging.getLogger(__name__)
@@ -213,7 +214,10 @@ class Prediction:
     bound_rule, interval_rule: the rules in words; label: what it is; envelope (K, n) the node's
     ``envelope`` of each target's model at each sample (how far its inputs, the engine history
     among them, are from its training region: at most 1 inside, above 1 outside; NaN: no model
-    or none known), as in the node's monitor messages.
+    or none known), as in the node's monitor messages; marks (K,) where the plan leaves what the
+    model knows (``node.training.prediction_reach``: 0 inside, ``BEYOND`` the training runs'
+    speeds, ``NO_OC`` held at a speed no OC has); speeds: the training runs' speed range (None:
+    not known).
     """
 
     t: np.ndarray
@@ -240,6 +244,8 @@ class Prediction:
     label: str = ""
     level: float = INTERVAL_LEVEL
     envelope: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
+    marks: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    speeds: SpeedRange | None = None
 
     @property
     def speed(self) -> np.ndarray:
@@ -280,6 +286,12 @@ class Prediction:
             out.append(f"{tg}: " + ("; ".join(parts) if parts else "within the bounds as predicted"))
         return out
 
+
+    def reach_note(self) -> str | None:
+        """One line on where the plan leaves what the model knows (``marks``), or that the node
+        found no OC in it; None: neither."""
+        marks = self.marks if self.marks.shape == self.t.shape else np.zeros(self.t.size, dtype=np.int8)
+        return reach_note(self.t, marks, self.predicted, self.oc, self.speeds, self.switch)
 
     def outside(self) -> np.ndarray:
         """(K, n) bool: samples where a target's model was outside its training region
@@ -336,7 +348,8 @@ def needed_channels(model: Bundle | Model) -> list[str]:
 def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | None = None,
                  fill: InputFill | None = None, seed: Seed = "chain", label: str = "",
                  bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None,
-                 mean_modulus: bool = True, levels: InputFill | None = None) -> Prediction:
+                 mean_modulus: bool = True, levels: InputFill | None = None,
+                 speeds: SpeedRange | None = None) -> Prediction:
     """The node's prediction over ``runs`` (on the 40 Hz grid, in time order, one engine) with
     the targets unmeasured (see the module's design); ``engine``: the history before the
     first run. A channel the node needs that the runs lack and ``fill`` cannot give is a
@@ -349,7 +362,8 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
     (as before the mean modulus, for comparison). ``levels``: the targets' mean amplitude in
     each OC at the speed, from training runs (``InputFill.fit`` of the targets), taken for
     the mean modulus and where no model predicted; None, or a target it lacks: the fleet
-    curve (``Bundle.curve``, over every OC's samples)."""
+    curve (``Bundle.curve``, over every OC's samples). ``speeds``: the training runs' speed
+    range, against which ``Prediction.marks`` marks the samples beyond (None: not known)."""
     m = _unmeasured(model)
     sched = m.schedule
     need = needed_channels(m)
@@ -409,10 +423,12 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
     own_share = {c: filled[c][1] / max(filled[c][0], 1) for c in sorted(filled)}
     rule = bound.describe() if bound is not None else "amplitudes >= 0 (a model of the 1x vector: its " \
         "modulus); not bounded above (no training runs at hand)"
+    marks = plan_marks(cat["inputs"][:, need.index(sched.switch)], oc, cat["run"], speeds, sched.tolerance,
+                       OCDetector(sched, m.config).off_level, m.config.detector_settle_s)
     return Prediction(cat["t"], cat["run"], sched.switch, (*need, *slow), cat["inputs"],
                       tuple(sorted(filled)), oc, sched.names, targets, pred, cat["hist"],
                       engine or EngineState(), cat["raw"], cat["code"], upper, lo, hi,
-                      how, own_share, rule, widths.describe(), label, widths.level, cat["env"])
+                      how, own_share, rule, widths.describe(), label, widths.level, cat["env"], marks, speeds)
 
 
 def _interval(pred: np.ndarray, oc: np.ndarray, upper: np.ndarray,
@@ -517,12 +533,17 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
 def predict_profile(model: Bundle | Model, profile: Profile, engine: EngineState | None = None,
                     fill: InputFill | None = None, seed: Seed = "chain", label: str = "",
                     bound: AmplitudeBound | None = None, widths: IntervalWidths | None = None,
-                    levels: InputFill | None = None) -> Prediction:
+                    levels: InputFill | None = None, speeds: SpeedRange | None = None) -> Prediction:
     """The expected orders over a planned profile (``read_profile``, ``schedule_profile``);
-    the bounds and the interval as ``predict_runs`` sets them."""
+    the bounds, the interval and the marks as ``predict_runs`` sets them. A switch speed that
+    is negative or not finite is a one-line OrdervibError."""
     m = as_model(model)
+    col = profile.channels.index(profile.switch) if profile.switch in profile.channels else 0
+    why = finite_speeds(profile.data[:, col])
+    if why is not None:
+        raise OrdervibError(f"the profile's {profile.switch or profile.channels[0]}: {why}")
     runs = profile.runs(OCDetector(m.schedule, m.config).off_level)
-    return predict_runs(m, runs, engine, fill, seed, label, bound, widths, levels=levels)
+    return predict_runs(m, runs, engine, fill, seed, label, bound, widths, levels=levels, speeds=speeds)
 
 
 @dataclass

@@ -13,6 +13,7 @@ import numpy as np
 from node.contract.errors import OrdervibError
 from node.runtime.history import HISTORY_CHANNELS
 from node.training.prediction import Prediction, Profile
+from node.training.prediction_reach import MARK_WORDS, finite_speeds
 
 _NAN = math.nan
 
@@ -56,6 +57,8 @@ def read_profile(path: str, switch: str) -> Profile:
             if not math.isfinite(v):
                 raise OrdervibError(f"profile {path} line {line}: {header[j]} is {cell.strip()} "
                                     "(every value must be a finite number)")
+            if header[j] == switch and (why := finite_speeds(np.array([v]))) is not None:
+                raise OrdervibError(f"profile {path} line {line}: {switch} {why}")
             values[i, j] = v
     if values.shape[0] < 2:
         raise OrdervibError(f"profile {path}: {values.shape[0]} row(s), needs at least two")
@@ -71,22 +74,31 @@ def read_profile(path: str, switch: str) -> Profile:
 
 # -- output ---------------------------------------------------------------------------------------
 def csv_columns(preds: Sequence[Prediction]) -> list[str]:
-    """The columns ``write_csv`` writes: the stated history's label, time, OC, each target
+    """The columns ``write_csv`` writes: the stated history's label, time, OC, where the plan
+    leaves what the model knows (``outside``: empty inside, ``speed`` beyond the training runs'
+    speeds, ``no_oc`` held at a speed no OC has; ``node.training.prediction_reach``), each target
     predicted with its interval and its model's envelope (``yB``, ``yB_lo``, ``yB_hi``,
     ``yB_envelope``: the node's monitor-message field, above 1 where the model's inputs, the
     engine history among them, left its training region), the engine-history channels, and
     every input fed to the node."""
     p = preds[0]
     per_target = (c for tg in p.targets for c in (tg, f"{tg}_lo", f"{tg}_hi", f"{tg}_envelope"))
-    return ["history", "t", "oc", *per_target, *HISTORY_CHANNELS, *p.channels]
+    return ["history", "t", "oc", "outside", *per_target, *HISTORY_CHANNELS, *p.channels]
 
 
 def csv_notes(preds: Sequence[Prediction]) -> list[str]:
-    """The notes ``write_csv`` puts above the header (without their "# "): the bounds and where
-    they acted, where a model left its training region (``Prediction.envelope_notes``), the
-    interval, and how each filled channel was filled."""
+    """The notes ``write_csv`` puts above the header (without their "# "): where the plan leaves
+    what the model knows (``Prediction.reach_note``), the bounds and where they acted, where a
+    model left its training region (``Prediction.envelope_notes``), the interval, and how each
+    filled channel was filled."""
     p = preds[0]
-    out = [f"bounds: {p.bound_rule}"]
+    out = []
+    for q in preds:
+        note = q.reach_note()
+        if note is not None:
+            at = f" ({q.label} h stood)" if len(preds) > 1 and q.label else ""
+            out.append(f"outside{at}: {note}")
+    out.append(f"bounds: {p.bound_rule}")
     for q in preds:
         at = f" ({q.label} h stood)" if len(preds) > 1 and q.label else ""
         out += [f"bounds acted{at}: {line}" for line in q.bound_notes()]
@@ -119,11 +131,12 @@ def write_csv(preds: Sequence[Prediction], f: TextIO) -> int:
     n = 0
     for p in preds:
         names = [p.oc_names[i] if i >= 0 else "" for i in p.oc.tolist()]
+        marks = [MARK_WORDS[m] for m in p.marks.tolist()] if p.marks.shape == p.t.shape else [""] * p.t.size
         env = p.envelope if p.envelope.shape == p.predicted.shape else np.full(p.predicted.shape, _NAN)
         band = np.stack([p.predicted, p.lo, p.hi, env], axis=2).reshape(p.t.size, -1)
         body = np.column_stack([band, p.history, p.inputs])
         for k in range(p.t.size):
-            w.writerow([p.label, f"{p.t[k]:.3f}", names[k], *map(_g, body[k].tolist())])
+            w.writerow([p.label, f"{p.t[k]:.3f}", names[k], marks[k], *map(_g, body[k].tolist())])
         n += p.t.size
     return n
 

@@ -25,6 +25,7 @@ from node.training.fit import load_runs
 from node.training.kept_runs import RUNS_META, load_kept_runs
 from node.training.prediction import Profile, fit_interval_widths, needed_channels
 from node.training.prediction_aids import AmplitudeBound, InputFill, IntervalWidths
+from node.training.prediction_reach import SpeedRange
 from node.training.provenance import training_recordings
 from node.training.runs import Run
 
@@ -38,7 +39,9 @@ class PredictionSetup:
     fill: the channels the profile lacks (None: it holds every one the node needs); bound,
     widths, levels: the upper bound, the interval's widths and the targets' mean amplitude
     per OC (None: no training runs at hand); start: the time the engine first runs in the
-    profile, s (a stated shutdown ends there).
+    profile, s (a stated shutdown ends there); speeds: the switch speeds the training runs went
+    through (without runs: up to the OC models' envelopes; None: not known), against which the
+    prediction marks a plan's samples beyond.
     """
 
     fill: InputFill | None
@@ -46,6 +49,7 @@ class PredictionSetup:
     widths: IntervalWidths | None
     levels: InputFill | None
     start: float
+    speeds: SpeedRange | None = None
 
 
 def prepare_prediction(model: Model, folder: str, profile: Profile, train: Sequence[str] | None = None,
@@ -57,7 +61,9 @@ def prepare_prediction(model: Model, folder: str, profile: Profile, train: Seque
     fill = _fill(model, profile, runs, source)
     bound, widths, levels = _limits(model, runs, source)
     on_grid = profile.runs(OCDetector(model.schedule, model.config).off_level)
-    return PredictionSetup(fill, bound, widths, levels, _first_on(on_grid, model))
+    speeds = SpeedRange.fit(runs, model.schedule.switch, source) if runs else None
+    return PredictionSetup(fill, bound, widths, levels, _first_on(on_grid, model),
+                           speeds if speeds is not None else SpeedRange.from_model(model))
 
 
 def _training_runs(model: Model, folder: str, train: Sequence[str] | None, quiet: bool
