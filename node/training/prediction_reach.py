@@ -82,23 +82,21 @@ class SpeedRange:
         return f"{self.low:,.0f}-{self.high:,.0f} rpm ({self.source})"
 
 
-def held(speed: np.ndarray, tolerance: float, n: int) -> np.ndarray:
-    """(K,) bool: samples of a plateau, where the speed (K,) rpm stays within ``HELD_BAND`` of the
-    relative ``tolerance`` band for ``n`` samples or more (each sample of such a stretch)."""
+def plateaus(speed: np.ndarray, tolerance: float, n: int) -> list[tuple[int, int]]:
+    """The (start, stop) index pairs of the plateaus of ``speed`` (K,) rpm: the stretches of ``n``
+    samples or more within ``HELD_BAND`` of the relative ``tolerance`` band (each of its windows
+    of ``n`` samples is; two plateaus may touch where the speed steps from one to the next).
+
+    >>> plateaus(np.r_[np.linspace(0.0, 900.0, 10), np.full(5, 1000.0), np.full(5, 2000.0)], 0.02, 3)
+    [(10, 15), (15, 20)]
+    """
     s = hold_last(np.asarray(speed, float))
-    K = s.size
-    out = np.zeros(K, dtype=bool)
-    if K < n or n < 1:
-        return out
+    if s.size < n or n < 1:
+        return []
     windows = np.lib.stride_tricks.sliding_window_view(np.nan_to_num(s), n)  # (K - n + 1, n)
     spread = windows.max(axis=1) - windows.min(axis=1)
     ok = np.isfinite(s[n - 1:]) & (spread <= HELD_BAND * tolerance * np.abs(s[n - 1:]))
-    # a window that holds marks each of its n samples
-    starts = np.zeros(K + 1, dtype=np.int64)
-    idx = np.flatnonzero(ok)
-    np.add.at(starts, idx, 1)
-    np.add.at(starts, idx + n, -1)
-    return np.cumsum(starts[:K]) > 0
+    return [(lo, hi - 1 + n) for lo, hi in _spans(ok)]  # the windows starting in lo..hi-1
 
 
 def _spans(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -111,17 +109,17 @@ def plan_marks(speed: np.ndarray, oc: np.ndarray, run: np.ndarray, speeds: Speed
                tolerance: float, off: float, settle_s: float) -> np.ndarray:
     """(K,) int8 marks of predicted samples: ``BEYOND`` where ``speeds`` (None: not known, no
     such mark) says the switch ``speed`` (K,) rpm is beyond the training runs'; else ``NO_OC``
-    on each plateau (``held``, over ``settle_s``, in each engine ``run`` (K,)) above ``off`` rpm
+    on each plateau (``plateaus``, over ``settle_s``, in each engine ``run`` (K,)) above ``off`` rpm
     where the node was in no OC (``oc`` (K,) -1) on any sample; else ``INSIDE``."""
     s = np.asarray(speed, float)
     marks = np.zeros(s.size, dtype=np.int8)
     n = max(1, int(round(settle_s * FS)))
     for r in np.unique(run):
         mine = np.flatnonzero(run == r)
-        plateau = held(s[mine], tolerance, n) & (hold_last(s[mine]) > off)
-        for lo, hi in _spans(plateau):
-            if (oc[mine[lo:hi]] < 0).all():
-                marks[mine[lo:hi]] = NO_OC
+        for lo, hi in plateaus(s[mine], tolerance, n):
+            at = mine[lo:hi]
+            if (oc[at] < 0).all() and np.nanmedian(s[at]) > off:
+                marks[at] = NO_OC
     if speeds is not None:
         marks[speeds.beyond(s, off)] = BEYOND
     return marks
