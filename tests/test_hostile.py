@@ -157,7 +157,7 @@ def test_hundreds_of_beds_health_is_spread_over_the_second(tmp_path):
     node._tick()  # the rest of the first second first, then the second's first slice
     first = [b for call in sent for b in call]
     assert first[:39] == beds[:39] and first[39:] == beds[:n]
-    while node._health_due:
+    while node._rotation.due:
         node._publish_health(n)
     second = [b for call in sent for b in call][39:]
     assert second == beds[:39] and max(map(len, sent)) <= 40 - n  # never all at once
@@ -345,8 +345,9 @@ def test_silent_beds_expire_and_say_so(setup, tmp_path):
 
 def _flood_one_bed(setup, rec, until=None, first=None, **options):
     """66,000 distinct channel keys on bed ``b`` into a LiveNode (``options``) recording to
-    ``rec``, sent once ``first(node)`` holds (if given), every one received (and ``until(node)``,
-    if given) before the node stops."""
+    ``rec``, sent once ``first(node)`` holds (if given; the first key is sent before, so that the
+    node has a sensor time), every one received (and ``until(node)``, if given) before the node
+    stops."""
     from node.live.node import LiveNode
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(rec), listen=[endpoint], **options)
@@ -355,8 +356,10 @@ def _flood_one_bed(setup, rec, until=None, first=None, **options):
     keys = [sensor_key("b", f"c{i}") for i in range(66_000)]
     try:
         _wait_matched(client, "testbed/b/sensor/nB")
-        assert first is None or wait_for(lambda: first(node), 10)
-        _put_all(client, keys)
+        if first is not None:
+            _put_all(client, keys[:1])
+            assert wait_for(lambda: first(node), 10)
+        _put_all(client, keys if first is None else keys[1:])
         assert wait_for(lambda: node.stats.received == len(keys), 60), node.stats
         assert until is None or wait_for(lambda: until(node), 10)
     finally:
@@ -383,17 +386,18 @@ def test_the_recording_survives_more_keys_than_mcap_channels(setup, tmp_path):
     channels (MCAP's u16 ids), refuses the rest, counted in health, and the recording finishes
     (it failed with "ushort format requires 0 <= number <= 65535", exit 2, before).
 
-    The flood starts once the node's first own health message (its first tick, a second after it
-    started) is recorded, so an output holds a channel before the inputs fill the table: with the
-    flood racing that tick, a machine that took the 65,535 first keys within the second recorded
-    inputs only, and the outputs' share of the table went untested."""
+    The flood starts once the node's first own health message (its first tick after the flood's
+    first key, which gives it a sensor time to record it at) is recorded, so an output holds a
+    channel before the inputs fill the table: with the flood racing that tick, a machine that took
+    the 65,535 first keys within the second recorded inputs only, and the outputs' share of the
+    table went untested."""
     from mcap.reader import make_reader
 
     def counted(node) -> bool:  # the node's own health said so
         return node._node_health.get("refused", {}).get("recording_channels", 0) > 0
 
-    def health_recorded(node) -> bool:  # the first tick's messages are in the recording
-        return node.writer.count > 0
+    def health_recorded(node) -> bool:  # the node's health of the first key is in the recording
+        return node.sensor_t is not None and node._node_health.get("received") == 1
 
     node, keys = _flood_one_bed(setup, tmp_path / "n.mcap", until=counted, first=health_recorded,
                                 max_channels=70_000)
