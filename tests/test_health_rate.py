@@ -15,7 +15,7 @@ from test_hostile import GOOD, _bundle, _client, _put_all
 from harness.live import Bench, bed_inputs, free_port, latencies, load_stream, wait_for
 from node.cli import main
 from node.contract import sensor_key
-from node.live.health_rate import HEALTH_MAX_PER_S
+from node.live.health_rate import HEALTH_MAX_PER_S, most_in_a_second
 from node.mcap import iter_messages
 from node.models.bundle import load_bundle
 
@@ -23,20 +23,6 @@ from node.models.bundle import load_bundle
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     return small_campaign(tmp_path_factory.mktemp("health_rate"), 3)
-
-
-def most_in_a_second(times_ns: list[int]) -> int:
-    """The most of ``times_ns`` within any one second [t, t + 1 s).
-
-    >>> most_in_a_second([0, 500_000_000, 999_999_999, 1_000_000_000, 1_500_000_000])
-    3
-    """
-    ts, most, lo = sorted(times_ns), 0, 0
-    for hi, t in enumerate(ts):
-        while t - ts[lo] >= 1_000_000_000:
-            lo += 1
-        most = max(most, hi - lo + 1)
-    return most
 
 
 class FakeTime:

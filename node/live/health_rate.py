@@ -70,3 +70,18 @@ class HealthRotation:
     def period_s(self, beds: int) -> int:
         """How often each of ``beds`` beds in the rotation has its health, s (ticks of a second)."""
         return max(1, -(-beds // self.max_per_s))
+
+
+def most_in_a_second(times_ns: list[int]) -> int:
+    """The most of ``times_ns`` (ns, any order) within any one second [t, t + 1 s): how a
+    recording's health publish times are held to ``HEALTH_MAX_PER_S`` (``bench hostile``, tests).
+
+    >>> most_in_a_second([0, 500_000_000, 999_999_999, 1_000_000_000, 1_500_000_000])
+    3
+    """
+    ts, most, lo = sorted(times_ns), 0, 0
+    for hi, t in enumerate(ts):
+        while t - ts[lo] >= 1_000_000_000:
+            lo += 1
+        most = max(most, hi - lo + 1)
+    return most
