@@ -3,16 +3,15 @@ the rotation and counted, a real bed's output beside a flood of bed names equal 
 
 from __future__ import annotations
 
-import threading
 import time
 from pathlib import Path
 
 import orjson
 import pytest
 from conftest import small_campaign
-from test_hostile import GOOD, _bundle, _client, _put_all
+from test_hostile import _bundle, flood_beside_a_real_bed
 
-from harness.live import Bench, bed_inputs, free_port, latencies, load_stream, wait_for
+from harness.live import bed_inputs, free_port, load_stream
 from node.cli import main
 from node.contract import sensor_key
 from node.live.health_rate import HEALTH_MAX_PER_S, most_in_a_second
@@ -135,27 +134,10 @@ def test_a_flood_of_bed_names_keeps_health_at_100_a_second_and_a_real_bed_equal_
     rec = tmp_path / "n.mcap"
     node = LiveNode(bundle, str(rec), listen=[endpoint])
     node.start()
-    bench = Bench(endpoint, ["real"], ["nB", "yB", "tF"], "testbed/*/monitor/yB")
-    flood = _client(endpoint)
-    hostile = [sensor_key(f"h{i}", c) for i in range(5000) for c in ("nB", "yB", "tF")]
-
-    def attack() -> None:
-        if wait_for(lambda: "real" in node.core.beds, 30):  # the real bed runs already
-            _put_all(flood, hostile, GOOD)
-
-    thread = threading.Thread(target=attack)
     try:
-        bench.wait_matched()
-        thread.start()
-        sent = bench.publish(stream)
-        thread.join(60)
-        assert wait_for(lambda: node.stats.received >= sent["count"] + len(hostile), 60)
-        wait_for(lambda: len(bench.arrivals) >= len(stream.slots), 20)
-        _, seen = latencies(bench, stream, sent["sent"], "/monitor/yB")
+        sent, seen, _ = flood_beside_a_real_bed(node, endpoint, stream, 5000)
         time.sleep(1.5)  # a last health rotation or two
     finally:
-        flood.close()
-        bench.close()
         node.stop()
     assert seen == {"real": len(stream.slots)}
     assert len(node.core.beds) == 256 and node._node_health["health_every_s"] == 3

@@ -264,21 +264,14 @@ def test_wildcard_keys_are_refused_and_make_no_bed_and_no_topic(setup, tmp_path)
     assert node_health_key(health["node"]) in topics
 
 
-def test_a_flood_of_bed_names_stays_bounded_beside_a_real_bed(setup, tmp_path):
-    """5,000 bed names x 3 messages while a real bed runs at 40 Hz: 256 beds tracked (the default
-    bound; the real one among them), the rest refused and counted, and every sample of the real
-    bed gets its monitor message."""
-    from node.live.node import LiveNode
-    from node.runtime.core import MAX_BEDS
-    from node.runtime.pipeline import MonitorPipeline
-    bundle = load_bundle(setup / "m")
-    stream = load_stream(str(setup / "test.mcap"), 3.0, 0.0, set(MonitorPipeline(bundle).channels))
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    node = LiveNode(bundle, str(tmp_path / "n.mcap"), listen=[endpoint])
-    node.start()
+def flood_beside_a_real_bed(node, endpoint: str, stream, names: int,
+                            until=None) -> tuple[dict, dict, list[str]]:
+    """``names`` bed names x 3 messages into a started node on ``endpoint``, once a real bed
+    ``real`` runs, while that bed publishes ``stream`` at 40 Hz; every message received, the real
+    bed's monitor messages seen (and ``until()``, if given). Returns what ``Bench.publish`` sent,
+    the monitor messages seen per bed and the flood's keys."""
     bench = Bench(endpoint, ["real"], ["nB", "yB", "tF"], "testbed/*/monitor/yB")
     flood = _client(endpoint)
-    names = 5000
     hostile = [sensor_key(f"h{i}", c) for i in range(names) for c in ("nB", "yB", "tF")]
 
     def attack() -> None:
@@ -291,14 +284,35 @@ def test_a_flood_of_bed_names_stays_bounded_beside_a_real_bed(setup, tmp_path):
         thread.start()
         sent = bench.publish(stream)
         thread.join(60)
-        n = len(stream.slots)
         assert wait_for(lambda: node.stats.received >= sent["count"] + len(hostile), 60)
-        wait_for(lambda: len(bench.arrivals) >= n, 20)
+        wait_for(lambda: len(bench.arrivals) >= len(stream.slots), 20)
         _, seen = latencies(bench, stream, sent["sent"], "/monitor/yB")
-        assert wait_for(lambda: node._node_health.get("refused", {}).get("bed_limit", 0) > 0, 10)
+        assert until is None or wait_for(until, 10)
     finally:
         flood.close()
         bench.close()
+    return sent, seen, hostile
+
+
+def test_a_flood_of_bed_names_stays_bounded_beside_a_real_bed(setup, tmp_path):
+    """5,000 bed names x 3 messages while a real bed runs at 40 Hz: 256 beds tracked (the default
+    bound; the real one among them), the rest refused and counted, and every sample of the real
+    bed gets its monitor message."""
+    from node.live.node import LiveNode
+    from node.runtime.core import MAX_BEDS
+    from node.runtime.pipeline import MonitorPipeline
+    bundle = load_bundle(setup / "m")
+    stream = load_stream(str(setup / "test.mcap"), 3.0, 0.0, set(MonitorPipeline(bundle).channels))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    node = LiveNode(bundle, str(tmp_path / "n.mcap"), listen=[endpoint])
+    node.start()
+    names = 5000
+    try:
+        sent, seen, hostile = flood_beside_a_real_bed(
+            node, endpoint, stream, names,
+            until=lambda: node._node_health.get("refused", {}).get("bed_limit", 0) > 0)
+        n = len(stream.slots)
+    finally:
         node.stop()
     assert seen == {"real": n}, f"monitor messages {seen}, {n} samples"
     assert len(node.core.beds) == MAX_BEDS and "real" in node.core.beds
