@@ -10,6 +10,7 @@ BENCHMARKS = {
     "parametric": "bench.parametric",
     "prom-engine": "bench.prom_engine",
     "prom-table": "bench.prom_table",
+    "prom-family": "bench.prom_family",
     "faults": "bench.faults",
     "generalise": "bench.generalise",
     "read-speed": "bench.read_speed",

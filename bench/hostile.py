@@ -83,7 +83,15 @@ from harness.live import (
     stop_peer,
     wait_for,
 )
-from node.contract import FS, sensor_key
+from node.contract import (
+    FS,
+    bed_of,
+    monitor_key,
+    monitor_subscription,
+    parse_monitor_key,
+    sensor_key,
+)
+from node.contract.keys import HEALTH_TOPIC
 from node.live.health_rate import HEALTH_MAX_PER_S, most_in_a_second
 
 log = logging.getLogger("bench.hostile")
@@ -193,7 +201,7 @@ def hostile_keys(n: int) -> list[tuple[str, str]]:
 
 def category(key: str, keyflood: dict[str, str], siblings: set[str]) -> str:
     """The category of a recorded (admitted) sensor key."""
-    bed = key.split("/")[1]
+    bed = bed_of(key)
     if bed == REAL:
         return "real bed"
     if bed in siblings:
@@ -475,12 +483,11 @@ def run(args: argparse.Namespace, tmp: Path) -> dict:
     counts: Counter[str] = Counter()  # the real bed's monitor messages received, per target
     node_health: dict = {}
     worst_lag = [0.0]
-    suffix = {f"/monitor/{t}": t for t in targets}
-
     def on_reply(key: str, payload: bytes, arrival: int) -> None:
-        target = suffix.get(key[key.rfind("/monitor/"):])
-        if target is None:
+        bed_name = parse_monitor_key(key)
+        if bed_name is None or bed_name[1] not in targets:
             return
+        target = bed_name[1]
         if target != targets[0]:
             counts[target] += 1
             return
@@ -513,7 +520,7 @@ def run(args: argparse.Namespace, tmp: Path) -> dict:
         clients["clock"] = start_client("clock", {**base, "channels": sorted(needed)})
         clients["flood"] = start_client("flood", {**base, "beds": args.beds, "keys": args.keys,
                                                   "rate": args.flood_rate})
-        bench = Bench(endpoint, [REAL], runs.channels, f"testbed/{REAL}/monitor/**", on_reply)
+        bench = Bench(endpoint, [REAL], runs.channels, monitor_subscription(REAL), on_reply)
         sub = bench.session.declare_subscriber("ordervib/node/*/health", on_node_health)
         bench.wait_matched()
         pubs = [bench.pubs[(REAL, c)] for c in runs.channels]
@@ -610,29 +617,28 @@ def read_recording(path: Path, keyflood: dict[str, str], siblings: set[str], wat
     health: dict[str, dict] = {}
     node_health: dict = {}
     outputs: dict[str, list[bytes]] = {}
-    real_out, real_in = f"testbed/{REAL}/monitor/", f"testbed/{REAL}/sensor/"
-    timed = real_out + target
+    timed = monitor_key(REAL, target)
     internal: list[tuple[int, float]] = []
     health_ns: list[int] = []  # every bed health's publish time
     received = 0
-    kinds: dict[str, TopicKind] = {}
+    kinds: dict[str, tuple[TopicKind, str | None]] = {}  # topic -> its kind and bed
     for m in iter_messages_fast(str(path)):
         topic = m.topic
-        kind = kinds.get(topic)
-        if kind is None:
-            kind = kinds[topic] = topic_kind(topic)
+        known = kinds.get(topic)
+        if known is None:
+            known = kinds[topic] = (topic_kind(topic), bed_of(topic))
+        kind, bed = known
         if kind == TopicKind.SENSOR:
             per_topic[topic] += 1
-            if topic.startswith(real_in):
+            if bed == REAL:
                 received = m.publish_time
         elif kind == TopicKind.HEALTH:
             health_ns.append(m.publish_time)
-            bed = topic.split("/")[1]
             if bed in watch:
                 health[bed] = orjson.loads(m.payload)
         elif kind == TopicKind.NODE_HEALTH:
             node_health = orjson.loads(m.payload)
-        elif topic.startswith(real_out):
+        elif bed == REAL and kind != TopicKind.OTHER:
             outputs.setdefault(topic, []).append(bytes(m.payload))
             if topic == timed:
                 internal.append((m.publish_time, (m.publish_time - received) / 1e6))
@@ -651,12 +657,11 @@ def health_rate(times_ns: list[int]) -> dict:
 
 
 def real_outputs(path: Path) -> dict[str, list[bytes]]:
-    from node.contract import TopicKind, topic_kind
     from node.mcap import iter_messages_fast
     out: dict[str, list[bytes]] = {}
-    prefix = f"testbed/{REAL}/monitor/"
     for m in iter_messages_fast(str(path)):
-        if m.topic.startswith(prefix) and topic_kind(m.topic) != TopicKind.HEALTH:
+        bed_name = parse_monitor_key(m.topic)
+        if bed_name is not None and bed_name[0] == REAL and bed_name[1] != HEALTH_TOPIC:
             out.setdefault(m.topic, []).append(bytes(m.payload))
     return out
 

@@ -66,7 +66,15 @@ from harness.live import (
     stop_peer,
     wait_for,
 )
-from node.contract import FS, MONITOR_SUBSCRIPTION
+from node.contract import (
+    FS,
+    MONITOR_SUBSCRIPTION,
+    TopicKind,
+    monitor_key,
+    parse_monitor_key,
+    topic_kind,
+)
+from node.contract.keys import HEALTH_TOPIC
 
 LATENCY_P99_MS = 20.0  # one bed
 LOAD_P99_MS = 25.0  # 20 beds (an earlier target: 50 ms)
@@ -155,7 +163,7 @@ def run_throughput(args, stream: Stream, channels: list[str], target: str, tmp: 
         time.sleep(2.2)  # two health periods after the backlog
         lat, seen = latencies(b, stream, r["sent"], suffix)
         health = last_health(b)
-        reports = [orjson.loads(p) for k, p, _ in b.arrivals if k.endswith("/monitor/health")]
+        reports = [orjson.loads(p) for k, p, _ in b.arrivals if topic_kind(k) is TopicKind.HEALTH]
         lag99 = max((h.get("lag_ms_p99") or 0.0 for h in reports), default=float("nan"))
         lagmax = max((h.get("lag_ms_max") or 0.0 for h in reports), default=float("nan"))
     finally:
@@ -193,9 +201,9 @@ def run_fleet(args, stream: Stream, channels: list[str], targets: list[str], tmp
     counts: dict[str, int] = {}
 
     def count(key: str, payload: bytes, arrival: int) -> None:  # keep health, count monitor
-        parts = key.split("/")
-        if parts[-1] == "health":
-            health[parts[1]].append(orjson.loads(payload))
+        bed_name = parse_monitor_key(key)
+        if bed_name is not None and bed_name[1] == HEALTH_TOPIC:
+            health[bed_name[0]].append(orjson.loads(payload))
         else:
             counts[key] = counts.get(key, 0) + 1
 
@@ -219,7 +227,7 @@ def run_fleet(args, stream: Stream, channels: list[str], targets: list[str], tmp
         for n in nodes.values():
             stop_node(n)
         stop_node(router)
-    per_bed = {bed: [counts.get(f"testbed/{bed}/monitor/{t}", 0) for t in targets] for bed in beds}
+    per_bed = {bed: [counts.get(monitor_key(bed, t), 0) for t in targets] for bed in beds}
     last = {bed: h[-1] for bed, h in health.items() if h}
     served = {bed: {h.get("node") for h in health[bed]} for bed in beds}
     return {"groups": groups, "offered": r["count"], "wall": r["wall"], "cpu": cpu, "per_bed": per_bed,

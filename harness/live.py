@@ -39,13 +39,18 @@ from node.contract import (
     MONITOR_SUBSCRIPTION,
     RUN_GAP,
     TopicKind,
+    bed_of,
+    monitor_key,
+    parse_monitor_key,
     parse_sensor_key,
     sensor_key,
     topic_kind,
 )
+from node.contract.keys import HEALTH_TOPIC
 
 ROOT = Path(__file__).resolve().parents[1]
 WARMUP = 40  # slots (1 s) left out of the latency figures
+ECHO_PREFIX = "echo/"  # an echo peer replies on echo/<bed>: a key of the harness's own, no node's
 
 
 @dataclass
@@ -268,16 +273,17 @@ def peer_main(mode: str, port: int, t0: float | None, needed: set[str]) -> int:
         payload = sample.payload.to_bytes()
         if mode != "echo":
             return
-        _, bed, _, ch = str(sample.key_expr).split("/", 3)
-        if ch not in needed:
+        bed_ch = parse_sensor_key(str(sample.key_expr))
+        if bed_ch is None or bed_ch[1] not in needed:
             return
+        bed = bed_ch[0]
         k = (bed, round((orjson.loads(payload)["t"] - t0) * FS))
         c = counts[k] = counts.get(k, 0) + 1
         if c == len(needed):
             del counts[k]
             pub = pubs.get(bed)
             if pub is None:
-                pub = pubs[bed] = json_publisher(session, f"echo/{bed}", congestion_control=block)
+                pub = pubs[bed] = json_publisher(session, ECHO_PREFIX + bed, congestion_control=block)
             pub.put(payload)
 
     sub = session.declare_subscriber(SENSOR_SUBSCRIPTION, on_sample)
@@ -312,7 +318,7 @@ def relay_main(port: int, needed: set[str], beds: set[str], target: str) -> int:
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{port}"], None))
     sub = session.declare_subscriber(SENSOR_SUBSCRIPTION, zenoh.handlers.FifoChannel(1_000_000))
     drop = zenoh.CongestionControl.DROP
-    pubs = {b: json_publisher(session, f"testbed/{b}/monitor/{target}", congestion_control=drop)
+    pubs = {b: json_publisher(session, monitor_key(b, target), congestion_control=drop)
             for b in beds}
     n = [0, 0]
     stop = threading.Event()
@@ -331,9 +337,10 @@ def relay_main(port: int, needed: set[str], beds: set[str], target: str) -> int:
                 continue
             n[0] += len(batch)
             for key, payload, _ in batch:
-                _, bed, _, ch = key.split("/", 3)
-                if bed not in beds or ch not in needed:
+                bed_ch = parse_sensor_key(key)
+                if bed_ch is None or bed_ch[0] not in beds or bed_ch[1] not in needed:
                     continue
+                bed, ch = bed_ch
                 pubs[bed].put(orjson.dumps({"t": orjson.loads(payload)["t"], "c": ch}))
                 n[1] += 1
 
@@ -357,7 +364,7 @@ def latencies(bench: Bench, stream: Stream, sent: np.ndarray, suffix: str) -> tu
     for key, payload, arr in list(bench.arrivals):
         if not key.endswith(suffix):
             continue
-        bed = key.split("/")[1]  # testbed/<bed>/monitor/<target> or echo/<bed>
+        bed = bed_of(key) or key.removeprefix(ECHO_PREFIX)  # testbed/<bed>/monitor/<target> or echo/<bed>
         j = stream.slot_of(orjson.loads(payload)["t"])
         bi = bed_index.get(bed)
         if bi is None or not 0 <= j < len(stream.slots):
@@ -389,8 +396,9 @@ def stop_node(node: subprocess.Popen) -> None:
 def last_health(bench: Bench) -> dict[str, dict]:
     out = {}
     for key, payload, _ in bench.arrivals:
-        if key.endswith("/monitor/health"):
-            out[key.split("/")[1]] = orjson.loads(payload)
+        bed_name = parse_monitor_key(key)
+        if bed_name is not None and bed_name[1] == HEALTH_TOPIC:
+            out[bed_name[0]] = orjson.loads(payload)
     return out
 
 
@@ -456,11 +464,12 @@ def soak(model: str, recording: str, hours: float, speed: float, tmp: Path) -> S
 
     def on_reply(key: str, payload: bytes, arrival: int) -> None:
         d = orjson.loads(payload)
-        if key.endswith("/monitor/health"):
+        kind = topic_kind(key)
+        if kind is TopicKind.HEALTH:
             health.clear()
             health.update(d)
             return
-        if key.endswith("/monitor/oc"):
+        if kind is TopicKind.OC:
             return
         monitored[0] += 1
         sent = sent_at.pop(round(d["t"] * FS), None)
@@ -620,11 +629,11 @@ def bed_inputs(recording: str | Path, bed: str, out: str | Path) -> int:
     """Copy ``bed``'s sensor inputs of a node's recording (file order, log and publish times kept)
     to ``out``: what an offline replay of that bed alone takes. Returns the messages copied."""
     from node.mcap import RecordingWriter, iter_messages_fast
-    prefix = f"testbed/{bed}/sensor/"
     n = 0
     with RecordingWriter(str(out)) as w:
         for m in iter_messages_fast(str(recording)):
-            if m.topic.startswith(prefix) and topic_kind(m.topic) == TopicKind.SENSOR:
+            bed_ch = parse_sensor_key(m.topic)
+            if bed_ch is not None and bed_ch[0] == bed:
                 w.write_ns(m.topic, m.log_time, bytes(m.payload), m.publish_time)
                 n += 1
     return n

@@ -69,6 +69,7 @@ COMPILED: tuple[str, ...] = (
     "node.runtime.ocdetect",
     "node.runtime.pipeline",
     "node.runtime.plateaus",
+    "node.runtime.ramp_analyser",
     "node.runtime.rows",
     "node.runtime.runcurve",
     "node.runtime.transient",

@@ -368,7 +368,7 @@ def test_ramp_analyser_sample_by_sample_matches_the_offline_analysis() -> None:
     ramp, the same criticals as the offline analysis of the ramps found in the whole run,
     and those near the simulator's crossings."""
     from node.contract import PHASE_CHANNELS, SENSOR_CHANNELS
-    from node.runtime.transient import RampAnalyser
+    from node.runtime.ramp_analyser import RampAnalyser
     from simulator.campaign import simulate_campaign
     from simulator.schedule import OC, SimSchedule
 

@@ -8,7 +8,7 @@ import math
 from typing import Any
 
 from node.cli.outputs import check_output, replacing
-from node.contract import FS
+from node.contract import FS, bed_of
 from node.contract.errors import OrdervibError
 from node.mcap import warn_unfinished
 
@@ -82,7 +82,7 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
               f"({span / max(r.seconds, 1e-9):.0f}x real time); published {r.published} monitor "
               f"messages; {r.malformed} malformed skipped")
         for b, s in r.beds.items():
-            n_ep = sum(1 for e in r.alarm_episodes if e["key"].split("/")[1] == b)
+            n_ep = sum(1 for e in r.alarm_episodes if bed_of(e["key"]) == b)
             print(f"  {b}: {s['samples']} samples, {s['alarm_samples']} alarm samples in {n_ep} "
                   f"episode(s), missing {s['missing']}")
         if out:

@@ -25,14 +25,12 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from enum import StrEnum
-from typing import TypeVar
 
 import numpy as np
 
 FS = 40.0  # nominal sample rate per channel, Hz (section 1)
 RUN_GAP = 60.0  # s without data separate two runs (section 3)
 OFF_FRACTION = 0.05  # the engine is off when every shaft speed is below this fraction of its maximum
-_Top = TypeVar("_Top", float, np.ndarray)  # a shaft's maximum speed, or an array of them
 
 # Section 1, in table order.
 SPEED_CHANNELS: tuple[str, ...] = ("nA", "nB", "nC")
@@ -69,7 +67,7 @@ def run_starts(t: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.diff(np.asarray(t, dtype=float)) >= RUN_GAP) + 1
 
 
-def off_speed(top: _Top, fraction: float = OFF_FRACTION) -> _Top:
+def off_speed(top: float, fraction: float = OFF_FRACTION) -> float:
     """The speed (unit of ``top``) below which a shaft counts as off: ``fraction`` of its maximum
     ``top`` (section 3). The one engine-off rule: run splitting (``engine_off``, each shaft's
     maximum over the recording) and the causal OC detector (the switch shaft, its highest
@@ -90,8 +88,9 @@ def engine_off(speeds: np.ndarray, tops: np.ndarray, fraction: float = OFF_FRACT
     ...            np.array([9800.0, 9000.0])).tolist()
     [False, True, True, False]
     """
+    levels = np.array([off_speed(float(top), fraction) for top in np.ravel(tops)])
     missing = np.isnan(speeds)
-    off: np.ndarray = np.all((speeds < off_speed(tops, fraction)) | missing, axis=1)
+    off: np.ndarray = np.all((speeds < levels) | missing, axis=1)
     return off & ~np.all(missing, axis=1)
 
 
@@ -117,6 +116,17 @@ def sensor_subscription(beds: str = "*") -> str:
     if not _BEDS_CHUNK.match(beds) or "$*$*" in beds:
         raise ValueError(f"beds pattern {beds!r}: give a bed name, * or a name with $* (e.g. east$*)")
     return f"{PREFIX}/{beds}/sensor/**"
+
+
+def monitor_subscription(beds: str = "*") -> str:
+    """The node-output key expression (monitor, oc, health, transient) of the beds matching
+    ``beds``, as ``sensor_subscription`` takes it (ValueError for a bad pattern).
+
+    >>> monitor_subscription("b1"), monitor_subscription() == MONITOR_SUBSCRIPTION
+    ('testbed/b1/monitor/**', True)
+    """
+    sensor_subscription(beds)  # ValueError for a bad pattern
+    return f"{PREFIX}/{beds}/monitor/**"
 
 
 def bed_matcher(beds: str = "*") -> Callable[[str], bool]:

@@ -14,7 +14,7 @@ no I/O, no clock.
 
 >>> fi = FairIntake()
 >>> fi.extend([("testbed/big/sensor/a", b"", i) for i in range(6)] + [("testbed/small/sensor/a", b"", 9)])
->>> [m[0].split("/")[1] for m in fi.take(3)]
+>>> [lane_name(m[0]) for m in fi.take(3)]
 ['small', 'big', 'big']
 >>> [m[2] for m in fi.take(10)], len(fi)
 ([2, 3, 4, 5], 0)

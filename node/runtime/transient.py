@@ -29,8 +29,8 @@ Steps (pure numerics, no I/O; arrays time-major, one sample per 1 / fs s):
   inside the ramp, the half-power AF read on it and the critical and damping through the
   single-mode unbalance response (its peak lies at Nc / sqrt(1 - 2 zeta^2) and its
   half-power AF is slightly below 1 / (2 zeta)).
-* ``analyse``: the three for one ramp; ``RampAnalyser``: the same sample by sample (the
-  node drives one per bed and target: ``node.runtime.transient_watch``).
+* ``analyse``: the three for one ramp. The same sample by sample, as the node analyses its
+  ramps: ``node.runtime.ramp_analyser``.
 
 >>> import numpy as np
 >>> t = np.arange(0, 60, 1 / 40)
@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import functools
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -142,8 +141,12 @@ class Transient:
     criticals: list[Critical]
 
 
-def _filled(x: np.ndarray) -> np.ndarray:
-    """x (K,) with NaNs linearly interpolated (ends held); all-NaN stays NaN."""
+def filled(x: np.ndarray) -> np.ndarray:
+    """x (K,) with NaNs linearly interpolated (ends held); all-NaN stays NaN.
+
+    >>> filled(np.array([np.nan, 1.0, np.nan, 3.0, np.nan])).tolist()
+    [1.0, 1.0, 2.0, 3.0, 3.0]
+    """
     x = np.asarray(x, dtype=float)
     ok = np.isfinite(x)
     if ok.all() or not ok.any():
@@ -172,7 +175,7 @@ def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
 def smoothed(x: np.ndarray, n: int) -> np.ndarray:
     """x (K,) with gaps interpolated (ends held), then its centred moving average over n samples
     (shorter at the ends; n at most K), same length."""
-    return _moving_average(_filled(x), n)
+    return _moving_average(filled(x), n)
 
 
 def find_transitions(speed: np.ndarray, fs: float = FS, min_rate: float = 20.0,
@@ -190,7 +193,7 @@ def find_transitions(speed: np.ndarray, fs: float = FS, min_rate: float = 20.0,
     >>> [(x.direction, round(x.from_speed), round(x.to_speed)) for x in find_transitions(s)]
     [('up', 0, 2600), ('up', 2600, 6000)]
     """
-    s = _moving_average(_filled(np.asarray(speed, dtype=float)), max(1, int(round(smooth_s * fs)) | 1))
+    s = _moving_average(filled(np.asarray(speed, dtype=float)), max(1, int(round(smooth_s * fs)) | 1))
     if len(s) < 3 or not np.isfinite(s).all():
         return []
     rate = np.gradient(s) * fs
@@ -209,7 +212,7 @@ def find_transitions(speed: np.ndarray, fs: float = FS, min_rate: float = 20.0,
         else:
             runs.append([i, j, int(sign[i])])
         i = j
-    raw = _filled(np.asarray(speed, dtype=float))
+    raw = filled(np.asarray(speed, dtype=float))
     out: list[Span] = []
     pad = int(round(pad_s * fs))
     for n, (a, b, sg) in enumerate(runs):
@@ -259,7 +262,7 @@ def untracked(x: np.ndarray, tau: float, fs: float = FS, window_s: float = 0.5,
     parts = [x.real, x.imag] if np.iscomplexobj(x) else [x]
     out = []
     for p in parts:
-        f = _filled(np.where(bad, np.nan, p))  # (a complex NaN may carry a finite part)
+        f = filled(np.where(bad, np.nan, p))  # (a complex NaN may carry a finite part)
         if not np.isfinite(f).all():
             return np.full(x.shape, np.nan, dtype=x.dtype)
         out.append(f + tau * savgol_filter(f, n, 2, deriv=1, delta=1.0 / fs))
@@ -296,7 +299,7 @@ def bode(speed: np.ndarray, amplitude: np.ndarray, phase: np.ndarray | None = No
     amplitude = np.asarray(amplitude, dtype=float)
     if speed.shape != amplitude.shape or (phase is not None and np.shape(phase) != speed.shape):
         raise ValueError("speed, amplitude and phase must have the same shape (K,)")
-    s = _filled(speed)
+    s = filled(speed)
     ok = np.isfinite(s) & np.isfinite(amplitude) & (s > 0)
     if ok.sum() < 3:
         raise ValueError("a ramp needs at least 3 samples with speed and amplitude")
@@ -750,129 +753,8 @@ def analyse(speed: np.ndarray, amplitude: np.ndarray, phase: np.ndarray | None =
     """One ramp's samples (K,) analysed: ``bode`` then ``criticals`` (see them)."""
     b = bode(speed, amplitude, phase, fs=fs, tracker_tau=tracker_tau, velocity=velocity,
              bin_fraction=bin_fraction, slow_roll=slow_roll)
-    s = _filled(np.asarray(speed, dtype=float))
+    s = filled(np.asarray(speed, dtype=float))
     first, last = float(s[0]), float(s[-1])
     dur = max(len(s) - 1, 1) / fs
     return Transient("up" if last >= first else "down", first, last, (last - first) / dur, b,
                      criticals(b, smooth=smooth, min_amplitude=min_amplitude, min_af=min_af))
-
-
-class RampAnalyser:
-    """One target's ramps analysed as its samples come, one at a time (a run-up, a coast-down,
-    the ramp between two plateaus): ``step`` returns the ramp's ``Transient`` once it has
-    ended (``pad_s`` of settling after the speed stops moving), else None.
-
-    The speed rate is that of a ``smooth_s`` moving average over the last ``smooth_s``; a ramp
-    starts where it exceeds ``min_rate`` rpm/s and ends after ``gap_s`` + ``pad_s`` below it
-    (or moving the other way); it keeps the ``smooth_s`` + ``pad_s`` before its start. A ramp
-    shorter than ``min_span`` of its top speed gives nothing; one longer than ``max_s`` is
-    dropped (bounded memory) and counted (``dropped``). ``analysis``: ``analyse``'s keywords
-    (tracker_tau, velocity, min_amplitude, ...). State: a few seconds of samples and the ramp's
-    own. ``aux``: further values carried with each sample (a time, another channel's speed);
-    ``take`` and ``step_ramp`` give a ramp's samples unanalysed, (K, 3 + len(aux)): speed,
-    amplitude, phase, aux; ``analysis_of`` analyses them.
-    ``end()``: the ramp in progress analysed now (the data ended: a run's last coast-down).
-
-    >>> speed = np.concatenate([np.full(200, 3000.0), np.linspace(3000, 9000, 2400),
-    ...                         np.full(400, 9000.0)])
-    >>> r = speed / 6000
-    >>> v = speed * r**2 / (1 - r**2 + 0.1j * r) * 1e-3
-    >>> ra = RampAnalyser()
-    >>> got = [ra.step(s, a, p) for s, a, p in zip(speed, np.abs(v), -np.degrees(np.angle(v)))]
-    >>> [(t.direction, round(t.criticals[0].speed)) for t in got if t is not None]
-    [('up', 6000)]
-    """
-
-    def __init__(self, fs: float = FS, min_rate: float = 20.0, min_span: float = 0.1,
-                 smooth_s: float = 1.0, gap_s: float = 1.0, pad_s: float = 2.0, max_s: float = 900.0,
-                 **analysis: float | complex | None) -> None:
-        self.fs = fs
-        self.min_rate = min_rate
-        self.min_span = min_span
-        self.smooth_s = smooth_s
-        self.gap_s = gap_s
-        self.pad_s = pad_s
-        self.max_s = max_s
-        self.analysis = analysis
-        self._n = max(1, int(round(smooth_s * fs)))
-        self._recent: deque[tuple[float, ...]] = deque(maxlen=self._n + int(round(pad_s * fs)))
-        self._window: deque[float] = deque(maxlen=self._n)
-        self._means: deque[float] = deque(maxlen=self._n + 1)
-        self._ramp: list[tuple[float, ...]] | None = None
-        self._sign = 0
-        self._quiet = 0
-        self.dropped = 0  # ramps longer than max_s, dropped
-
-    def _rate(self, speed: float) -> float:
-        """rpm/s of the moving average over the last ``smooth_s`` (0 until it has that history)."""
-        if math.isfinite(speed):
-            self._window.append(speed)
-        if not self._window:
-            return 0.0
-        self._means.append(sum(self._window) / len(self._window))
-        if len(self._means) <= self._n:
-            return 0.0
-        return (self._means[-1] - self._means[0]) / self.smooth_s
-
-    def step(self, speed: float, amplitude: float, phase: float | None = None,
-             aux: tuple[float, ...] = ()) -> Transient | None:
-        """Take one sample (rpm, amplitude, phase lag in degrees or None; NaN for missing; aux:
-        values carried along, see the class docstring)."""
-        ramp = self.step_ramp(speed, amplitude, phase, aux)
-        return None if ramp is None else self.analysis_of(ramp)
-
-    def step_ramp(self, speed: float, amplitude: float, phase: float | None = None,
-                  aux: tuple[float, ...] = ()) -> np.ndarray | None:
-        """``step`` without the analysis: the ramp that ended with this sample, unanalysed
-        (``take``'s), else None."""
-        sample = (float(speed), float(amplitude), math.nan if phase is None else float(phase), *aux)
-        rate = self._rate(sample[0])
-        if self._ramp is None:
-            self._recent.append(sample)
-            if abs(rate) > self.min_rate:
-                self._ramp, self._sign, self._quiet = list(self._recent), 1 if rate > 0 else -1, 0
-            return None
-        self._ramp.append(sample)
-        self._recent.append(sample)
-        self._quiet = 0 if self._sign * rate > self.min_rate else self._quiet + 1
-        if len(self._ramp) > self.max_s * self.fs:
-            self._ramp = None  # longer than any ramp: dropped
-            self.dropped += 1
-            return None
-        if self._quiet <= (self.gap_s + self.pad_s) * self.fs:
-            return None
-        return self.take()
-
-    def end(self) -> Transient | None:
-        """The ramp in progress (if any) analysed now (None: none, too short, too few samples),
-        and forgotten (``reset`` forgets the history before it too)."""
-        ramp = self.take()
-        return None if ramp is None else self.analysis_of(ramp)
-
-    def take(self) -> np.ndarray | None:
-        """The ramp in progress (if any) ended now, unanalysed: its samples (K, 3 + len(aux)), or
-        None (none, too short); forgotten. ``analysis_of`` analyses it."""
-        if self._ramp is None:
-            return None
-        ramp, self._ramp = np.asarray(self._ramp), None
-        s = _filled(ramp[:, 0])
-        if not np.isfinite(s).all() or abs(s[-1] - s[0]) < self.min_span * max(abs(s[0]), abs(s[-1]), 1e-9):
-            return None
-        return ramp
-
-    def analysis_of(self, ramp: np.ndarray) -> Transient | None:
-        """A ramp ``take`` or ``step_ramp`` gave, analysed (None: too few samples with speed and
-        amplitude). Reads the ramp and the settings alone, changes nothing: it may run later, in
-        another thread or process (the live node analyses in a process of its own)."""
-        phases = None if np.isnan(ramp[:, 2]).all() else ramp[:, 2]
-        try:
-            return analyse(ramp[:, 0], ramp[:, 1], phases, fs=self.fs, **self.analysis)  # type: ignore[arg-type]
-        except ValueError:
-            return None  # too few samples with speed and amplitude
-
-    def reset(self) -> None:
-        """Forget everything but the counters (a new run: its first ramp starts afresh)."""
-        self._recent.clear()
-        self._window.clear()
-        self._means.clear()
-        self._ramp, self._sign, self._quiet = None, 0, 0

@@ -1,6 +1,6 @@
 """One target's transitions watched sample by sample: the ``monitor/transient`` message of each.
 
-A ``TransientWatch`` steps a ``RampAnalyser`` (``node.runtime.transient``) once per aligned
+A ``TransientWatch`` steps a ``RampAnalyser`` (``node.runtime.ramp_analyser``) once per aligned
 sample on the target's 1x amplitude (and phase, where the model uses it) against the speed of
 the channel its settings name (the target's own shaft; default the schedule's switch channel).
 At a transition's end it returns the message of contract section 2: each critical's speed is
@@ -31,7 +31,8 @@ import numpy as np
 from node.contract import CHANNEL_UNITS, Flag, Reason
 from node.contract.schedule import Schedule
 from node.models.transients import FleetTransients, Resonance, TransientSettings, transition_kind
-from node.runtime.transient import RampAnalyser, Transient, smoothed
+from node.runtime.ramp_analyser import RampAnalyser
+from node.runtime.transient import Transient, smoothed
 
 VELOCITY_UNIT = "mm/s"  # a target in this unit is a velocity: divided by the speed (the displacement)
 

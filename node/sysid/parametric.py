@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import copy
 import logging
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -39,6 +40,9 @@ from node.sysid.joint_block import modes as joint_modes
 from node.sysid.memo import ContentMemo
 from node.sysid.metrics import mac
 from node.sysid.observer import estimate_state
+from node.sysid.prom_loo import Candidate, Validation
+from node.sysid.prom_loo import nearest as nearest_sample
+from node.sysid.prom_loo import validate as loo_validate
 from node.sysid.statespace import PoleResidue, StateSpace
 from node.sysid.validation import as_matrix
 
@@ -49,8 +53,9 @@ WEIGHTS = ("auto", "lagrange", "linear", "rbf", "regress", "mean")
 # version of ``to_arrays`` (1: no groups nor fallback modes; 2: groups interpolated per sample; still read)
 FORMAT = 3
 FALLBACKS = ("nearest", "drop")
-BLOCKS = ("joint", "interpolate")
-MATCHES = ("continuation", "assignment")
+BLOCKS = ("joint", "interpolate", "none", "auto")
+MATCHES = ("continuation", "assignment", "auto")
+VALIDATES = ("loo", "none")
 # continuation's matching cost of a factor e between two modes' peak shares: a mode's peak gain
 # changes slowly along the parameter, a jump by 100 (a physical mode to a noise mode) costs 0.46
 SHARE_WEIGHT = 0.1
@@ -257,6 +262,11 @@ def _tree(P: np.ndarray) -> list[tuple[int, int]]:
     return edges
 
 
+def _range_scale(P: np.ndarray) -> np.ndarray:
+    """Each parameter's range over the samples (q,) (1 where it does not vary)."""
+    return np.where(np.ptp(P, axis=0) > 0, np.ptp(P, axis=0), 1.0)
+
+
 def _model_of(est: Any) -> StateSpace:
     """A fitted estimator's state space (``model_``, else its A, B, C, D, dt)."""
     return est.model_ if hasattr(est, "model_") else StateSpace(est.A, est.B, est.C, est.D, est.dt)
@@ -270,6 +280,12 @@ def _as_pairs(sample: Any) -> tuple[list[np.ndarray], list[np.ndarray]]:
     if not pairs or any(not (isinstance(p, tuple) and len(p) == 2) for p in pairs):
         raise ValueError("each sample must be a (Y, U) pair or a non-empty list of (Y, U) pairs")
     return [p[0] for p in pairs], [p[1] for p in pairs]
+
+
+class ParametricFallbackWarning(UserWarning):
+    """A :class:`ParametricROM` that uses a sample's model as it is instead of interpolating: the
+    whole model (no setting beats the nearest sample's model by leave-one-sample-out) or some
+    modes (no match across the samples)."""
 
 
 class ParametricModel:
@@ -310,7 +326,8 @@ class ParametricROM(BaseEstimator):
     Args:
         base_estimator: any method of :mod:`node.sysid` (WDMD, DelayDMD, ...); a copy is
             fitted per sample (``sklearn.base.clone`` when it has ``get_params``, else a deep copy).
-        n_pairs: dominant complex-conjugate pole pairs kept, ranked by their mean share over the
+        n_pairs: dominant complex-conjugate pole pairs kept (at most: ``validate`` may keep
+            fewer), ranked by their mean share over the
             samples of the modes' peak gains ||R||_F / (1 - |z|) (the H2 norm ||R||^2 / (1 - |z|^2)
             ranks broadband modes fitted to noise above lightly damped physical ones).
         n_real: dominant real poles (0 < z < 1) kept besides.
@@ -323,7 +340,8 @@ class ParametricROM(BaseEstimator):
         weights: ``"lagrange"`` (polynomial through the samples, one parameter), ``"linear"``
             (piecewise linear, one parameter, linear beyond the ends), ``"rbf"`` (thin-plate
             spline with a linear term over range-scaled parameters, any number of them);
-            ``"auto"``: Lagrange for one parameter, RBF for several. ``"regress"``: the
+            ``"auto"`` (default): chosen by ``validate`` among Lagrange and linear for one
+            parameter, RBF and regress for several (without it: Lagrange, RBF). ``"regress"``: the
             least-squares line (plane) through the samples evaluated at p, w = [1, x] pinv([1, P]):
             weights that sum to 1 and smooth run-to-run scatter of identified models instead of
             interpolating it (any number of parameters); ``"mean"``: equal weights (the
@@ -345,7 +363,7 @@ class ParametricROM(BaseEstimator):
             held-out eps_td 1e6-1e8 without).
         verbose: a mode left out is a logged warning (False: a debug message, for callers
             that try many settings and read ``unmatched_`` themselves).
-        match: ``"continuation"`` (default): each sample's modes assigned to the tracks on the
+        match: ``"continuation"``: each sample's modes assigned to the tracks on the
             cost to the parent sample's mode or to its continuation (w^2 and 2 zeta w extrapolated
             from the two samples before), plus 0.1 |ln| of the ratio of their peak shares (a
             physical mode does not turn into a weak noise mode); kept complex tracks that cross
@@ -355,14 +373,14 @@ class ParametricROM(BaseEstimator):
             modelled as a block (module docstring; see ``block``). Needs as many outputs (or
             inputs) as modes in the group, else the group is unmatched. ``"assignment"``:
             one-to-one on pole distance and MAC alone, no groups (the matcher before veering
-            groups).
+            groups). ``"auto"`` (default): chosen by ``validate`` (continuation without it).
         veer_gap: relative frequency gap |w_a - w_b| / max below which two tracks whose shapes
             turn are a veering group (0: only crossings).
         fallback: ``"nearest"`` (default): an unmatched mode enters the model at ``p`` as it is
             in the sample of largest weight (the nearest, for Lagrange or linear weights), when
             it was matched up to that sample; ``"drop"``: it is left out.
         block: how a veering group's block (A'^2, A' B', C' in a basis common to the samples)
-            varies with the parameter. ``"joint"`` (default): one model, A'^2 quadratic in the
+            varies with the parameter. ``"joint"``: one model, A'^2 quadratic in the
             parameter(s) (the monomials the samples determine), A' B' and C' fixed (in these modal
             variables whatever the scheme), fitted by least squares to all samples' frequency
             responses of the group at once (:mod:`node.sysid.joint_block`); its poles and shapes
@@ -371,7 +389,20 @@ class ParametricROM(BaseEstimator):
             there (4.1 with ``"interpolate"``). ``"interpolate"``: each sample's block
             interpolated with the weights, the poles from the interpolated characteristic
             polynomial (passes through every sample's group exactly, and through its
-            identification errors).
+            identification errors). ``"none"``: no groups (every track one-to-one).
+            ``"auto"`` (default): chosen by ``validate`` (joint without it).
+        validate: ``"loo"`` (default): ``fit`` chooses the settings left ``"auto"`` (``match``,
+            ``block``, ``weights``) and how many of the ``n_pairs`` pairs to keep (1 to
+            ``n_pairs``) by leave-one-sample-out on its data (:mod:`node.sysid.prom_loo`): each
+            interior sample (inside the others' range, or hull for several parameters) rebuilt
+            from the others' models and its free run from rest under that sample's inputs scored
+            (eps_td) against that sample's outputs; the lowest mean score wins (within 2 %: the
+            earlier candidate, the settings without validation first). When it does not beat
+            the nearest other sample's model, scored the same way, ``at`` returns the nearest
+            sample's fitted model (``fallback_``) with one :class:`ParametricFallbackWarning`.
+            Without an interior sample (two samples, or none inside the others' hull),
+            ``fit_models`` (models, no data) or ``"none"``: the settings as given, ``"auto"``
+            as noted and all ``n_pairs``. Either way ``validation_`` says how it decided.
 
     Learned attributes: ``estimators_`` (the fitted copies), ``params_`` (n, q), ``poles_``
     (n, r) complex discrete-time poles of the matched modes (the pairs by their upper-half-plane
@@ -379,8 +410,11 @@ class ParametricROM(BaseEstimator):
     ``dt_`` (s), ``unmatched_`` (list of (sample index, pole at the root sample, cost) of the
     first bad link; the root and inf when its group has no common basis),
     ``dc_`` (n, p, m) the samples' full static gains, ``groups_`` (lists of columns of
-    ``poles_``: the veering groups, modelled as blocks). ``to_arrays`` / ``from_arrays`` store and
-    restore what ``at`` needs (no estimators, no pickle).
+    ``poles_``: the veering groups, modelled as blocks), ``choice_`` (the
+    :class:`~node.sysid.prom_loo.Candidate` used: match, block, n_pairs, weights),
+    ``validation_`` (:class:`~node.sysid.prom_loo.Validation`: the rule and the scores, also in
+    ``repr``), ``fallback_`` (True: ``at`` returns the nearest sample's model). ``to_arrays`` /
+    ``from_arrays`` store and restore what ``at`` needs (no estimators, no pickle).
 
     Three oscillators seen through different mode shapes; the first one's stiffness grows
     with p so that its frequency passes the second's (the matching follows the mode shapes):
@@ -410,8 +444,8 @@ class ParametricROM(BaseEstimator):
     def __init__(self, base_estimator: Any, n_pairs: int = 4, n_real: int = 0, scheme: str = "modal",
                  weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5,
                  static: bool = False, clip: bool = False, verbose: bool = True,
-                 match: str = "continuation", veer_gap: float = 0.1, fallback: str = "nearest",
-                 block: str = "joint") -> None:
+                 match: str = "auto", veer_gap: float = 0.1, fallback: str = "nearest",
+                 block: str = "auto", validate: str = "loo") -> None:
         self.base_estimator = base_estimator
         self.n_pairs = n_pairs
         self.n_real = n_real
@@ -426,6 +460,13 @@ class ParametricROM(BaseEstimator):
         self.veer_gap = veer_gap
         self.fallback = fallback
         self.block = block
+        self.validate = validate
+
+    def __repr__(self, N_CHAR_MAX: int = 700) -> str:
+        """scikit-learn's repr; once fitted, followed by how the settings were decided."""
+        text = super().__repr__(N_CHAR_MAX)
+        val = getattr(self, "validation_", None)
+        return text if val is None else f"{text}  # {val.summary()}"
 
     # --- fit ------------------------------------------------------------------------------
     def _check_params(self) -> None:
@@ -443,6 +484,8 @@ class ParametricROM(BaseEstimator):
             raise ValueError(f"fallback must be one of {FALLBACKS}, got {self.fallback!r}")
         if self.block not in BLOCKS:
             raise ValueError(f"block must be one of {BLOCKS}, got {self.block!r}")
+        if self.validate not in VALIDATES:
+            raise ValueError(f"validate must be one of {VALIDATES}, got {self.validate!r}")
         if not 0 <= float(self.veer_gap) < 1:
             raise ValueError(f"veer_gap must be in [0, 1), got {self.veer_gap!r}")
         if self.n_pairs + self.n_real < 1:
@@ -456,15 +499,86 @@ class ParametricROM(BaseEstimator):
 
     def fit(self, samples: Any, params: Any) -> ParametricROM:
         """Fit a model per sample: ``samples`` a list (one per sample) of (Y, U) pairs or lists of
-        pairs (Y (K, p), U (K, m)); ``params`` (n,) or (n, q). Returns self."""
+        pairs (Y (K, p), U (K, m)); ``params`` (n,) or (n, q). With ``validate="loo"`` the
+        settings are chosen on these data (see ``validate``). Returns self."""
         samples = list(samples)
         P = self._check_samples(params, len(samples))
         self.estimators_ = []
+        data = []
         for sample in samples:
             Ys, Us = _as_pairs(sample)
             est = self._copy().fit(Ys if len(Ys) > 1 else Ys[0], Us if len(Us) > 1 else Us[0])
             self.estimators_.append(est)
-        return self.fit_models([_model_of(est) for est in self.estimators_], P)
+            data.append(list(zip(Ys, Us)))
+        models = [_model_of(est) for est in self.estimators_]
+        if self.validate == "none":
+            return self._build(models, P, self._default_choice(P.shape[1]), Validation("off", None))
+        scale = _range_scale(P)
+        val = loo_validate(models, P, scale, data, self._candidates(P.shape[1]), self._fold)
+        if not val.held_out:
+            return self._build(models, P, self._default_choice(P.shape[1]),
+                               Validation("no interior sample", None))
+        best = val.best()
+        assert best is not None
+        means = val.mean_scores()
+        near = float(np.mean(val.nearest))
+        chosen = None
+        for c in val.ranking():  # the best setting that builds from all samples
+            if not (means[c] < near):
+                continue
+            try:
+                self._build(models, P, val.candidates[c], val, warn=False)
+                chosen = val.candidates[c]
+                break
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+        if chosen is not None:
+            self.validation_ = replace(val, chosen=chosen, fallback=False)
+            self._warn_unmatched()
+            return self
+        for c in val.ranking():  # the modes of the best that builds, for the record
+            try:
+                self._build(models, P, val.candidates[c], val, warn=False)
+                break
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+        else:
+            self._build_empty(models, P)
+        self.validation_ = replace(val, chosen=None, fallback=True)
+        self.fallback_ = True
+        self._library = models
+        self._warn_fallback(best)
+        return self
+
+    def _default_choice(self, q: int) -> Candidate:
+        """The settings without validation: the given ones, ``"auto"`` as before validation."""
+        return Candidate("continuation" if self.match == "auto" else self.match,
+                         "joint" if self.block == "auto" else self.block, int(self.n_pairs),
+                         ("lagrange" if q == 1 else "rbf") if self.weights == "auto" else self.weights)
+
+    def _candidates(self, q: int) -> list[Candidate]:
+        """The settings leave-one-sample-out chooses among, the default first: match and block
+        (veering groups as joint blocks or none; assignment has none) where ``"auto"``, n_pairs
+        down to 1, weights where ``"auto"``."""
+        first = self._default_choice(q)
+        matches = ["continuation", "assignment"] if self.match == "auto" else [self.match]
+        weights = (["lagrange", "linear"] if q == 1 else ["rbf", "regress"]) if self.weights == "auto" \
+            else [self.weights]
+        pairs = list(range(int(self.n_pairs), 0, -1)) or [0]
+        out = []
+        for match in matches:
+            blocks = ["none"] if match == "assignment" and self.block == "auto" else \
+                (["joint", "none"] if self.block == "auto" else [self.block])
+            out += [Candidate(match, block, k, w) for block in blocks for k in pairs for w in weights]
+        return [first] + [c for c in out if c != first]
+
+    def _fold(self, cand: Candidate, models: list[StateSpace], P: np.ndarray) -> ParametricROM:
+        """A ROM of ``cand``'s settings from some samples' models (a leave-one-out fold), quiet."""
+        rom = copy.copy(self)
+        rom.verbose = False
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ParametricFallbackWarning)
+            return rom._build(models, P, cand, Validation("fold", cand), warn=False)
 
     def _check_samples(self, params: Any, n: int) -> np.ndarray:
         self._check_params()
@@ -479,17 +593,27 @@ class ParametricROM(BaseEstimator):
 
     def fit_models(self, models: Any, params: Any) -> ParametricROM:
         """Build from models identified beforehand (a list of :class:`StateSpace`, one per
-        sample) instead of fitting the base estimator: ``fit`` without its first step. Returns self."""
+        sample) instead of fitting the base estimator: ``fit`` without its first step and, having
+        no data, without validation (the settings as given). Returns self."""
         models = list(models)
         P = self._check_samples(params, len(models))
         if not hasattr(self, "estimators_") or len(self.estimators_) != len(models):
             self.estimators_ = []
+        return self._build(models, P, self._default_choice(P.shape[1]), Validation("no data", None))
+
+    def _build(self, models: list[StateSpace], P: np.ndarray, cand: Candidate, val: Validation,
+               warn: bool = True) -> ParametricROM:
+        """The ROM of settings ``cand`` from the samples' models at P (n, q)."""
+        self.choice_ = cand
+        self.validation_ = val if val.chosen is not None or val.rule == "loo" else \
+            Validation(val.rule, cand)
+        self.fallback_ = False
         forms = [_modal_form(ss) for ss in models]
         prs = [f[0] for f in forms]
         self.dc_ = np.stack([f[1] for f in forms])
         self.params_ = P
         self.dt_ = float(prs[0].dt)
-        self._scale = np.where(np.ptp(P, axis=0) > 0, np.ptp(P, axis=0), 1.0)
+        self._scale = _range_scale(P)
         # 1-D: a chain in parameter order; else each sample matched to its nearest matched one
         order = np.argsort(P[:, 0], kind="stable") if P.shape[1] == 1 else np.arange(len(P))
         edges = [(int(order[i]), int(order[i - 1])) for i in range(1, len(P))] if P.shape[1] == 1 \
@@ -497,25 +621,68 @@ class ParametricROM(BaseEstimator):
         root = int(order[0])
         self.unmatched_: list[tuple[int, complex, float]] = []
         found = [self._match([_modes(pr, real) for pr in prs], root, edges, keep, P / self._scale, not real)
-                 for real, keep in ((False, int(self.n_pairs)), (True, int(self.n_real))) if keep]
+                 for real, keep in ((False, cand.n_pairs), (True, int(self.n_real))) if keep]
         n_fb = sum(f.fs.shape[1] for f in found)
         if sum(f.s.shape[1] for f in found) + n_fb == 0:
             raise ValueError("no mode could be matched across the samples (see unmatched_)")
-        self._n_pairs_kept = found[0].s.shape[1] if self.n_pairs else 0
+        self._n_pairs_kept = found[0].s.shape[1] if cand.n_pairs else 0
         self._s = np.hstack([f.s for f in found])  # (n, r) continuous poles
         self._R = np.concatenate([f.R for f in found], axis=1)  # (n, r, p, m) continuous residues
-        self._groups = found[0].groups if self.n_pairs else []
-        self._blocks = found[0].blocks if self.n_pairs else []
+        self._groups = found[0].groups if cand.n_pairs else []
+        self._blocks = found[0].blocks if cand.n_pairs else []
         self._fb_s = np.hstack([f.fs for f in found])  # (n, f) fallback modes, NaN where absent
         self._fb_R = np.concatenate([f.fR for f in found], axis=1)
-        self._fb_pair = np.concatenate([np.full(f.fs.shape[1], i == 0 and self.n_pairs > 0)
+        self._fb_pair = np.concatenate([np.full(f.fs.shape[1], i == 0 and cand.n_pairs > 0)
                                         for i, f in enumerate(found)])
         self.D_ = np.stack([pr.D.real for pr in prs])
         self._joints = [fit_joint(self._s[:, cols], self._R[:, cols], P, self._scale, b.X, b.Y, b.C,
-                                  self.scheme == "modal") if self.block == "joint" else None
+                                  self.scheme == "modal") if cand.block == "joint" else None
                         for cols, b in zip(self._groups, self._blocks)]
         self._set_discrete()
+        if warn:
+            self._warn_unmatched()
         return self
+
+    def _build_empty(self, models: list[StateSpace], P: np.ndarray) -> None:
+        """No setting builds from all samples: no modes (``at`` returns the nearest sample's model)."""
+        n, (p, m) = len(models), models[0].D.shape
+        self.choice_ = self._default_choice(P.shape[1])
+        self.params_, self.dt_, self._scale = P, float(models[0].dt), _range_scale(P)
+        self.D_ = np.stack([ss.D for ss in models])
+        self.dc_ = np.stack([static_gain(ss) for ss in models])
+        self._s, self._R = np.zeros((n, 0), complex), np.zeros((n, 0, p, m), complex)
+        self._fb_s, self._fb_R = self._s.copy(), self._R.copy()
+        self._fb_pair = np.zeros(0, bool)
+        self._n_pairs_kept, self._groups, self._blocks, self._joints = 0, [], [], []
+        self._set_discrete()
+
+    def _mode_names(self) -> str:
+        """The kept modes' frequencies at the first sample (Hz when dt is in s), and the unmatched."""
+        f = np.abs(self._s[0].imag) / (2 * np.pi) if self._s.size else np.zeros(0)
+        out = "modes at " + (", ".join(f"{v:.4g}" for v in f) or "none") + " Hz"
+        if self.unmatched_:
+            out += "; unmatched: " + ", ".join(
+                f"{abs(np.angle(z)) / (2 * np.pi * self.dt_):.4g} Hz (sample {i}, cost {c:.3g})"
+                for i, z, c in self.unmatched_)
+        return out
+
+    def _warn_unmatched(self) -> None:
+        """One warning when modes enter the model as the nearest sample's (no match, ``fallback``)."""
+        if self.verbose and self._fb_s.shape[1]:
+            warnings.warn(f"{type(self).__name__}: {self._fb_s.shape[1]} mode(s) have no match within "
+                          f"tol {self.tol:g} across the samples and enter the model at p as the nearest "
+                          f"sample's ({self._mode_names()})", ParametricFallbackWarning, stacklevel=3)
+
+    def _warn_fallback(self, best: tuple[Candidate, float]) -> None:
+        """The one warning of a ROM whose ``at`` returns the nearest sample's model."""
+        near = float(np.mean(self.validation_.nearest))
+        held = ", ".join(str(i) for i in self.validation_.held_out)
+        why = (f"no setting beats the nearest sample's model by leave-one-sample-out on sample(s) "
+               f"{held} (best {best[0].label()}: eps_td {best[1]:.3g}, nearest sample's model "
+               f"{near:.3g})") if best[1] >= near or not np.isfinite(best[1]) else \
+            f"no setting builds from all samples (best by leave-one-sample-out: {best[0].label()})"
+        warnings.warn(f"{type(self).__name__}: {why}; at(p) returns the nearest sample's model "
+                      f"({self._mode_names()})", ParametricFallbackWarning, stacklevel=3)
 
     def _set_discrete(self) -> None:
         self.groups_ = [list(g) for g in self._groups]
@@ -543,7 +710,7 @@ class ParametricROM(BaseEstimator):
             pm = _Modes(modes[parent].s[idx], modes[parent].R[idx], modes[parent].share[idx])
             pred = None
             gp = parent_of.get(parent)
-            cont = self.match == "continuation"
+            cont = self.choice_.match == "continuation"
             if cont and gp is not None and np.all(track[gp, rows] >= 0):
                 dp, dc = P[parent] - P[gp], P[child] - P[parent]
                 tt = float(dc @ dp / (dp @ dp)) if dp @ dp > 0 else 0.0
@@ -561,7 +728,7 @@ class ParametricROM(BaseEstimator):
         ranked = [int(j) for j in np.argsort(-share.mean(axis=0), kind="stable")[:keep]]
         complete = np.all(track >= 0, axis=0)
         groups = self._groups_of([j for j in ranked if complete[j]], modes, track, edges, turn, link) \
-            if pairs and self.match == "continuation" else []
+            if pairs and self.choice_.match == "continuation" and self.choice_.block != "none" else []
         blocks: dict[int, _Block] = {}
         unaligned: list[int] = []
         for gi, grp in enumerate(groups):  # a group's links cost as sets
@@ -654,6 +821,10 @@ class ParametricROM(BaseEstimator):
 
     def weights_at(self, p: Any) -> np.ndarray:
         """Interpolation weights (n,) of the samples at parameter value ``p`` (scalar or (q,))."""
+        return self.weights_for(p)
+
+    def weights_for(self, p: Any, kind: str | None = None) -> np.ndarray:
+        """Weights (n,) at ``p`` of rule ``kind`` (one of ``WEIGHTS`` but auto; None: ``choice_``'s)."""
         self._require_fit()
         P = self.params_
         x = np.asarray(p, dtype=float).reshape(-1)
@@ -661,7 +832,7 @@ class ParametricROM(BaseEstimator):
             raise ValueError(f"the model has {P.shape[1]} parameter(s), got {x.size} value(s)")
         if self.clip:
             x = np.clip(x, P.min(axis=0), P.max(axis=0))
-        kind = self.weights if self.weights != "auto" else ("lagrange" if P.shape[1] == 1 else "rbf")
+        kind = self.choice_.weights if kind is None else kind
         n = len(P)
         if kind == "mean":
             return np.full(n, 1.0 / n)
@@ -769,13 +940,22 @@ class ParametricROM(BaseEstimator):
         return s, R, pair
 
     def at(self, p: Any) -> ParametricModel:
-        """The model at parameter value ``p`` (scalar or (q,)): real, stable, discrete-time."""
-        return self.at_weights(self.weights_at(p))
+        """The model at parameter value ``p`` (scalar or (q,)): real, stable, discrete-time
+        (``fallback_``: the nearest sample's fitted model, in range-scaled distance)."""
+        w = self.weights_at(p)
+        if self.fallback_:
+            x = np.asarray(p, dtype=float).reshape(-1)
+            return ParametricModel(self._library[nearest_sample(self.params_, self._scale, x,
+                                                                range(len(self.params_)))])
+        return self.at_weights(w)
 
     def at_weights(self, w: np.ndarray) -> ParametricModel:
-        """The model for sample weights w (n,) (``weights_at`` gives them for a parameter value)."""
+        """The model for sample weights w (n,) (``weights_at`` gives them for a parameter value;
+        ``fallback_``: the fitted model of the sample of largest weight)."""
         self._require_fit()
         w = np.asarray(w, float)
+        if self.fallback_:
+            return ParametricModel(self._library[int(np.argmax(w))])
         s, R, pair = self._modes_at(w)
         D = np.einsum("i,ipm->pm", w, self.D_)
         if self.static:
@@ -795,7 +975,21 @@ class ParametricROM(BaseEstimator):
                 "rom_meta": np.array([self.dt_, float(self._n_pairs_kept)]), "rom_group": group,
                 "rom_fb_s_re": self._fb_s.real, "rom_fb_s_im": self._fb_s.imag,
                 "rom_fb_R_re": self._fb_R.real, "rom_fb_R_im": self._fb_R.imag, "rom_fb_pair": self._fb_pair,
-                **self._joint_arrays()}
+                **self._joint_arrays(), **self._choice_arrays()}
+
+    def _choice_arrays(self) -> dict[str, np.ndarray]:
+        """What validation chose beyond the constructor's parameters (none without validation):
+        the weights (an index of ``WEIGHTS``) and, when ``fallback_``, the samples' models
+        (A (n, k, k), B (n, k, m), C (n, p, k), D (n, p, m))."""
+        out: dict[str, np.ndarray] = {}
+        if self.choice_.weights != self._default_choice(self.params_.shape[1]).weights:
+            out["rom_weights"] = np.array([WEIGHTS.index(self.choice_.weights)])
+        if self.fallback_:
+            lib = self._library
+            if len({ss.A.shape for ss in lib}) > 1:
+                raise ValueError("the samples' models differ in size: a fallen-back ROM cannot be stored")
+            out.update({f"rom_library_{k}": np.stack([getattr(ss, k) for ss in lib]) for k in "ABCD"})
+        return out
 
     def _joint_arrays(self) -> dict[str, np.ndarray]:
         """The groups' joint fits (format 3), zero-padded to the largest group: X (G, k, g, g),
@@ -869,6 +1063,16 @@ class ParametricROM(BaseEstimator):
             rom._joints = [JointBlock(X[i][:, :len(g), :len(g)], Y[i, :len(g)], C[i, :, :len(g)], exps,
                                       center, rom._scale) if ok[i] else None
                            for i, g in enumerate(rom._groups)]
+        rom.choice_ = rom._default_choice(rom.params_.shape[1])
+        if "rom_weights" in arrays:
+            rom.choice_ = replace(rom.choice_, weights=WEIGHTS[int(np.asarray(arrays["rom_weights"])[0])])
+        rom.choice_ = replace(rom.choice_, n_pairs=rom._n_pairs_kept)
+        rom.validation_ = Validation("restored from arrays", rom.choice_)
+        rom.fallback_ = "rom_library_A" in arrays
+        if rom.fallback_:
+            lib = [np.asarray(arrays[f"rom_library_{k}"], float) for k in "ABCD"]
+            rom._library = [StateSpace(lib[0][i], lib[1][i], lib[2][i], lib[3][i], rom.dt_) for i in range(n)]
+            rom.validation_ = Validation("restored from arrays", None, fallback=True)
         rom._set_discrete()
         return rom
 

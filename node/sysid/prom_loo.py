@@ -1,0 +1,189 @@
+"""Leave-one-sample-out validation of a parametric ROM's choices (chapter 6's pROM, checked on its
+own data).
+
+Each interior parameter sample is held out in turn: the ROM is rebuilt from the other samples'
+models for every candidate setting (how modes are matched, whether veering groups are blocks,
+how many pairs are kept, the interpolation weights), interpolated to the held-out sample's
+parameter and run from rest under that sample's inputs; its eps_td against that sample's
+measured outputs (pooled over the sample's runs, capped at 1: no better than predicting zero) is
+the candidate's score there. The nearest
+other sample's model, run the same way, is the score to beat. A candidate's score is the mean
+over the held-out samples.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from node.sysid.metrics import pooled_eps
+from node.sysid.statespace import StateSpace
+
+TIE = 0.02  # relative: candidates this close to the best score count as tied (the earlier wins)
+Data = list[tuple[np.ndarray, np.ndarray]]  # one sample's runs: (Y (K, p), U (K, m)) pairs
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One setting of the choices validated: ``match``, ``block`` (veering groups: ``"joint"``,
+    ``"interpolate"`` or ``"none"``, no groups), ``n_pairs`` kept, ``weights``."""
+
+    match: str
+    block: str
+    n_pairs: int
+    weights: str
+
+    def label(self) -> str:
+        """A short name, e.g. ``continuation/joint/4 pairs/lagrange``."""
+        return f"{self.match}/{self.block}/{self.n_pairs} pairs/{self.weights}"
+
+
+@dataclass(frozen=True)
+class Validation:
+    """What ``ParametricROM.validation_`` holds: how the settings were decided and the scores.
+
+    ``rule``: ``"loo"`` (scored), else why nothing was scored (``"no data"``: built from models
+    alone; ``"no interior sample"``; ``"off"``: ``validate="none"``). ``held_out`` (h,): the
+    samples held out; ``candidates`` (c,); ``scores`` (c, h) eps_td of each candidate on each
+    held-out sample's data (inf: it could not be built); ``nearest`` (h,) eps_td of the nearest
+    other sample's model there; ``chosen``: the candidate the ROM uses (None: it falls back to
+    the nearest sample's model, ``fallback``).
+    """
+
+    rule: str
+    chosen: Candidate | None
+    held_out: tuple[int, ...] = ()
+    candidates: tuple[Candidate, ...] = ()
+    scores: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    nearest: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    fallback: bool = False
+
+    def mean_scores(self) -> np.ndarray:
+        """(c,) each candidate's mean eps_td over the held-out samples."""
+        return self.scores.mean(axis=1) if self.scores.size else np.zeros(len(self.candidates))
+
+    def ranking(self) -> list[int]:
+        """Candidate indices, best first: by mean score, those within ``TIE`` (relative) of the
+        best counted as tied with it and kept in candidate order (the defaults first)."""
+        m = self.mean_scores()
+        lo = float(np.min(m)) if len(m) else np.inf
+        tied = [i for i in range(len(m)) if np.isfinite(lo) and m[i] <= lo * (1 + TIE)]
+        return tied + [int(i) for i in np.argsort(m, kind="stable") if i not in tied]
+
+    def best(self) -> tuple[Candidate, float] | None:
+        """The best-ranked candidate and its mean eps_td (None when nothing was scored)."""
+        if not self.candidates or not self.held_out:
+            return None
+        i = self.ranking()[0]
+        return self.candidates[i], float(self.mean_scores()[i])
+
+    def summary(self) -> str:
+        """One line: the rule, the chosen setting and its score beside the nearest sample's."""
+        best = self.best()
+        if best is None:
+            return f"validation: {self.rule}; settings as given" + \
+                (f" ({self.chosen.label()})" if self.chosen else "")
+        near = float(np.mean(self.nearest))
+        held = ",".join(str(i) for i in self.held_out)
+        if self.fallback:
+            return (f"validation: loo on sample(s) {held}: no candidate beats the nearest sample's "
+                    f"model (best {best[0].label()} eps_td {best[1]:.3g}, nearest {near:.3g}): "
+                    f"the nearest sample's model")
+        return (f"validation: loo on sample(s) {held}: {best[0].label()} eps_td {best[1]:.3g} "
+                f"(nearest sample's {near:.3g}; {len(self.candidates)} candidates)")
+
+    def table(self) -> list[tuple[str, float]]:
+        """(label, mean eps_td) of every candidate, best first, then the nearest sample's model."""
+        m = self.mean_scores()
+        rows = [(self.candidates[i].label(), float(m[i])) for i in self.ranking()]
+        return rows + ([("nearest sample's model", float(np.mean(self.nearest)))] if self.held_out else [])
+
+
+def interior(P: np.ndarray, scale: np.ndarray) -> list[int]:
+    """Samples inside the range (one parameter) or the convex hull (several) of the others."""
+    n, q = P.shape
+    out = []
+    for i in range(n):
+        others = np.delete(P, i, axis=0) / scale
+        x = P[i] / scale
+        if np.any(np.all(np.isclose(others, x), axis=1)):
+            continue  # a repeated parameter value: nothing to interpolate
+        if q == 1:
+            inside = bool(others.min() < x[0] < others.max())
+        else:
+            from scipy.spatial import Delaunay, QhullError
+            try:
+                inside = bool(Delaunay(others).find_simplex(x[None, :])[0] >= 0)
+            except (QhullError, ValueError):
+                inside = False
+        if inside:
+            out.append(i)
+    return out
+
+
+def nearest(P: np.ndarray, scale: np.ndarray, x: np.ndarray, among: Sequence[int]) -> int:
+    """The sample of ``among`` nearest to x (q,) in range-scaled distance (the first on a tie)."""
+    d = [float(np.linalg.norm((P[j] - x) / scale)) for j in among]
+    return int(among[int(np.argmin(d))])
+
+
+def score(model: StateSpace, data: Data) -> float:
+    """eps_td of ``model``'s free runs from rest under each run's inputs, pooled over the runs,
+    capped at 1: a prediction no better than zero tells nothing more by being worse (a lightly
+    damped mode a little off in frequency drifts out of phase and scores up to 1.4, an
+    absent one 1)."""
+    try:
+        with np.errstate(all="ignore"):
+            eps = pooled_eps([(Y, model.simulate(U)) for Y, U in data])
+    except (np.linalg.LinAlgError, ValueError):
+        eps = float("inf")
+    return min(eps, 1.0)
+
+
+def validate(models: Sequence[StateSpace], P: np.ndarray, scale: np.ndarray, data: Sequence[Data],
+             candidates: Sequence[Candidate], build: Callable[[Candidate, list[StateSpace], np.ndarray], Any],
+             ) -> Validation:
+    """Score every candidate by leave-one-sample-out over the interior samples.
+
+    ``build(candidate, models, P)`` returns a fitted ROM (with ``at_weights`` and ``weights_for``)
+    or raises ValueError / LinAlgError; candidates that differ only in ``weights`` share one build.
+    The chosen candidate is the lowest mean score (the first within ``TIE`` of it); ``fallback`` when it does
+    not beat the nearest sample's model's mean score.
+    """
+    held = interior(P, scale)
+    scores = np.full((len(candidates), len(held)), np.inf)
+    near = np.full(len(held), np.inf)
+    for h, i in enumerate(held):
+        rest = [j for j in range(len(P)) if j != i]
+        near[h] = score(models[nearest(P, scale, P[i], rest)], data[i])
+        seen: dict[bytes, float] = {}
+        built: dict[tuple[str, str, int], Any] = {}
+        for c, cand in enumerate(candidates):
+            key = (cand.match, cand.block, cand.n_pairs)
+            if key not in built:
+                try:
+                    built[key] = build(cand, [models[j] for j in rest], P[rest])
+                except (ValueError, np.linalg.LinAlgError):
+                    built[key] = None
+            rom = built[key]
+            if rom is None:
+                continue
+            try:
+                with np.errstate(all="ignore"):
+                    m = rom.at_weights(rom.weights_for(P[i], cand.weights)).model_
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            tag = b"".join(np.ascontiguousarray(a).tobytes() for a in (m.A, m.B, m.C, m.D))
+            if tag not in seen:  # the same model from another setting: scored once
+                seen[tag] = score(m, data[i])
+            scores[c, h] = seen[tag]
+    val = Validation("loo", None, tuple(held), tuple(candidates), scores, near)
+    best = val.best()
+    if best is None:
+        return val
+    ok = bool(np.isfinite(best[1]) and best[1] < float(np.mean(near)))
+    return Validation("loo", best[0] if ok else None, tuple(held), tuple(candidates), scores, near,
+                      fallback=not ok)
