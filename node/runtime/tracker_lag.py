@@ -198,8 +198,8 @@ def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
 
 def combine(fits: Sequence[LagFit]) -> LagEstimate | None:
     """The crossings' taus pooled (those ``identified``): their median weighted by 1 / se^2
-    (the errors floored at ``SE_FLOOR`` of the taus' median: no one crossing decides), the spread their weighted
-    median absolute deviation x 1.4826; None without one.
+    (the errors floored at ``SE_FLOOR`` of the taus' median: no one crossing decides), the
+    spread their weighted median absolute deviation x 1.4826; None without one.
 
     >>> fits = [LagFit(t, 0.05, (5000.0,), "up", 400) for t in (0.9, 1.0, 1.1, 6.0)]
     >>> e = combine(fits)
