@@ -17,11 +17,9 @@ from node.models.bundle import load_model
 from node.runtime.history import HISTORY_CHANNELS
 from node.training.prediction import (
     MEAN_MODULUS,
-    AmplitudeBound,
-    InputFill,
-    IntervalWidths,
     Profile,
     RecordedPrediction,
+    fit_interval_widths,
     history_after,
     predict_profile,
     predict_recorded_run,
@@ -30,6 +28,7 @@ from node.training.prediction import (
     schedule_profile,
     stated_history,
 )
+from node.training.prediction_aids import AmplitudeBound, InputFill, IntervalWidths
 from node.training.runs import read_runs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -363,11 +362,11 @@ def test_filled_channels_follow_the_plans_speed(model, train_runs, limits):
 
 
 def test_interval_from_the_chained_training_runs_is_wider_than_the_cv_one(model, train_runs, limits):
-    """IntervalWidths.fit: at least the CV sigma's interval (the same t factor), over four runs,
+    """fit_interval_widths: at least the CV sigma's interval (the same t factor), over four runs,
     and the rule of run levels: t(n-1) x sqrt(between^2 (1 + 1/n) + within^2)."""
     bundle = load_model(model)
     cv = IntervalWidths.from_cv(bundle)
-    fitted = IntervalWidths.fit(bundle, train_runs, limits[1])
+    fitted = fit_interval_widths(bundle, train_runs, limits[1])
     ok = np.isfinite(cv.half) & (fitted.runs >= 2)
     assert ok.any()
     assert (fitted.runs[ok] == 4).all()
