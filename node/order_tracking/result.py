@@ -1,7 +1,8 @@
 """Container for order-tracking output (time-major arrays), and the phase convention.
 
 Every tracker returns the contract's phase (``docs/contract.md`` section 1, the ``<order>_ph``
-channels): the lag of the order from the shaft's angle zero, in degrees, in [-180, 180).
+channels): the lag of the order from the shaft's angle zero, in degrees, in [-180, 180)
+(``node.contract.vector.order_lags`` of the tracker's complex amplitude ``a exp(-j lag)``).
 ``a*cos(p*theta - phi)`` gives the phase ``phi``: a signal peaking after the angle's zero lags
 it. The angle's zero is the first input sample (``shaft_revolutions``), so with the first
 sample on the once-per-rev mark the phase is the contract's lag from that mark.
@@ -13,18 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from node.contract.vector import wrap_degrees
-
-
-def lag_degrees(coeff: np.ndarray) -> np.ndarray:
-    """The phase lags (degrees, in [-180, 180), the shape of ``coeff``) of complex amplitudes
-    ``a exp(i lead)``, i.e. ``a exp(-j lag)`` as the contract's 1x vector; NaN stays NaN.
-
-    >>> lag_degrees(np.array([2j, -1 + 0j, 1 + 0j])).tolist()
-    [-90.0, -180.0, 0.0]
-    """
-    out: np.ndarray = wrap_degrees(-np.degrees(np.angle(coeff)))
-    return out
+from node.contract.vector import order_vectors
 
 
 @dataclass(frozen=True)
@@ -55,4 +45,4 @@ class OrderTrack:
     def complex_amplitudes(self) -> np.ndarray:
         """(K_out, n_orders) complex ``a * exp(-j*phi)``, the contract's 1x vector
         (``node.contract.vector.order_vectors``)."""
-        return self.amplitudes * np.exp(-1j * np.radians(self.phases))
+        return order_vectors(self.amplitudes, self.phases)

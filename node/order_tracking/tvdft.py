@@ -10,7 +10,7 @@ angle-domain integral, and by a Hann window in angle:
     w_n = 0.5 + 0.5 cos(2 pi (rev_n - rev_m) / B),  |rev_n - rev_m| <= B / 2,
 
 so ``a*cos(2 pi p rev + phi)`` gives c_p = a e^{i phi}, returned as the lag -phi in degrees
-(``result.lag_degrees``). The Hann window is three complex
+(``node.contract.vector.order_lags``). The Hann window is three complex
 exponentials in angle, so every window sum is a difference of cumulative sums: O(K) per order
 whatever B (the reason it is written by hand; scipy has no angle-domain TVDFT). Integer orders
 differing by 2 / B or more leak nothing into each other; an amplitude linear in angle is read
@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from node.contract.vector import order_lags
+
 from ._checks import check_below_nyquist, check_fs, check_orders, check_rpm, check_signal
 from .angle import shaft_revolutions
-from .result import OrderTrack, lag_degrees
+from .result import OrderTrack
 
 
 def _window_sums(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -84,5 +86,5 @@ def tvdft_orders(x: object, fs: float, rpm: object, orders: object, *, block_rev
                + 0.25 * turn * _window_sums(base * np.conj(turn), lo, hi))
         coeff[:, j] = 2.0 * num / den
     coeff[~fits] = np.nan
-    return OrderTrack(times=np.arange(sig.size) / fs, amplitudes=np.abs(coeff), phases=lag_degrees(coeff),
+    return OrderTrack(times=np.arange(sig.size) / fs, amplitudes=np.abs(coeff), phases=order_lags(coeff),
                       orders=ords, rpm=speed, method="tvdft")

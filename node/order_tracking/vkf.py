@@ -7,7 +7,7 @@ Model (x: (K,) real signal at fs Hz; order k with reference angle theta_k (rad))
     structural equation  u_k[n] - 2 u_k[n+1] + u_k[n+2] = eps (same for v_k)
 
 with Θ_k = p_k theta_k and the complex envelope z_k = u_k + i v_k = a_k e^{i phi_k} (the phase
-returned is the lag -phi_k in degrees, ``result.lag_degrees``).
+returned is the lag -phi_k in degrees, ``node.contract.vector.order_lags``).
 Writing the envelope as two real parts (instead of fitting x with a complex
 exponential only) models the negative-frequency half of each real order exactly, so
 slow orders and near-DC order frequencies carry no image error.
@@ -55,6 +55,8 @@ import scipy.sparse as sp
 from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 from scipy.sparse.linalg import splu
 
+from node.contract.vector import order_lags
+
 from ._checks import (
     check_below_nyquist,
     check_distinct_tracks,
@@ -64,7 +66,7 @@ from ._checks import (
     check_signal,
 )
 from .angle import shaft_revolutions
-from .result import OrderTrack, lag_degrees
+from .result import OrderTrack
 
 DEFAULT_BANDWIDTH_HZ = 2.0
 _SOLVERS = ("banded", "spsolve")
@@ -218,4 +220,4 @@ def vkf_orders(x: object, fs: float, rpm: object, orders: object, *,
     env = z.reshape(sig.size, ords.size, 2)
     cplx = env[..., 0] + 1j * env[..., 1]
     return OrderTrack(times=np.arange(sig.size) / fs, amplitudes=np.abs(cplx),
-                      phases=lag_degrees(cplx), orders=ords, rpm=speed, method="vkf")
+                      phases=order_lags(cplx), orders=ords, rpm=speed, method="vkf")
