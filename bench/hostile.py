@@ -37,8 +37,9 @@ unexplained); and the real bed's monitor messages in the node's recording agains
 replay of that bed's inputs alone (``replay.offline``), field by field. PASS/FAIL per criterion:
 hostile p99 within ``P99_RATIO`` x quiet; every real sample monitored and none of its inputs
 lost; RSS growth over the hostile phase's second half under ``RSS_GROWTH_MB``; every message
-accounted for, each refusal reason matching what was sent; each clock fault counted; the replay
-identical; the node's exit 0.
+accounted for, each refusal reason matching what was sent; each clock fault counted; the beds'
+health at most ``HEALTH_MAX_PER_S`` messages within any second of the node's recording (publish
+times), printed beside that target; the replay identical; the node's exit 0.
 
 ``--floor``: the same run with a node without its logic in the node's place (``harness.live``'s
 relay: the node's Zenoh intake, worker passes and monitor topic, nothing else), to show how much
@@ -91,6 +92,7 @@ from node.contract import (
     sensor_key,
 )
 from node.contract.keys import HEALTH_TOPIC
+from node.live.health_rate import HEALTH_MAX_PER_S, most_in_a_second
 
 log = logging.getLogger("bench.hostile")
 
@@ -617,6 +619,7 @@ def read_recording(path: Path, keyflood: dict[str, str], siblings: set[str], wat
     outputs: dict[str, list[bytes]] = {}
     timed = monitor_key(REAL, target)
     internal: list[tuple[int, float]] = []
+    health_ns: list[int] = []  # every bed health's publish time
     received = 0
     kinds: dict[str, tuple[TopicKind, str | None]] = {}  # topic -> its kind and bed
     for m in iter_messages_fast(str(path)):
@@ -630,6 +633,7 @@ def read_recording(path: Path, keyflood: dict[str, str], siblings: set[str], wat
             if bed == REAL:
                 received = m.publish_time
         elif kind == TopicKind.HEALTH:
+            health_ns.append(m.publish_time)
             if bed in watch:
                 health[bed] = orjson.loads(m.payload)
         elif kind == TopicKind.NODE_HEALTH:
@@ -641,7 +645,15 @@ def read_recording(path: Path, keyflood: dict[str, str], siblings: set[str], wat
     for topic, n in per_topic.items():
         recorded[category(topic, keyflood, siblings)] += n
     return {"recorded": recorded, "health": health, "node_health": node_health, "outputs": outputs,
-            "topics": len(kinds), "internal": internal}
+            "topics": len(kinds), "internal": internal, "health_rate": health_rate(health_ns)}
+
+
+def health_rate(times_ns: list[int]) -> dict:
+    """The beds' health messages a second: the most within any one second [t, t + 1 s) of their
+    publish times, and the mean over their span."""
+    span = (max(times_ns) - min(times_ns)) / 1e9 if len(times_ns) > 1 else 0.0
+    return {"max": most_in_a_second(times_ns), "mean": len(times_ns) / span if span else float("nan"),
+            "count": len(times_ns)}
 
 
 def real_outputs(path: Path) -> dict[str, list[bytes]]:
@@ -841,6 +853,8 @@ def report(args: argparse.Namespace, r: dict, rec: dict, cmp: dict, replayed: in
     checks["replay"] = (cmp["differ"] == 0 and cmp["same_fields"] == 0 and not cmp["lengths"]
                         and cmp["compared"] > 0)
     checks["exit"] = r["exit"] == 0 and bool(nh.get("recording", False))
+    rate = rec["health_rate"]
+    checks["health rate"] = rate["max"] <= HEALTH_MAX_PER_S
 
     flood = reports["flood"]
     sib = reports["siblings"]
@@ -855,7 +869,10 @@ def report(args: argparse.Namespace, r: dict, rec: dict, cmp: dict, replayed: in
          f"{rss[-1][1] - at_hostile:+.1f} / {growth:+.1f} MB (target < {RSS_GROWTH_MB:g} MB: {res('rss')})"],
         ["node health at the end: received / dropped", f"{received:,} / {dropped:,}"],
         ["refused per reason", ", ".join(f"{k} {v:,}" for k, v in refused.items())],
-        ["beds tracked / bound; expired", f"{nh.get('tracked')} / {nh.get('max_beds')}; {nh.get('expired')}"],
+        ["beds tracked / bound; expired; silent (out of the health rotation)",
+         f"{nh.get('tracked')} / {nh.get('max_beds')}; {nh.get('expired')}; {nh.get('silent')}"],
+        ["beds' health: most within a second / mean; each bed's every", f"{rate['max']} / "
+         f"{rate['mean']:.1f} messages/s (target <= {HEALTH_MAX_PER_S}); {nh.get('health_every_s')} s"],
         ["recording / unrecorded; MCAP topics",
          f"{nh.get('recording')} / {nh.get('unrecorded')}; {rec['topics']:,}"],
         ["worker: CPU per message (last) / largest queue lag seen", f"{nh.get('cpu_us_per_message')} us / "
@@ -920,6 +937,8 @@ def report(args: argparse.Namespace, r: dict, rec: dict, cmp: dict, replayed: in
          else "mismatch (table above)", "match", res("clock")],
         ["live = offline replay", f"{cmp['differ']:,} of {cmp['compared']:,} differ", "identical",
          res("replay")],
+        ["beds' health rate", f"at most {rate['max']} a second ({rate['count']:,} messages, mean "
+         f"{rate['mean']:.1f}/s)", f"<= {HEALTH_MAX_PER_S}/s", res("health rate")],
         ["node exit / recording", f"{r['exit']} / {nh.get('recording')}", "0 / true", res("exit")],
     ]
     print_table(["criterion", "measured", "target", "result"], crit, markdown=True,

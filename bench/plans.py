@@ -59,13 +59,7 @@ from node.runtime.history import SLOW_TEMPERATURES
 from node.training.dataset import segment_runs
 from node.training.fit import load_runs
 from node.training.prediction import (
-    BOUND_FACTOR,
-    BOUND_STEP_RPM,
-    BOUND_WINDOW_RPM,
     MEAN_MODULUS,
-    AmplitudeBound,
-    InputFill,
-    IntervalWidths,
     Profile,
     history_after,
     needed_channels,
@@ -73,6 +67,14 @@ from node.training.prediction import (
     predict_recorded_runs,
     recorded_eps,
     with_interval,
+)
+from node.training.prediction_aids import (
+    BOUND_FACTOR,
+    BOUND_STEP_RPM,
+    BOUND_WINDOW_RPM,
+    AmplitudeBound,
+    InputFill,
+    IntervalWidths,
 )
 from node.training.runs import Run
 

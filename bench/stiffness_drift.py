@@ -54,8 +54,9 @@ from node.runtime.alarms import StepCheck
 from node.runtime.ocdetect import OCDetector
 from node.training.calibrate import DRIFT_OC_FACTOR, drift_thresholds, plateau_peaks
 from node.training.dataset import fill_gaps, target_vectors
+from node.training.ocdata import OCData
 from node.training.runs import Run, read_runs
-from node.training.train import OCData, oc_datasets
+from node.training.train import oc_datasets
 
 TEMPS = ["tF", "tI", "tH"]
 CH = ["nB", "yB", "yB_ph", *TEMPS]

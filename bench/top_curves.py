@@ -15,12 +15,12 @@ predictions (averaged: an average's CV):
 
 They were measured against the former default (averages of the 2-3 best curves
 alone; development engines 0.1405, top 0.1366, subset 0.1385) and made ``top`` the default
-(``node.training.train._best_average``): since then its column reproduces the default's.
+(``node.training.train``'s average of the best): since then its column reproduces the default's.
 
 Per OC it prints the held-out eps_td of the default and of both alternatives (with their
 members) beside the characteristic curve, then the means and the OCs worse than the curve by
 > 5 %. This is a study, not the product: it reads the CV's predictions by wrapping
-``node.training.train._cross_validate``.
+``node.training.train.cross_validate_candidate``.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from node.models.ocmodel import Method
 from node.runtime.history import HISTORY_CHANNELS
 from node.sysid.metrics import pooled_eps
 from node.training import train as T
+from node.training.ocdata import OCData
 
 Pairs = list[tuple[np.ndarray, np.ndarray]]
 Member = tuple[str, dict, Pairs]  # method, params, CV pairs
@@ -49,19 +50,19 @@ class CVSpy:
     """Keeps every CV's (measured, predicted) pairs per OC while installed."""
 
     def __init__(self) -> None:
-        self.seen: dict[str, tuple[T.OCData, dict[tuple[str, str], tuple[str, dict, Pairs]]]] = {}
-        self._cv = T._cross_validate
+        self.seen: dict[str, tuple[OCData, dict[tuple[str, str], tuple[str, dict, Pairs]]]] = {}
+        self._cv = T.cross_validate_candidate
 
     def __enter__(self) -> CVSpy:
         def spy(d, folds, method, params, fold_inputs, bound=float("inf"), parts=True):  # type: ignore[no-untyped-def]
             score, pairs = self._cv(d, folds, method, params, fold_inputs, bound, parts)
             self.seen.setdefault(d.name, (d, {}))[1][_key(method, params)] = (str(method), params, pairs)
             return score, pairs
-        T._cross_validate = spy  # type: ignore[assignment]
+        T.cross_validate_candidate = spy  # type: ignore[assignment]
         return self
 
     def __exit__(self, *exc: object) -> None:
-        T._cross_validate = self._cv
+        T.cross_validate_candidate = self._cv
 
 
 def _avg_eps(members: tuple[Member, ...]) -> float:
@@ -69,7 +70,7 @@ def _avg_eps(members: tuple[Member, ...]) -> float:
     return pooled_eps([(y, sum(m[2][n][1] for m in members) / k) for n, (y, _) in enumerate(members[0][2])])
 
 
-def pool(d: T.OCData, seen: dict[tuple[str, str], tuple[str, dict, Pairs]], method: str) -> list[Member]:
+def pool(d: OCData, seen: dict[tuple[str, str], tuple[str, dict, Pairs]], method: str) -> list[Member]:
     """The 3 CV-best curves and the grid's CV-best model, best first."""
     def ranked(keep: object) -> list[Member]:
         out = [(m, p, pr) for m, p, pr in seen.values() if pr and keep(m) and np.isfinite(pooled_eps(pr))]
@@ -120,10 +121,10 @@ def main(argv: list[str] | None = None) -> int:
                 members[r.name] = []
                 for meth, params, _ in choose(pool(d, seen, "wdmd"), mode == "subset"):
                     if meth == Method.CURVE.value:
-                        inputs = T._curve_inputs(d, params) or []
+                        inputs = T.curve_model_inputs(d, params) or []
                     else:
-                        inputs = T._choose_inputs(d, rows_all, None, 4)[0]
-                    model = fit_oc_model(meth, params, T._trajs(d, rows_all, inputs))
+                        inputs = T.select_inputs(d, rows_all, None, 4)[0]
+                    model = fit_oc_model(meth, params, T.oc_trajectories(d, rows_all, inputs))
                     members[r.name].append(dataclasses.replace(r, model=model, inputs=inputs, params=params))
             layers = [predict_segments([m[i] if len(m := members.get(r.name, [])) > i else r for r in res],
                                        te, sched, "yB", fleet, config)

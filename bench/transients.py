@@ -2,15 +2,19 @@
 (the targets: each critical within 1 %, each AF within 20 %).
 
     python -m bench transients [--seeds 1,2,3,4,5] [--runs 2] [--plateau-scale 1]
-        [--noise-scale 1] [--workdir W] [--rows all|fail|none]
+        [--noise-scale 1] [--tracker drawn|fixed] [--lag estimated|truth]
+        [--workdir W] [--rows all|fail|none]
 
 Per engine (one simulator seed: its own modes, scattered about the nominal ones): ``--runs``
 runs of a schedule made for ramps (idle, 6500, 9800, 6500 rpm of nB, then the decel to idle
 and the rundown), recorded by the simulator (``harness.make.simulate``) and read back
 (``read_runs``). The ramps are found on nB (``find_transitions``); per ramp and target (yA on
 nA, yB on nB, yC on nC: each order on its own shaft's speed, the speed its truth is in) the
-node's ``node.runtime.transient.analyse`` with the tracker's lag the truth JSON states, the
-amplitude and the phase as recorded (noise, dropouts, quantisation).
+node's ``node.runtime.transient.analyse`` with the tracker's lag the node estimates from the
+engine's own runs (``node.training.transients.tracker_lag``, as ``train`` does: the lag is not
+given; ``--lag truth`` passes the truth JSON's instead), the amplitude and the phase as recorded
+(noise, dropouts, quantisation). ``--tracker drawn`` (default): each engine's tracker lags by its
+own time constant, 0.5-2 s (``simulate --tracker drawn``); the estimate is printed beside it.
 
 The truth: every crossing of a critical the simulator made (``criticals`` of each run: the
 mode's critical at the metal temperature of that moment, its damping, the steady 1x amplitude
@@ -18,8 +22,9 @@ there). Counted are the crossings inside a ramp whose half-power band (critical 
 zeta)) the ramp covers and whose amplitude at the critical is 1 mm/s or more (a run whose
 imbalance happens to be small shows no resonance above the noise). Each is
 matched to the critical found nearest in speed (within 3 zeta of it); the critical's error
-in %, the AF's (API 684's half-power, of the fitted mode's own response) and the phase fit's
-against 1 / (2 zeta), and beside them the half-power AF of the measured peak with the other
+in %, the AF's (API 684's half-power, of the fitted mode's own response) against the half-power
+truth (the half-power AF of the simulated mode's own unbalance response, ``af_of_zeta``), the
+phase fit's against 1 / (2 zeta), and beside them the half-power AF of the measured peak with the other
 modes removed (``af_hp``, where it is clean). Beside them, in
 the same run: the error of the raw amplitude peak without the tracker-lag correction, the
 first-order figure for the lag (run-ups high, coast-downs low). Unmatched truth crossings are
@@ -39,8 +44,10 @@ import numpy as np
 
 from harness import make
 from node.console.table import print_table
-from node.runtime.transient import Critical, analyse, find_transitions
+from node.contract.schedule import load_schedule
+from node.runtime.transient import Critical, af_of_zeta, analyse, find_transitions
 from node.training.runs import Run, read_runs
+from node.training.transients import tracker_lag
 
 log = logging.getLogger(__name__)
 
@@ -88,24 +95,29 @@ def _covered(crossing: dict, lo: float, hi: float) -> bool:
             and crossing.get("amplitude", 0.0) >= MIN_RESONANCE)
 
 
-def engine_rows(seed: int, work: Path, runs: int, plateau_scale: float, noise_scale: float
-                ) -> list[dict]:
+def engine_rows(seed: int, work: Path, runs: int, plateau_scale: float, noise_scale: float,
+                tracker: str = "drawn", lag: str = "estimated") -> tuple[list[dict], dict]:
     """Simulate (unless present), read and analyse one engine; one dict per truth crossing
-    counted or critical found."""
+    counted or critical found, and the engine's lag (estimate, truth, crossings)."""
     sched = work / "transients.schedule.toml"
     if not sched.exists():
         sched.write_text(SCHEDULE)
-    rec = work / f"engine{seed}.mcap"
+    rec = work / f"engine{seed}.{tracker}.mcap"
     truth_path = rec.with_suffix(".truth.json")
     truth = json.loads(truth_path.read_text()) if rec.exists() and truth_path.exists() else None
     if (truth is None or "rotor" not in truth or len(truth["runs"]) != runs
             or truth.get("noise_scale") != noise_scale):
         log.info("simulating engine %d", seed)
         truth = make.simulate(rec, runs=runs, seed=seed, schedule=str(sched),
-                              plateau_scale=plateau_scale, noise_scale=noise_scale)
-    tau = float(truth["rotor"]["tracker_s"])
-    out: list[dict] = []
+                              plateau_scale=plateau_scale, noise_scale=noise_scale, tracker=tracker)
     recorded = read_runs(rec)
+    true_tau = float(truth["rotor"]["tracker_s"])  # scoring only (and --lag truth)
+    est, fits = tracker_lag(recorded, load_schedule(str(sched)), [t for t, _ in TARGETS])
+    tau = true_tau if lag == "truth" else (est.tau if est is not None else 0.0)
+    lag_row = {"engine": seed, "truth": true_tau, "estimate": None if est is None else est.tau,
+               "spread": None if est is None else est.spread,
+               "crossings": 0 if est is None else est.crossings, "fitted": len(fits), "used": tau}
+    out: list[dict] = []
     for r, (run, tr) in enumerate(zip(recorded, truth["runs"], strict=True)):
         for span in find_transitions(run.column("nB")):
             part = slice(span.start, span.stop)
@@ -113,7 +125,7 @@ def engine_rows(seed: int, work: Path, runs: int, plateau_scale: float, noise_sc
             for target, speed_ch in TARGETS:
                 out.extend(_ramp_rows(seed, r, run, part, span.direction, target, speed_ch, tau,
                                       [c for c in tr["criticals"][target] if t0 <= c["t"] <= t1]))
-    return out
+    return out, lag_row
 
 
 def _ramp_rows(seed: int, r: int, run: Run, part: slice, direction: str, target: str,
@@ -141,13 +153,14 @@ def _ramp_rows(seed: int, r: int, run: Run, part: slice, direction: str, target:
     for j, c in enumerate(counted):
         hit: Critical | None = found[match[j]] if j in match else None
         unc = [x for x in raw if abs(x.speed_peak - c["speed"]) <= 3 * c["zeta"] * c["speed"]]
+        af_truth = af_of_zeta(c["zeta"])  # the half-power AF of the mode's own response
         rows.append({**base, "mode": c["mode"], "truth": c["speed"], "rate": c["rate_rpm_s"],
-                     "af_truth": c["af"], "found": hit,
+                     "af_truth": af_truth, "found": hit,
                      "err": _pct(hit.speed, c["speed"]) if hit else None,
                      "err_hp": _pct(hit.speed_hp, c["speed"]) if hit else None,
                      "af_method": hit.af_method if hit else "-",
                      "err_raw_peak": _pct(unc[0].speed_peak, c["speed"]) if unc else None,
-                     "err_af": _pct(hit.af, c["af"]) if hit else None,
+                     "err_af": _pct(hit.af, af_truth) if hit else None,
                      "err_af_phase": _pct(hit.af_phase, c["af"]) if hit else None,
                      "err_af_hp": _pct(hit.af_hp, c["af"]) if hit else None})
     for i, f in enumerate(found):
@@ -168,6 +181,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--runs", type=int, default=2, help="runs per engine (default 2)")
     ap.add_argument("--plateau-scale", type=float, default=1.0, help="simulate --plateau-scale (default 1)")
     ap.add_argument("--noise-scale", type=float, default=1.0, help="simulate --noise-scale (default 1, > 0)")
+    ap.add_argument("--tracker", choices=("drawn", "fixed"), default="drawn",
+                    help="the simulated order tracker's lag: drawn per engine in 0.5-2 s (default) or 1 s")
+    ap.add_argument("--lag", choices=("estimated", "truth"), default="estimated",
+                    help="the lag undone: estimated from the engine's runs (default) or the truth's")
     ap.add_argument("--workdir", help="keep the recordings here (default: a new temp folder)")
     ap.add_argument("--rows", choices=("all", "fail", "none"), default="all",
                     help="which crossings to list (default all)")
@@ -186,8 +203,10 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.workdir or tmp)
-        rows = [row for s in seeds for row in engine_rows(s, work, args.runs, args.plateau_scale,
-                                                          args.noise_scale)]
+        per = [engine_rows(s, work, args.runs, args.plateau_scale, args.noise_scale, args.tracker,
+                           args.lag) for s in seeds]
+    rows = [row for r, _ in per for row in r]
+    lags = [lag for _, lag in per]
     counted = [r for r in rows if not r.get("spurious")]
     spurious = [r for r in rows if r.get("spurious")]
     shown = {"all": counted, "fail": [r for r in counted if not _passes(r)], "none": []}[args.rows]
@@ -211,8 +230,38 @@ def main(argv: list[str] | None = None) -> int:
               _cell(r["err_af_phase"], "{:+.1f}"), "PASS" if _passes(r) else "FAIL"]
              for r in shown],
             title="crossings of the simulator's criticals (err: found - truth, % of truth)")
+    print_engines(counted, spurious, lags)
     print_summary(counted, spurious, len(seeds))
-    return 0 if counted and all(_passes(r) for r in counted) else 1
+    lag_ok = all(x["estimate"] is not None
+                 and abs(x["estimate"] - x["truth"]) <= LAG_TARGET / 100 * x["truth"]
+                 for x in lags)
+    return 0 if counted and all(_passes(r) for r in counted) and lag_ok else 1
+
+
+LAG_TARGET = 20.0  # %: the lag estimate against the simulator's
+
+
+def print_engines(counted: list[dict], spurious: list[dict], lags: list[dict]) -> None:
+    """Per engine: crossings found of those counted, the worst critical and AF errors, the
+    spurious criticals, the lag estimated beside the truth."""
+    rows = []
+    for lag in lags:
+        e = lag["engine"]
+        mine = [r for r in counted if r["engine"] == e]
+        found = [r for r in mine if r["found"] is not None]
+        worst = max((abs(r["err"]) for r in found), default=math.nan)
+        worst_af = max((abs(r["err_af"]) for r in found if r["err_af"] is not None), default=math.nan)
+        est = lag["estimate"]
+        rows.append([str(e), f"{len(found)} / {len(mine)}", f"{worst:.2f}", f"{worst_af:.1f}",
+                     str(sum(1 for r in spurious if r["engine"] == e)),
+                     "-" if est is None else f"{est:.2f} +- {lag['spread']:.2f}", f"{lag['truth']:.2f}",
+                     "-" if est is None else f"{100 * (est - lag['truth']) / lag['truth']:+.1f}",
+                     f"{lag['crossings']} / {lag['fitted']}", f"{lag['used']:.2f}"])
+    print_table(["engine", "crossings found", "max |crit err| %", "max |AF err| %", "spurious",
+                 "lag estimated s", "lag truth s", "lag err %", "lag crossings (pinned / fitted)",
+                 "lag undone s"], rows,
+                title=f"per engine (targets: critical within {CRITICAL_TARGET:g} %, AF within "
+                      f"{AF_TARGET:g} % of the half-power truth, lag within {LAG_TARGET:g} %)")
 
 
 def _stat(values: list[float | None]) -> str:

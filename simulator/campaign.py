@@ -15,6 +15,7 @@ without them.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,7 +23,7 @@ import numpy as np
 from node.contract import ORDER_CHANNELS, PHASE_CHANNELS, SENSOR_CHANNELS, engine_off, phase_channel
 from node.contract.vector import wrap_degrees
 from simulator import gaspath, rotor, thermal
-from simulator.engine import Engine, build_engine
+from simulator.engine import Engine, build_engine, drawn_tracker
 from simulator.schedule import (
     BUILT_IN_SCHEDULE,
     DEFAULT_OCS,
@@ -41,6 +42,7 @@ from simulator.schedule import (
 # "stiffness-mode": the former fault, one mode alone (the 0.955 mode near the top speed).
 FAULTS = ("imbalance", "imbalance-90", "stiffness", "stiffness-mode", "stuck-sensor", "drift")
 STIFFNESS_FAULTS = ("stiffness", "stiffness-mode")
+TRACKERS = ("fixed", "drawn")  # the order tracker's lag: rotor.TAU_TRACKER, or drawn per engine
 CAMPAIGN_START = 1767600000.0  # 2026-01-05 08:00:00 UTC, epoch seconds
 MAX_SPEEDS = {"nA": gaspath.NA_TOP, "nB": gaspath.NB_TOP, "nC": gaspath.NC_TOP}
 
@@ -94,6 +96,7 @@ class Campaign:
     schedule: SimSchedule = BUILT_IN_SCHEDULE
     noise_scale: float = 1.0
     modes: dict[str, list[dict]] = field(default_factory=dict)  # the engine's (Engine.modes_truth)
+    tracker_s: float = rotor.TAU_TRACKER  # the engine's order-tracker lag, s
 
     @property
     def ocs(self) -> tuple[OC, ...]:
@@ -277,7 +280,7 @@ def simulate_run(
         if fault in STIFFNESS_FAULTS and shaft.out == "yB":
             stiffness = stiffness_loss(fault, len(shaft.modes), profile.t - onset, fault_size)
         steady = rotor.order(shaft, sig[shaft.speed], metal, unbalance, bow, stiffness)
-        vector = rotor.tracked(steady)
+        vector = rotor.tracked(steady, engine.tracker_s)
         sig[shaft.out] = rotor.tracked_amplitude(vector)
         sig[phase_channel(shaft.out)] = rotor.tracked_phase(vector)
         truth_run["imbalance"][shaft.out] = [
@@ -391,6 +394,7 @@ def simulate_campaign(
     schedule: SimSchedule | None = None,
     noise_scale: float = 1.0,
     phase: bool = True,
+    tracker: str = "fixed",
 ) -> Campaign:
     """Simulate ``runs`` consecutive pass-off runs of one engine; the fault hits the last run.
 
@@ -405,12 +409,17 @@ def simulate_campaign(
     sigma (> 0, default 1); same draws for every scale.
     phase: also measure the order phases (``SimRun.phase``, ``PHASE_CHANNELS``), from their
     own stream: every other number is the same with or without them.
+    tracker: "fixed" (the order tracker lags ``rotor.TAU_TRACKER`` s on every engine) or "drawn"
+    (each engine's lag drawn in ``rotor.TRACKER_RANGE`` from a stream of its own,
+    ``engine.drawn_tracker``; every other draw the same).
     """
     schedule = BUILT_IN_SCHEDULE if schedule is None else schedule
     if not (np.isfinite(noise_scale) and noise_scale > 0):
         raise ValueError(f"noise_scale must be > 0 and finite, got {noise_scale!r}")
     if runs < 1:
         raise ValueError("runs must be >= 1")
+    if tracker not in TRACKERS:
+        raise ValueError(f"tracker must be one of {TRACKERS}, got {tracker!r}")
     if fault is not None and fault not in FAULTS:
         raise ValueError(f"unknown fault {fault!r}")
     if not (np.isfinite(fault_size) and fault_size > 0):
@@ -424,6 +433,8 @@ def simulate_campaign(
     engine_ss, fault_ss, *run_ss = seq.spawn(2 + runs)
     engine_rng = np.random.default_rng(engine_ss)
     engine = build_engine(engine_rng, np.random.default_rng(engine_ss.spawn(1)[0]))
+    if tracker == "drawn":
+        engine = dataclasses.replace(engine, tracker_s=drawn_tracker(seed))
     clock = CAMPAIGN_START + float(engine_rng.integers(0, 4 * 3600))
     history: dict = {}
     last_stop: float | None = None
@@ -485,4 +496,4 @@ def simulate_campaign(
         out.append(SimRun(t=t, data=data, truth=truth_run, phase=phases))
         last_stop = float(t[on_last] + DT)
     return Campaign(runs=out, schedule=schedule, noise_scale=float(noise_scale),
-                    modes=engine.modes_truth())
+                    modes=engine.modes_truth(), tracker_s=engine.tracker_s)

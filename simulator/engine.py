@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simulator.rotor import Mode, Shaft
+from simulator.rotor import TAU_TRACKER, TRACKER_RANGE, Mode, Shaft
 
 # Participations alternate in sign from mode to mode, so the modes add without an
 # anti-resonance between them: the phase lag grows by 180 degrees through each critical and
@@ -65,6 +65,7 @@ class Engine:
     unbalance: dict[str, np.ndarray]
     bow_max: dict[str, float]  # per amplitude channel, mm
     shafts: tuple[Shaft, ...] = SHAFTS  # this engine's rotors (its modes scatter about SHAFTS')
+    tracker_s: float = TAU_TRACKER  # its vibration unit's order-tracker lag, s
 
     def shaft(self, out: str) -> Shaft:
         """The rotor of amplitude channel ``out``."""
@@ -93,6 +94,12 @@ def scatter_modes(rng: np.random.Generator) -> tuple[Shaft, ...]:
             modes.append(dataclasses.replace(m, rpm=m.rpm * f, zeta=m.zeta * rng.uniform(*DAMPING_SCATTER)))
         out.append(dataclasses.replace(shaft, modes=tuple(modes)))
     return tuple(out)
+
+
+def drawn_tracker(seed: int) -> float:
+    """An engine's order-tracker lag (s) drawn uniformly in TRACKER_RANGE from a stream of its
+    own (seeded by the engine's seed alone: every other draw stays as it was)."""
+    return float(np.random.default_rng(np.random.SeedSequence([seed, 0x7AC4])).uniform(*TRACKER_RANGE))
 
 
 def build_engine(rng: np.random.Generator, modal_rng: np.random.Generator | None = None) -> Engine:

@@ -160,13 +160,14 @@ def truth_document(
         "seed": seed,
         "bed": bed,
         "channels": list(channels),
-        "phase": PHASE_TRUTH if any(is_phase_channel(ch) for ch in channels) else None,
+        "phase": ({**PHASE_TRUTH, "tracker_s": campaign.tracker_s}
+                  if any(is_phase_channel(ch) for ch in channels) else None),
         "sample_rate_hz": FS,
         "noise_scale": campaign.noise_scale,
         "schedule": campaign.schedule.truth(),
         "rotor": {
             "model": "modal unbalance response (simulator/rotor.py)",
-            "tracker_s": TAU_TRACKER,
+            "tracker_s": campaign.tracker_s,
             "modes": campaign.modes,
             "notes": (
                 "per amplitude channel its modes: rpm_cold is the critical speed (shaft rpm) at "

@@ -32,7 +32,7 @@ class Simulation:
     written; fault, fault_seed, fault_size: a fault in the last run (``FAULTS``), its draw and
     its magnitude (None: nominal); schedule: a contract schedule file to run instead of the
     built-in OCs; channels: comma list of the channels written (None: all); phase: write the
-    order phases.
+    order phases; tracker: the order tracker's lag, "fixed" (1 s) or "drawn" per engine (0.5-2 s).
     """
 
     runs: int = 3
@@ -47,6 +47,7 @@ class Simulation:
     skip: int = 0
     channels: str | None = None
     phase: bool = True
+    tracker: str = "fixed"
 
     def check(self) -> None:
         """One-line ``OrdervibError`` for the first setting out of its range."""
@@ -75,6 +76,8 @@ class Simulation:
             raise OrdervibError(f"--plateau-scale must be between 0.05 and 10, got {self.plateau_scale}")
         if not (math.isfinite(self.noise_scale) and self.noise_scale > 0):
             raise OrdervibError(f"--noise-scale must be > 0 and finite, got {self.noise_scale:g}")
+        if self.tracker not in ("fixed", "drawn"):
+            raise OrdervibError(f"--tracker must be fixed or drawn, got {self.tracker!r}")
         if not 0 <= self.skip < self.runs:
             raise OrdervibError(f"--skip must be between 0 and runs - 1, got {self.skip}")
         self.channel_names()
@@ -126,6 +129,7 @@ def simulate_files(
         schedule=schedule,
         noise_scale=sim.noise_scale,
         phase=sim.phase,
+        tracker=sim.tracker,
     )
     count = write_recording(
         campaign, os.fspath(part or out), sim.bed, sim.seed, sim.skip, progress, channels=channels

@@ -35,6 +35,7 @@ from simulator.lag import lag
 
 T_REF = 15.0  # metal temperature at which the modes have their cold critical speed, °C
 TAU_TRACKER = 1.0  # order tracker: first-order lag of the complex order, s
+TRACKER_RANGE = (0.5, 2.0)  # s: the lags drawn per engine where asked (``tracker="drawn"``)
 
 
 @dataclass(frozen=True)

@@ -21,17 +21,17 @@ from node.models.ocmodel import RUN_CURVE, Method, Trajectory
 from node.models.result import Calibration, OCResult
 from node.sysid.metrics import pooled_eps
 from node.training.evaluation import predict_segments
+from node.training.ocdata import OCData
 from node.training.train import (
     CURVE_AVERAGE,
     CURVE_CANDIDATES,
-    OCData,
-    _cross_validate,
-    _curve_inputs,
+    cross_validate_candidate,
+    curve_model_inputs,
     run_folds,
     train_oc,
 )
 from node.training.train import (
-    _trajs as _trajs_of,
+    oc_trajectories as _trajs_of,
 )
 
 VECTOR = {"variant": "vector", "bin": 25.0, "window": 0, "anchor": 40}
@@ -129,12 +129,12 @@ def test_an_average_s_cv_is_its_members_cv_averaged_and_chosen_only_when_lower(n
     folds = sorted(set(d.runs))
     scored = []
     for c in d.curves:
-        ins = _curve_inputs(d, c)
+        ins = curve_model_inputs(d, c)
         if ins is not None:
-            score, pairs = _cross_validate(d, folds, Method.CURVE, c, dict.fromkeys(folds, ins))
+            score, pairs = cross_validate_candidate(d, folds, Method.CURVE, c, dict.fromkeys(folds, ins))
             scored.append((score, "curve", c, pairs, ins))
     grid = [{"alpha": 1.0}, {"alpha": 0.01}]
-    lasso = [(*_cross_validate(d, folds, "lasso", g, dict.fromkeys(folds, ["nB"])), g) for g in grid]
+    lasso = [(*cross_validate_candidate(d, folds, "lasso", g, dict.fromkeys(folds, ["nB"])), g) for g in grid]
     score, pairs, g = min(lasso, key=lambda x: x[0])
     pool = sorted(sorted(scored, key=lambda s: s[0])[:CURVE_AVERAGE] + [(score, "lasso", g, pairs, ["nB"])],
                   key=lambda s: s[0])
@@ -144,7 +144,7 @@ def test_an_average_s_cv_is_its_members_cv_averaged_and_chosen_only_when_lower(n
         mean = [(y, sum(pool[i][3][n][1] for i in range(k)) / k) for n, (y, _) in enumerate(pool[0][3])]
         options.append((pooled_eps(mean), "average", params, mean, params["inputs"]))
         if all(m == "curve" for _, m, _, _, _ in pool[:k]):
-            again, fresh = _cross_validate(d, folds, Method.AVERAGE, params,
+            again, fresh = cross_validate_candidate(d, folds, Method.AVERAGE, params,
                                            dict.fromkeys(folds, params["inputs"]), parts=False)
             assert again == options[-1][0]
             for (y, p), (y2, p2) in zip(mean, fresh, strict=True):
@@ -171,7 +171,8 @@ def test_beyond_max_folds_the_cv_holds_out_blocks_of_runs_and_pruning_keeps_the_
     d = _ocdata(np.random.default_rng(8), n_runs=12, noise=0.1)
     d.folds = run_folds(12, 4)
     assert d.fold_ids() == [0, 3, 6, 9]
-    score, pairs = _cross_validate(d, d.fold_ids(), Method.CURVE, FLEET, dict.fromkeys(d.fold_ids(), ["nB"]))
+    score, pairs = cross_validate_candidate(d, d.fold_ids(), Method.CURVE, FLEET,
+                                            dict.fromkeys(d.fold_ids(), ["nB"]))
     again = []
     for f in d.fold_ids():
         fit_rows = [i for i in range(12) if not f <= d.runs[i] < f + 3]

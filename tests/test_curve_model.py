@@ -13,7 +13,8 @@ from node.models.curve import CurveModel, Variant
 from node.models.kinds import fit_oc_model, model_from_arrays
 from node.models.ocmodel import RUN_CURVE, Method, StateSpaceModel, Trajectory
 from node.models.result import OCResult
-from node.training.train import CURVE_CANDIDATES, CURVE_MARGIN, FEW_RUNS, OCData, curve_candidates, train_oc
+from node.training.ocdata import OCData
+from node.training.train import CURVE_CANDIDATES, CURVE_MARGIN, FEW_RUNS, curve_candidates, train_oc
 
 FLEET = {"variant": "fleet", "bin": 25.0, "window": 40, "deadband": 20.0}
 

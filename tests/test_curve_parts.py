@@ -19,13 +19,13 @@ from hypothesis import strategies as st
 from node.models.curve import DECAY_TAUS, FADE_SHARES, CurveModel, Variant, direction_codes
 from node.models.kinds import fit_oc_model
 from node.models.ocmodel import Method, Trajectory
+from node.training.ocdata import OCData
 from node.training.train import (
     CURVE_CANDIDATES,
-    OCData,
-    _cross_validate,
-    _curve_inputs,
     _predict_pairs,
-    _trajs,
+    cross_validate_candidate,
+    curve_model_inputs,
+    oc_trajectories,
 )
 
 LOOKUPS = [c for c in CURVE_CANDIDATES if c["variant"] != "run"] + [
@@ -232,13 +232,13 @@ def test_the_cv_of_a_curve_gives_the_pairs_of_fitting_every_fold_afresh() -> Non
                [t.start for t in trajs], [0] * 6, switch="nB", curves=LOOKUPS, z=[t.z for t in trajs])
     folds = list(range(6))
     for params in LOOKUPS:
-        inputs = _curve_inputs(d, params)
+        inputs = curve_model_inputs(d, params)
         assert inputs == ["nB"]
-        score, pairs = _cross_validate(d, folds, Method.CURVE, params, dict.fromkeys(folds, inputs))
+        score, pairs = cross_validate_candidate(d, folds, Method.CURVE, params, dict.fromkeys(folds, inputs))
         expected = []
         for f in folds:
-            m = fit_oc_model(Method.CURVE, params, _trajs(d, [i for i in folds if i != f], inputs))
-            expected += _predict_pairs(m, _trajs(d, [f], inputs))
+            m = fit_oc_model(Method.CURVE, params, oc_trajectories(d, [i for i in folds if i != f], inputs))
+            expected += _predict_pairs(m, oc_trajectories(d, [f], inputs))
         assert len(pairs) == len(expected) and math.isfinite(score)
         for (_, p), (_, p2) in zip(pairs, expected):
             np.testing.assert_array_equal(p, p2)

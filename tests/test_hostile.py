@@ -157,7 +157,7 @@ def test_hundreds_of_beds_health_is_spread_over_the_second(tmp_path):
     node._tick()  # the rest of the first second first, then the second's first slice
     first = [b for call in sent for b in call]
     assert first[:39] == beds[:39] and first[39:] == beds[:n]
-    while node._health_due:
+    while node._rotation.due:
         node._publish_health(n)
     second = [b for call in sent for b in call][39:]
     assert second == beds[:39] and max(map(len, sent)) <= 40 - n  # never all at once
@@ -264,21 +264,14 @@ def test_wildcard_keys_are_refused_and_make_no_bed_and_no_topic(setup, tmp_path)
     assert node_health_key(health["node"]) in topics
 
 
-def test_a_flood_of_bed_names_stays_bounded_beside_a_real_bed(setup, tmp_path):
-    """5,000 bed names x 3 messages while a real bed runs at 40 Hz: 256 beds tracked (the default
-    bound; the real one among them), the rest refused and counted, and every sample of the real
-    bed gets its monitor message."""
-    from node.live.node import LiveNode
-    from node.runtime.core import MAX_BEDS
-    from node.runtime.pipeline import MonitorPipeline
-    bundle = load_bundle(setup / "m")
-    stream = load_stream(str(setup / "test.mcap"), 3.0, 0.0, set(MonitorPipeline(bundle).channels))
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    node = LiveNode(bundle, str(tmp_path / "n.mcap"), listen=[endpoint])
-    node.start()
+def flood_beside_a_real_bed(node, endpoint: str, stream, names: int,
+                            until=None) -> tuple[dict, dict, list[str]]:
+    """``names`` bed names x 3 messages into a started node on ``endpoint``, once a real bed
+    ``real`` runs, while that bed publishes ``stream`` at 40 Hz; every message received, the real
+    bed's monitor messages seen (and ``until()``, if given). Returns what ``Bench.publish`` sent,
+    the monitor messages seen per bed and the flood's keys."""
     bench = Bench(endpoint, ["real"], ["nB", "yB", "tF"], "testbed/*/monitor/yB")
     flood = _client(endpoint)
-    names = 5000
     hostile = [sensor_key(f"h{i}", c) for i in range(names) for c in ("nB", "yB", "tF")]
 
     def attack() -> None:
@@ -291,14 +284,35 @@ def test_a_flood_of_bed_names_stays_bounded_beside_a_real_bed(setup, tmp_path):
         thread.start()
         sent = bench.publish(stream)
         thread.join(60)
-        n = len(stream.slots)
         assert wait_for(lambda: node.stats.received >= sent["count"] + len(hostile), 60)
-        wait_for(lambda: len(bench.arrivals) >= n, 20)
+        wait_for(lambda: len(bench.arrivals) >= len(stream.slots), 20)
         _, seen = latencies(bench, stream, sent["sent"], "/monitor/yB")
-        assert wait_for(lambda: node._node_health.get("refused", {}).get("bed_limit", 0) > 0, 10)
+        assert until is None or wait_for(until, 10)
     finally:
         flood.close()
         bench.close()
+    return sent, seen, hostile
+
+
+def test_a_flood_of_bed_names_stays_bounded_beside_a_real_bed(setup, tmp_path):
+    """5,000 bed names x 3 messages while a real bed runs at 40 Hz: 256 beds tracked (the default
+    bound; the real one among them), the rest refused and counted, and every sample of the real
+    bed gets its monitor message."""
+    from node.live.node import LiveNode
+    from node.runtime.core import MAX_BEDS
+    from node.runtime.pipeline import MonitorPipeline
+    bundle = load_bundle(setup / "m")
+    stream = load_stream(str(setup / "test.mcap"), 3.0, 0.0, set(MonitorPipeline(bundle).channels))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    node = LiveNode(bundle, str(tmp_path / "n.mcap"), listen=[endpoint])
+    node.start()
+    names = 5000
+    try:
+        sent, seen, hostile = flood_beside_a_real_bed(
+            node, endpoint, stream, names,
+            until=lambda: node._node_health.get("refused", {}).get("bed_limit", 0) > 0)
+        n = len(stream.slots)
+    finally:
         node.stop()
     assert seen == {"real": n}, f"monitor messages {seen}, {n} samples"
     assert len(node.core.beds) == MAX_BEDS and "real" in node.core.beds
@@ -345,8 +359,9 @@ def test_silent_beds_expire_and_say_so(setup, tmp_path):
 
 def _flood_one_bed(setup, rec, until=None, first=None, **options):
     """66,000 distinct channel keys on bed ``b`` into a LiveNode (``options``) recording to
-    ``rec``, sent once ``first(node)`` holds (if given), every one received (and ``until(node)``,
-    if given) before the node stops."""
+    ``rec``, sent once ``first(node)`` holds (if given; the first key is sent before, so that the
+    node has a sensor time), every one received (and ``until(node)``, if given) before the node
+    stops."""
     from node.live.node import LiveNode
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     node = LiveNode(load_bundle(setup / "m"), str(rec), listen=[endpoint], **options)
@@ -355,8 +370,10 @@ def _flood_one_bed(setup, rec, until=None, first=None, **options):
     keys = [sensor_key("b", f"c{i}") for i in range(66_000)]
     try:
         _wait_matched(client, "testbed/b/sensor/nB")
-        assert first is None or wait_for(lambda: first(node), 10)
-        _put_all(client, keys)
+        if first is not None:
+            _put_all(client, keys[:1])
+            assert wait_for(lambda: first(node), 10)
+        _put_all(client, keys if first is None else keys[1:])
         assert wait_for(lambda: node.stats.received == len(keys), 60), node.stats
         assert until is None or wait_for(lambda: until(node), 10)
     finally:
@@ -383,17 +400,18 @@ def test_the_recording_survives_more_keys_than_mcap_channels(setup, tmp_path):
     channels (MCAP's u16 ids), refuses the rest, counted in health, and the recording finishes
     (it failed with "ushort format requires 0 <= number <= 65535", exit 2, before).
 
-    The flood starts once the node's first own health message (its first tick, a second after it
-    started) is recorded, so an output holds a channel before the inputs fill the table: with the
-    flood racing that tick, a machine that took the 65,535 first keys within the second recorded
-    inputs only, and the outputs' share of the table went untested."""
+    The flood starts once the node's first own health message (its first tick after the flood's
+    first key, which gives it a sensor time to record it at) is recorded, so an output holds a
+    channel before the inputs fill the table: with the flood racing that tick, a machine that took
+    the 65,535 first keys within the second recorded inputs only, and the outputs' share of the
+    table went untested."""
     from mcap.reader import make_reader
 
     def counted(node) -> bool:  # the node's own health said so
         return node._node_health.get("refused", {}).get("recording_channels", 0) > 0
 
-    def health_recorded(node) -> bool:  # the first tick's messages are in the recording
-        return node.writer.count > 0
+    def health_recorded(node) -> bool:  # the node's health of the first key is in the recording
+        return node.sensor_t is not None and node._node_health.get("received") == 1
 
     node, keys = _flood_one_bed(setup, tmp_path / "n.mcap", until=counted, first=health_recorded,
                                 max_channels=70_000)

@@ -3,6 +3,8 @@
 Orders 1, 2, 6 and 10 with amplitudes 1.0, 0.5, 0.3, 0.2, fixed phases and a little
 white noise (std 0.01), at constant speed and over a 600 -> 3000 rpm linear run-up
 in 10 s, fs = 4096 Hz (order 10 peaks at 500 Hz, a quarter of the Nyquist rate).
+The trackers return the contract's phase: the lag from the shaft's angle zero (the first
+sample, here the once-per-rev mark), degrees in [-180, 180).
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from node.contract.vector import order_vectors, wrap_degrees
 from node.order_tracking import (
     cot_orders,
     rpm_from_tacho,
@@ -23,7 +26,8 @@ FS = 4096.0
 DURATION = 10.0
 ORDERS = np.array([1.0, 2.0, 6.0, 10.0])
 AMPS = np.array([1.0, 0.5, 0.3, 0.2])
-PHASES = np.array([0.3, -1.1, 2.0, 0.7])
+PHASES = np.array([0.3, -1.1, 2.0, 0.7])  # rad, leads: the signal is a cos(p theta + PHASES)
+LAGS = wrap_degrees(-np.degrees(PHASES))  # the same phases as the trackers return them
 NOISE = 0.01
 EDGE = 1.0  # s ignored at both ends
 
@@ -92,8 +96,32 @@ def test_steady_speed_amplitudes_and_phases(method, steady):
     assert np.all(np.diff(tr.times) > 0)
     assert np.all(interior_errors(tr, amps) < 1.0)
     sel = (tr.times > EDGE) & (tr.times < DURATION - EDGE)
-    dphi = np.angle(np.exp(1j * (tr.phases[sel] - PHASES)))
+    dphi = np.radians(wrap_degrees(tr.phases[sel] - LAGS))
     assert np.max(np.abs(dphi)) < 0.02  # rad
+
+
+@pytest.mark.parametrize("method", ["cot", "vkf", "tvdft"])
+def test_phase_is_the_contracts_lag_from_the_once_per_rev_mark(method):
+    """A cosine peaking a known angle after the once-per-rev mark (the first sample at the
+    mark, a tacho pulse each revolution) gives that angle as the phase: a lag, in degrees,
+    wrapped into [-180, 180) (180 comes out as -180); the 1x vector is A exp(-j lag)."""
+    rpm, rev = ramp(900.0, 2400.0)
+    mark = tacho_pulse_times(np.sin(2 * np.pi * rev), FS)  # once per rev: rising at rev 1, 2, ...
+    speed = rpm_from_tacho(np.r_[0.0, mark[mark > 0.01]], FS, T.size)  # the first sample on the mark
+    for lag, want in ((30.0, 30.0), (-75.0, -75.0), (150.0, 150.0), (180.0, -180.0), (200.0, -160.0)):
+        orders = [1.0, 2.0]
+        x = 2.0 * np.cos(2 * np.pi * rev - np.radians(lag)) + 0.5 * np.cos(4 * np.pi * rev - np.radians(lag))
+        tr = track(method, x, speed, orders)
+        got = tr.phases[(tr.times > EDGE) & (tr.times < DURATION - EDGE)]
+        assert np.all((got >= -180.0) & (got < 180.0)), (method, lag)
+        err = wrap_degrees(got - want)
+        assert np.max(np.abs(err)) < 1.0, (method, lag, np.max(np.abs(err)))  # degrees
+        if want == -180.0:  # on the wrap: every value on the -180 side or within a degree of it
+            assert np.all((got < -179.0) | (got > 179.0)), (method, lag)
+        z = tr.complex_amplitudes[:, 0]
+        np.testing.assert_allclose(z, order_vectors(tr.amplitudes[:, 0], tr.phases[:, 0]), equal_nan=True)
+        ok = np.isfinite(z)
+        assert np.max(np.abs(np.angle(z[ok] * np.exp(1j * np.radians(lag))))) < np.radians(1.0)
 
 
 @pytest.mark.parametrize("method", ["cot", "vkf", "tvdft"])
@@ -102,7 +130,7 @@ def test_runup_constant_amplitudes(method, runup):
     tr = track(method, x, rpm)
     assert np.all(interior_errors(tr, amps) < 1.0)
     sel = (tr.times > EDGE) & (tr.times < DURATION - EDGE)
-    dphi = np.angle(np.exp(1j * (tr.phases[sel] - PHASES)))
+    dphi = np.radians(wrap_degrees(tr.phases[sel] - LAGS))
     assert np.max(np.abs(dphi)) < 0.03
 
 
@@ -158,7 +186,7 @@ def test_vkf_crossing_orders_two_shafts():
     joint = vkf_orders(x, fs, np.column_stack([n1, n2]), [1.0, 1.0])
     assert np.max(np.abs(joint.amplitudes[sel, 0] - a1[sel]) / a1[sel]) < 0.01
     assert np.max(np.abs(joint.amplitudes[sel, 1] - 0.6) / 0.6) < 0.01
-    dphi = np.angle(np.exp(1j * (joint.phases[sel] - [0.4, -1.0])))
+    dphi = np.radians(wrap_degrees(joint.phases[sel] - wrap_degrees(-np.degrees([0.4, -1.0]))))
     assert np.max(np.abs(dphi)) < 0.02
 
     alone = vkf_orders(x, fs, n2, [1.0])  # one order at a time cannot separate them
@@ -202,7 +230,7 @@ def test_vkf_solvers_agree(steady):
     a = vkf_orders(x[:n], FS, rpm[:n], ORDERS, solver="banded")
     b = vkf_orders(x[:n], FS, rpm[:n], ORDERS, solver="spsolve")
     np.testing.assert_allclose(a.amplitudes, b.amplitudes, atol=1e-9)
-    np.testing.assert_allclose(a.phases, b.phases, atol=1e-9)
+    np.testing.assert_allclose(np.radians(wrap_degrees(a.phases - b.phases)), 0.0, atol=1e-9)
 
 
 # ---------------------------------------------------------------- error paths

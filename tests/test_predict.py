@@ -4,6 +4,7 @@ one-line errors for bad profiles, and a held-out run's prediction against its me
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +18,9 @@ from node.models.bundle import load_model
 from node.runtime.history import HISTORY_CHANNELS
 from node.training.prediction import (
     MEAN_MODULUS,
-    AmplitudeBound,
-    InputFill,
-    IntervalWidths,
     Profile,
     RecordedPrediction,
+    fit_interval_widths,
     history_after,
     predict_profile,
     predict_recorded_run,
@@ -30,6 +29,7 @@ from node.training.prediction import (
     schedule_profile,
     stated_history,
 )
+from node.training.prediction_aids import AmplitudeBound, InputFill, IntervalWidths
 from node.training.runs import read_runs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,8 +117,8 @@ def test_planned_profile_gives_a_prediction_per_oc_and_history(model, tmp_path, 
     text = capsys.readouterr().out
     assert "OC13" in text and "prediction written to" in text
     notes, rows = _read(out)
-    assert list(rows[0]) == ["history", "t", "oc", "yB", "yB_lo", "yB_hi", "yB_envelope", *HISTORY_CHANNELS,
-                             "nB", "tF", "tH", "tI"]
+    assert list(rows[0]) == ["history", "t", "oc", "outside", "yB", "yB_lo", "yB_hi", "yB_envelope",
+                             *HISTORY_CHANNELS, "nB", "tF", "tH", "tI"]
     assert any(n.startswith("filled tF, tH, tI: from the 4 training runs the model keeps") for n in notes)
     assert any(n.startswith("bounds: amplitudes >= 0") for n in notes)
     assert any(n.startswith("interval: yB_lo..yB_hi: 90 % interval") for n in notes)
@@ -363,11 +363,11 @@ def test_filled_channels_follow_the_plans_speed(model, train_runs, limits):
 
 
 def test_interval_from_the_chained_training_runs_is_wider_than_the_cv_one(model, train_runs, limits):
-    """IntervalWidths.fit: at least the CV sigma's interval (the same t factor), over four runs,
+    """fit_interval_widths: at least the CV sigma's interval (the same t factor), over four runs,
     and the rule of run levels: t(n-1) x sqrt(between^2 (1 + 1/n) + within^2)."""
     bundle = load_model(model)
     cv = IntervalWidths.from_cv(bundle)
-    fitted = IntervalWidths.fit(bundle, train_runs, limits[1])
+    fitted = fit_interval_widths(bundle, train_runs, limits[1])
     ok = np.isfinite(cv.half) & (fitted.runs >= 2)
     assert ok.any()
     assert (fitted.runs[ok] == 4).all()
@@ -482,3 +482,100 @@ def test_a_vector_model_without_a_level_predicts_the_mean_modulus(phased):
     # never worse than the node's own beyond 2 % (on the modal rotor's runs the imbalance angles
     # scatter little, so the node's own modulus of the mean is often close already)
     assert all(g <= max(o, np.log(1.02)) for g, o in zip(got_err, own_err)), (got_err, own_err)
+
+
+# -- plans held to what the model knows --------------------------------------------------------------
+def _plan_csv(path: Path, rows: list[tuple[float, float]]) -> Path:
+    path.write_text("t,nB\n" + "".join(f"{t:g},{v:g}\n" for t, v in rows))
+    return path
+
+
+def _warnings(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("warning: the plan")]
+
+
+def test_a_plan_beyond_the_training_speeds_is_marked_said_once_and_exits_3(model, tmp_path, capsys):
+    """Plateaus at 10,500 and 11,500 rpm, above the 9,814 the training runs reached (before: blank
+    rows, exit 0, no word): every sample above is marked 'speed', one warning says which, exit 3."""
+    prof = _plan_csv(tmp_path / "high.csv", [(0, 0), (10, 0), (40, 9800), (100, 9800), (105, 10500),
+                                             (165, 10500), (170, 11500), (230, 11500), (270, 0), (280, 0)])
+    out = tmp_path / "high.out.csv"
+    argv = ["predict", "--model", str(model), "--profile", str(prof), "--out", str(out), "--quiet"]
+    assert main(argv) == 3
+    err = capsys.readouterr().err
+    said = _warnings(err)
+    assert len(said) == 1 and "beyond the training runs' 18-9,814 rpm" in said[0], err
+    assert "column outside" in said[0] and said[0].endswith("exit status 3")
+    notes, rows = _read(out)
+    assert any(n.startswith("outside: the plan leaves what the model knows") for n in notes)
+    speed = np.array([float(r["nB"]) for r in rows])
+    marked = np.array([r["outside"] for r in rows])
+    assert (marked[speed > 9814.0] == "speed").all() and (marked[speed <= 9814.0] == "").all()
+    assert f"{int((speed > 9814.0).sum()):,} with nB beyond" in said[0]
+    # the same as JSON: the counts and the status
+    assert main([*argv, "--json"]) == 3
+    data = json.loads(capsys.readouterr().out)
+    assert data["outside"]["speed"] == int((speed > 9814.0).sum()) and data["outside"]["no_oc"] == 0
+    assert data["exit_status"] == 3 and data["rows"] == len(rows)
+
+
+def test_a_plan_held_at_a_speed_no_oc_has_is_marked_said_once_and_exits_3(model, tmp_path, capsys):
+    """A plan held at 1,500 rpm (before: a warning "found no OC", empty rows, exit 0): the plateau's
+    samples are marked 'no_oc', the ramps are not; one line says it and that no OC was found."""
+    prof = _plan_csv(tmp_path / "low.csv", [(0, 0), (10, 0), (20, 1500), (240, 1500), (250, 0)])
+    out = tmp_path / "low.out.csv"
+    assert main(["predict", "--model", str(model), "--profile", str(prof), "--out", str(out)]) == 3
+    err = capsys.readouterr().err
+    said = _warnings(err)
+    assert len(said) == 1 and "'no_oc'" in said[0] and "found no OC of the schedule anywhere" in said[0]
+    assert sum("no OC" in line for line in err.splitlines()) == 1, err
+    _, rows = _read(out)
+    held = [float(r["nB"]) for r in rows if r["outside"] == "no_oc"]
+    assert len(held) >= 200 * 40 and all(abs(v - 1500.0) <= 0.25 * 0.02 * 1500.0 for v in held)
+    assert {r["outside"] for r in rows if float(r["nB"]) == 1500.0} == {"no_oc"}
+    ramp = [r for r in rows if 100.0 < float(r["nB"]) < 1400.0]
+    assert ramp and all(r["outside"] == "" for r in ramp)
+    assert not any(r["yB"] for r in rows)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("t,nB\n0,0\n10,3900\n20,-3900\n", "line 4: nB -3900 rpm is negative"),
+    ("t,nB\n0,0\n10,nan\n", "line 3: nB is nan"),
+    ("t,nB\n0,0\n10,inf\n", "line 3: nB is inf"),
+])
+def test_a_negative_or_non_finite_speed_is_one_line_exit_2_and_no_output(model, tmp_path, capsys, text,
+                                                                          message):
+    prof = tmp_path / "bad.csv"
+    prof.write_text(text)
+    out = tmp_path / "bad.out.csv"
+    assert main(["predict", "--model", str(model), "--profile", str(prof), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ordervib predict: profile ") and message in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("bad, word", [(-3900.0, "negative"), (np.nan, "not a finite number"),
+                                       (np.inf, "not a finite number")])
+def test_the_library_refuses_a_negative_or_non_finite_planned_speed(model, bad, word):
+    bundle = load_model(model)
+    plan = Profile(np.array([0.0, 10.0, 20.0]), np.array([[0.0], [3900.0], [bad]]), ("nB",), "nB")
+    with pytest.raises(OrdervibError, match=word):
+        predict_profile(bundle, plan)
+
+
+def test_marks_leave_ramps_and_an_oc_plateau_found_late_alone():
+    """Synthetic: a plateau whose OC the node finds after a few samples is not marked; one in no
+    OC is; ramps are not; a speed above the range is 'beyond' whatever the OC."""
+    from node.training.prediction_reach import BEYOND, NO_OC, SpeedRange, plan_marks
+
+    ramp = np.linspace(0.0, 3000.0, 200)
+    speed = np.r_[ramp, np.full(400, 3000.0), np.linspace(3000.0, 1500.0, 100), np.full(400, 1500.0),
+                  np.full(300, 12000.0)]
+    oc = np.full(speed.size, -1)
+    oc[210:600] = 0  # the OC at 3,000 rpm, found 10 samples into its plateau
+    oc[1100:] = 1  # an OC in force while the speed is beyond the range
+    marks = plan_marks(speed, oc, np.zeros(speed.size, int), SpeedRange(0.0, 10000.0, "test"), 0.02, 300.0,
+                       5.0)
+    assert (marks[:699] == 0).all()  # (sample 699: the ramp reaches 1,500 rpm, the plateau)
+    assert (marks[700:1100][speed[700:1100] == 1500.0] == NO_OC).all()
+    assert (marks[1100:] == BEYOND).all()

@@ -11,8 +11,9 @@ from node.contract import FS
 from node.models.kinds import model_from_arrays
 from node.models.ocmodel import Trajectory
 from node.models.prom import ParametricOCModel
+from node.training.ocdata import OCData
 from node.training.runs import Run
-from node.training.train import CURVE_CANDIDATES, PROM_CANDIDATES, OCData, train_oc
+from node.training.train import CURVE_CANDIDATES, PROM_CANDIDATES, train_oc
 
 HIST = 100  # samples of past before each OC
 

@@ -132,3 +132,28 @@ def test_missing_input_and_same_output(tmp_path: Path, capsys, broken) -> None:
     assert main(["recover", str(crashed), "--out", str(crashed)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "no such recording" in err[0] and "differ" in err[1]
+
+
+def test_the_span_is_the_beds_data_and_a_node_clock_topic_is_named_apart(tmp_path: Path, capsys) -> None:
+    """An older node recorded its own health on its clock, months after the replayed data: the
+    span printed is the data's (10 s), the other topic's range named apart. Before: "span
+    28265395.956 s" on the demo's recording."""
+    src = tmp_path / "old.mcap"
+    wall = T0 + 200 * 86400.0  # the node's clock: 200 days later
+    with RecordingWriter(str(src)) as w:
+        for i in range(401):
+            t = T0 + i / 40
+            w.write(sensor_key("bed1", "nB"), t, orjson.dumps({"t": t, "v": 1.0}), log_time_ns(t))
+        w.write("ordervib/node/n1/health", wall, orjson.dumps({"t": wall, "wall": wall}), log_time_ns(wall))
+    assert main(["recover", str(src), "--out", str(tmp_path / "r.mcap")]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "span 10.000 s from 2026-01-05 08:00:00 UTC (the beds' data; other topics from" in first
+    assert "2026-07-24" in first and "outside it" in first
+    with RecordingWriter(str(src)) as w:  # the node's health within the data: no word about it
+        for i in range(41):
+            t = T0 + i / 40
+            w.write(sensor_key("bed1", "nB"), t, orjson.dumps({"t": t, "v": 1.0}), log_time_ns(t))
+        w.write("ordervib/node/n1/health", T0 + 0.5, orjson.dumps({"t": T0 + 0.5}), log_time_ns(T0 + 0.5))
+    assert main(["recover", str(src), "--out", str(tmp_path / "s.mcap")]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "span 1.000 s from" in first and "outside" not in first

@@ -19,9 +19,10 @@ from node.contract import OrdervibError
 from node.models.bundle import load_bundle, save_bundle
 from node.models.settle import SettleAnchor
 from node.training.evaluation import predict_segments
+from node.training.ocdata import OCData
 from node.training.plateau_fit import choose_settle, fit_settle
 from node.training.runs import read_runs
-from node.training.train import CURVE_CANDIDATES, OCData, train_oc
+from node.training.train import CURVE_CANDIDATES, train_oc
 
 AT, WINDOW = settle_mod.AT, settle_mod.WINDOW
 

@@ -195,7 +195,8 @@ def test_fold_rankings_from_shared_segment_terms_equal_ranking_each_fold_afresh(
     """Leave-one-run-out CV ranks the inputs of every fold from per-segment MS-DPCCA terms
     computed once: each fold's scores equal rank_inputs over its own segments to the last bit."""
     from node.training.features import rank_inputs
-    from node.training.train import OCData, _choose_inputs, _ranking_terms
+    from node.training.ocdata import OCData
+    from node.training.train import _ranking_terms, select_inputs
 
     rng = np.random.default_rng(4)
     d = OCData("OC1", "yB", ["nB", "tF", "tI", "hist_energy"], [], [], [], [], switch="nB",
@@ -214,7 +215,7 @@ def test_fold_rankings_from_shared_segment_terms_equal_ranking_each_fold_afresh(
         rows = [i for i in range(6) if i != f]
         segs = [np.column_stack([d.y[i], d.X[i][:, [0, 1, 2]]])[d.start[i]:] for i in rows]  # (as training)
         want = rank_inputs(segs, 0)[1:]
-        got = _choose_inputs(d, rows, None, 2, terms)[1]
+        got = select_inputs(d, rows, None, 2, terms)[1]
         order = np.argsort(-want)
         assert [c for c, _ in got] == [d.candidates[j] for j in order]  # never the unranked one
         np.testing.assert_array_equal([s for _, s in got], want[order])

@@ -241,6 +241,14 @@ def test_an_old_bundle_without_fleet_transients_loads_and_says_no_model(fleet_ca
         load_model(old)
 
 
+def test_train_estimates_the_trackers_lag_from_the_runs(fleet_case: Path) -> None:
+    """Without ``--tracker-s`` the lag is estimated from the training runs' resonance crossings
+    (the simulator's tracker lags 1 s; the truth is never read) and kept with how it was found."""
+    settings = load_model(fleet_case / "m")["yB"].transients.settings  # type: ignore[union-attr]
+    assert settings.tracker_from == "estimated" and settings.tracker_crossings >= 3
+    assert settings.tracker_s == pytest.approx(1.0, rel=0.2) and settings.tracker_spread < 0.5
+
+
 def test_train_refuses_transient_as_a_target_in_one_line(fleet_case: Path, tmp_path: Path,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
     d = fleet_case
@@ -260,9 +268,11 @@ def test_train_undoes_the_trackers_lag_it_is_told(fleet_case: Path, tmp_path: Pa
     common = [str(d / "train.mcap"), "--schedule", str(d / "ramps.toml"), "--target", "yB", "--method",
               "lasso", "--inputs", "nB", "--quiet", "--workers", "1"]
     assert main(["train", *common, "--out", str(tmp_path / "lag"), "--tracker-s", "1"]) == 0
-    plain, undone = (load_model(p)["yB"].transients for p in (d / "m", tmp_path / "lag"))
+    assert main(["train", *common, "--out", str(tmp_path / "plain"), "--tracker-s", "0"]) == 0
+    plain, undone = (load_model(p)["yB"].transients for p in (tmp_path / "plain", tmp_path / "lag"))
     assert plain is not None and undone is not None
     assert plain.settings.tracker_s == 0.0 and undone.settings.tracker_s == 1.0
+    assert (plain.settings.tracker_from, undone.settings.tracker_from) == ("none", "given")
     truth = json.loads((d / "train.truth.json").read_text())
     # the simulator's crossings: direction (+1 up, -1 down) -> mode -> critical speeds, rpm
     crossed: dict[int, defaultdict[int, list[float]]] = {+1: defaultdict(list), -1: defaultdict(list)}

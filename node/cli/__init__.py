@@ -16,6 +16,7 @@ import sys
 import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import NoReturn
 
 from node import __version__
 from node.cli.logs import LEVELS, command_logging
@@ -41,10 +42,67 @@ COMMAND_MODULES: tuple[str, ...] = (
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports a bad option in one line and exits with status 2."""
+    """argparse that reports a bad option in one line, under its own name (``ordervib`` or
+    ``ordervib <sub-command>``), and exits with status 2."""
 
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"ordervib: error: {message}\n")
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+class _Refused(Exception):
+    """A sub-command's parse failed (raised by ``_CommandParser.error`` while it looks)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+
+class _CommandParser(_Parser):
+    """A sub-command's parser: an argument it does not know is named under its own prefix.
+
+    Plain argparse leaves the arguments a sub-parser does not know to the top parser, which
+    reports them under ``ordervib:``, and only after the sub-parser has reported the required
+    arguments missing (an unknown flag before a required one reads as "required"). Here the
+    sub-parser takes all of its arguments: any left over is an error of its own, named first.
+    """
+
+    _looking = False
+
+    def error(self, message: str) -> NoReturn:
+        if self._looking:
+            raise _Refused(message)
+        super().error(message)
+
+    def parse_known_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                         namespace: argparse.Namespace | None = None
+                         ) -> tuple[argparse.Namespace, list[str]]:
+        self._looking = True
+        try:
+            ns, extras = super().parse_known_args(args, namespace)
+            refused = None
+        except _Refused as exc:
+            ns, extras, refused = argparse.Namespace(), self._unknown(args), exc.message
+        finally:
+            self._looking = False
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        if refused is not None:
+            self.error(refused)
+        return ns, []
+
+    def _unknown(self, args: Sequence[str] | None) -> list[str]:
+        """The arguments of ``args`` this parser does not know, found with no argument required
+        (a parse that failed for another reason: none)."""
+        required = [(a, a.required) for a in self._actions]
+        try:
+            for a, _ in required:
+                a.required = False
+            return super().parse_known_args(args, argparse.Namespace())[1]
+        except _Refused:
+            return []
+        finally:
+            for a, was in required:
+                a.required = was
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,9 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     log_help = "status shown on stderr (default info; a command's --quiet means warning)"
     parser.add_argument("--log-level", choices=tuple(LEVELS), default=None, help=log_help)
     # the same option after the sub-command; SUPPRESS: absent there, it keeps the value given before
-    common = _Parser(add_help=False)
+    common = _CommandParser(add_help=False)
     common.add_argument("--log-level", choices=tuple(LEVELS), default=argparse.SUPPRESS, help=log_help)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_CommandParser)
     for mod_name in COMMAND_MODULES:
         try:
             mod = importlib.import_module(mod_name)

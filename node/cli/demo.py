@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
             if cli(["simulate", *argv, *SIM, "--out", str(path)]) != 0:
                 return 2
     model = out / "model"
-    if args.retrain or not _trained_on(model, rec_train):
+    if args.retrain or not _trained_on(model, rec_train, args.method):
         log.info("[2/5] training %s on %s (%d runs) ...", args.method, rec_train.name, TRAIN_RUNS)
         if cli(["train", str(rec_train), "--schedule", str(schedule), "--out", str(model),
                 "--method", args.method]) != 0:
@@ -119,16 +119,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _trained_on(model: Path, recording: Path) -> bool:
-    """Whether ``model`` is a bundle trained on exactly ``recording`` (by its sha256)."""
-    import json
+def _trained_on(model: Path, recording: Path, method: str) -> bool:
+    """Whether ``model`` is a model of ``method`` trained on exactly ``recording`` (``trained_on``);
+    false when it is not there or not a model."""
+    from node.contract.errors import OrdervibError
+    from node.models.bundle import load_model
+    from node.training.provenance import trained_on
 
-    from node.models.bundle import sha256_file
     try:
-        recs = json.loads((model / "manifest.json").read_text())["training"]["recordings"]
-    except (OSError, ValueError, KeyError, TypeError):
+        found = load_model(model)
+    except OrdervibError:
         return False
-    return [r.get("sha256") for r in recs] == [sha256_file(recording)]
+    return all(b.method == method for b in found.bundles) and trained_on(found, [recording])
 
 
 def fault_summary(episodes: list[dict], truth_path: Path) -> str:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from node.cli.outputs import check_output, replacing
-from node.console.table import print_table
+from node.cli.results import Results, add_json_option
 from node.contract import OrdervibError
 
 if TYPE_CHECKING:
@@ -37,6 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--png", default=None, metavar="OUT.png",
                    help="plot of predicted against measured per OC (default MODEL/evaluation.png)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_json_option(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -55,17 +56,22 @@ def run(args: argparse.Namespace) -> int:
         check_output(str(path), "--png", suffix=".png", inputs=[args.model, *args.recordings])
     runs, recordings, source = read_sourced(args.recordings, args.quiet)
     kinds = run_provenance(model, runs, [recordings[i]["sha256"] for i in source])
+    out = Results(args.json)
     for line in _provenance_lines(kinds, source, [r["path"] for r in recordings]):
-        print(line)
+        out.line(line)
     preds = []
     for bundle in model.bundles:
         if several:
-            print(f"target {bundle.target}:")
-        preds.append(_tables(bundle, runs, kinds))
-    print(f"{node_alarms(args.recordings, model).line()} (over {_counts(kinds)} run(s))")
+            out.line(f"target {bundle.target}:")
+        preds.append(_tables(bundle, runs, kinds, out))
+    alarms = node_alarms(args.recordings, model)
+    out.line(f"{alarms.line()} (over {_counts(kinds)} run(s))", "false_alarms", alarms.line())
+    plots = []
     for bundle, mine, path in zip(model.bundles, preds, pngs):
         if _plot(bundle, mine, path):
-            print(f"plot written to {path}")
+            plots.append(str(path))
+            out.line(f"plot written to {path}", "plots", plots)
+    out.done()
     return 0
 
 
@@ -97,9 +103,9 @@ def _provenance_lines(kinds: list[str], source: list[int], paths: list[str]) -> 
     return lines
 
 
-def _tables(bundle: Bundle, runs: list[Run], kinds: list[str]) -> list[SegmentPrediction]:
-    """Print one target's per-OC table of each provenance present (held-out first); all runs'
-    predictions (predicted together, in time order, as the node runs them)."""
+def _tables(bundle: Bundle, runs: list[Run], kinds: list[str], out: Results) -> list[SegmentPrediction]:
+    """Put one target's per-OC table of each provenance present (held-out first) in ``out``;
+    all runs' predictions (predicted together, in time order, as the node runs them)."""
     from node.training.evaluation import predict_segments
     from node.training.provenance import IN_SAMPLE, PROVENANCES, TABLE_WORDS
 
@@ -107,14 +113,17 @@ def _tables(bundle: Bundle, runs: list[Run], kinds: list[str]) -> list[SegmentPr
                              bundle.config)
     for kind in (k for k in PROVENANCES if k in kinds):
         among = " (among the model's training runs)" if kind == IN_SAMPLE else ""
-        print(f"{TABLE_WORDS[kind]} runs: {kinds.count(kind)} of {len(kinds)}{among}")
-        _table(bundle, runs, [p for p in preds if kinds[p.run] == kind], TABLE_WORDS[kind])
+        out.line(f"{TABLE_WORDS[kind]} runs: {kinds.count(kind)} of {len(kinds)}{among}")
+        _table(bundle, runs, [p for p in preds if kinds[p.run] == kind], TABLE_WORDS[kind], out,
+               f"{bundle.target} {TABLE_WORDS[kind]}")
     return preds
 
 
-def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word: str) -> None:
-    """Print the per-OC table of one target's bundle over the predictions ``preds`` of some of
-    ``runs``, their eps_td named ``word`` (e.g. held-out), and its mean line."""
+def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word: str, out: Results,
+           key: str) -> None:
+    """The per-OC table of one target's bundle over the predictions ``preds`` of some of
+    ``runs``, their eps_td named ``word`` (e.g. held-out), and its mean line, in ``out`` (as
+    JSON: under ``key``)."""
     from node.training.evaluation import coverage, curve_eps, score_segments, start_evaluation
 
     evals = score_segments(bundle.ocs, bundle.schedule, preds)
@@ -133,27 +142,34 @@ def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word
         if np.isfinite(e.eps):
             hold.append(e.eps)
             base.append(b)
-    print_table(header, rows)
+    out.table(key, header, rows)
     if hold:
-        print(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} segments, every sample scored (one "
-              f"without a prediction a miss) (characteristic-curve baseline {np.nanmean(base):.3f})")
+        out.line(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} segments, every sample scored "
+                 f"(one without a prediction a miss) (characteristic-curve baseline {np.nanmean(base):.3f})",
+                 f"{key} mean eps_td",
+                 {"eps_td": float(np.mean(hold)), "ocs": len(hold), "baseline": float(np.nanmean(base))})
     start = start_evaluation(bundle.ocs, bundle.schedule, preds)
     if start is not None:
         res = bundle.oc(start.name)
         cv = res.cv_eps if res else float("nan")
-        print(f"of {bundle.schedule.names[0]}, its start until the speed leaves the speed it held (model "
-              f"{start.name}): {res.kind if res else '-'}, {word} eps_td {_f(start.eps)}, coverage "
-              f"{_share(start.predicted, start.samples)}, CV eps_td {_f(cv)}")
+        out.line(f"of {bundle.schedule.names[0]}, its start until the speed leaves the speed it held (model "
+                 f"{start.name}): {res.kind if res else '-'}, {word} eps_td {_f(start.eps)}, coverage "
+                 f"{_share(start.predicted, start.samples)}, CV eps_td {_f(cv)}", f"{key} start",
+                 {"model": start.name, "eps_td": start.eps, "coverage": start.coverage, "cv_eps_td": cv})
     covered, total = coverage(runs, bundle.schedule, preds, bundle.config)
     if total:
-        print(f"coverage light-off to standstill: {_share(covered, total)} of {total} samples predicted")
+        out.line(f"coverage light-off to standstill: {_share(covered, total)} of {total} samples predicted",
+                 f"{key} coverage", {"predicted": covered, "samples": total})
     outside, samples = sum(e.outside for e in evals), sum(e.predicted for e in evals)
     if samples:
-        print(f"outside the training runs' envelope: {_share(outside, samples)} of {samples} modelled "
-              f"samples (predicted with the inputs held at its edge, the band widened)")
         guarded = sum(e.guarded for e in evals)
-        print(f"on the characteristic curve: {_share(guarded, samples)} of the modelled samples (the "
-              f"curve guard: where, so far in the OC, the model erred more than the curve)")
+        counts = {"modelled": samples, "outside": outside, "on_the_curve": guarded}
+        out.line(f"outside the training runs' envelope: {_share(outside, samples)} of {samples} modelled "
+                 f"samples (predicted with the inputs held at its edge, the band widened)",
+                 f"{key} samples", counts)
+        out.line(f"on the characteristic curve: {_share(guarded, samples)} of the modelled samples (the "
+                 f"curve guard: where, so far in the OC, the model erred more than the curve)",
+                 f"{key} samples", counts)
 
 
 def _share(part: int, whole: int) -> str:

@@ -3,7 +3,8 @@ recording, as its map says (``docs/import.md``; the work is ``node.ingest``).
 
 The map, the file and the output name are checked first, then every mapped channel is read
 and checked; only then is the output written, under a temporary name renamed at the end. An
-existing output is never replaced unless ``--force``.
+existing output is never replaced unless ``--force``. A cut file or a short channel is an
+error unless ``--allow-partial``. The summary (stdout) is ``node.ingest.summary_lines``.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import time
 
 from node.cli.logs import Progress
 from node.cli.outputs import check_output, replacing
-from node.ingest import import_file, read_map_and_source
+from node.ingest import import_file, read_map_and_source, summary_lines
 from node.ingest.mapping import FORMATS
 
 log = logging.getLogger(__name__)
@@ -32,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", choices=FORMATS, default=None,
                    help="the file's format (default: the map's format, else the file's suffix)")
     p.add_argument("--force", action="store_true", help="replace an existing --out")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="import a file that ends early, or a channel shorter than the others, with "
+                        "the gap counted in the summary and the recording's metadata (default: an error)")
     p.add_argument("--quiet", action="store_true", help="print nothing on success, no progress")
 
 
@@ -41,12 +45,9 @@ def run(args: argparse.Namespace) -> int:
                  force=args.force)
     start = time.perf_counter()
     with replacing(args.out, overwrite=args.force) as part:
-        report = import_file(args.file, imap, fmt, part, Progress(NAME, log))
+        report = import_file(args.file, imap, fmt, part, Progress(NAME, log),
+                             allow_partial=args.allow_partial)
     if not args.quiet:
-        span = (report.last or 0.0) - (report.first or 0.0)
-        print(f"import: {args.file} ({fmt}) -> {args.out}: {report.messages} messages on "
-              f"{len(report.samples)} channels of bed {imap.bed}, {span:.1f} s in {report.stretches} "
-              f"stretch(es) apart by 60 s or more, in {time.perf_counter() - start:.1f} s")
-        for name, n in report.samples.items():
-            print(f"  {n:9d}  {name}" + (f"  ({report.nulls[name]} null)" if report.nulls[name] else ""))
+        for line in summary_lines(args.file, args.out, imap.bed, report, time.perf_counter() - start):
+            print(line)
     return 0

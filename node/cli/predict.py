@@ -10,15 +10,17 @@ import os
 from typing import TYPE_CHECKING
 
 from node.cli.outputs import check_output, replacing
+from node.cli.results import Results, add_json_option
 from node.contract.errors import OrdervibError
 
 if TYPE_CHECKING:
     from node.models.bundle import Model
     from node.runtime.history import EngineState
-    from node.training.prediction import AmplitudeBound, InputFill, IntervalWidths, Prediction, Profile
-    from node.training.runs import Run
+    from node.training.prediction import Prediction, Profile
 
 log = logging.getLogger(__name__)
+
+OUTSIDE_STATUS = 3  # the exit status when the plan leaves what the model knows (rows marked)
 
 NAME = "predict"
 HELP = ("expected order amplitudes for a planned speed profile (CSV, or a schedule's plateaus) "
@@ -61,13 +63,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="what the node is fed as the unmeasured target: the prediction so far (chain, "
                         "default) or nothing (absent: models start from rest)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_json_option(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from node.models.bundle import load_model
     from node.runtime.history import HISTORY_CHANNELS
-    from node.runtime.ocdetect import OCDetector
     from node.training.prediction import predict_profile, stated_history, takes_history
+    from node.training.prediction_setup import prepare_prediction
 
     model = load_model(args.model)
     profile = _profile(args, model)
@@ -92,35 +95,34 @@ def run(args: argparse.Namespace) -> int:
         log.warning("the model takes no engine-history input (%s): the stated history (--shutdown-hours, "
                     "--energy, --engine-state) cannot change its prediction, every history gives the "
                     "same numbers", ", ".join(HISTORY_CHANNELS))
-    training, source = _training_runs(args, model)
-    fill = _fill(args, model, profile, training, source)
-    bound, widths, levels = _limits(model, training, source)
-    runs = profile.runs(OCDetector(model.schedule, model.config).off_level)
-    start = _first_on(runs, model)
+    setup = prepare_prediction(model, args.model, profile, args.train, args.quiet)
     preds = []
     for h in hours:
-        state = stated_history(start, h, args.energy, engine)
+        state = stated_history(setup.start, h, args.energy, engine)
         label = "" if h is None else f"{h:g}"
-        preds.append(predict_profile(model, profile, state, fill, args.seed, label, bound, widths, levels))
-        if not preds[-1].per_oc():
-            log.warning("the node found no OC of the schedule in the profile: nothing is predicted "
-                        "(does it hold each plateau for some seconds, within the schedule's tolerance?)")
+        preds.append(predict_profile(model, profile, state, setup.fill, args.seed, label, setup.bound,
+                                     setup.widths, setup.levels, setup.speeds))
+        stood = f" ({h:g} h stood)" if h is not None else ""
         for line in preds[-1].bound_notes():
-            stood = f" ({h:g} h stood)" if h is not None else ""
             (log.warning if "capped" in line else log.info)("bounds%s: %s", stood, line)
         for line in preds[-1].envelope_notes():
-            stood = f" ({h:g} h stood)" if h is not None else ""
             (log.warning if "OUTSIDE" in line else log.info)("envelope%s: %s", stood, line)
         if not args.quiet:
             log.info("predicted %d samples%s", preds[-1].t.size,
                      f" for {h:g} h stood" if h is not None else "")
-    _write(args, preds)
-    return 0
+    # the marks depend on the plan's speed and OCs alone, the same for every stated history: one line
+    note = preds[0].reach_note()
+    status = OUTSIDE_STATUS if note is not None else 0
+    if note is not None:
+        log.warning("%s; exit status %d", note, status)
+    _write(args, preds, status)
+    return status
 
 
 def _profile(args: argparse.Namespace, model: Model) -> Profile:
     """The planned profile: a schedule's plateaus (.toml) or a CSV (validated, one-line errors)."""
-    from node.training.prediction import read_profile, schedule_profile
+    from node.training.prediction import schedule_profile
+    from node.training.prediction_csv import read_profile
 
     if args.profile.endswith(".toml"):
         from node.contract.schedule import load_schedule
@@ -153,101 +155,13 @@ def _engine(args: argparse.Namespace) -> EngineState | None:
     return next(iter(states.values()))
 
 
-def _training_runs(args: argparse.Namespace, model: Model) -> tuple[list[Run], str]:
-    """The training runs that fill the channels a profile lacks and set the bound and the
-    interval, and what they are: --train's recordings; else the runs the model keeps
-    (``node.training.kept_runs``); else its training recordings, when they are where and as
-    they were; else none (an empty list, and why)."""
-    from node.training.fit import load_runs
-    from node.training.kept_runs import RUNS_META, load_kept_runs
-
-    if args.train:
-        return load_runs(args.train, args.quiet), f"runs of {', '.join(args.train)}"
-    if os.path.isfile(os.path.join(args.model, RUNS_META)):
-        runs = load_kept_runs(args.model)[0]
-        log.info("the model keeps %d training run(s)", len(runs))
-        return runs, "training runs the model keeps"
-    paths = _training_recordings(model)
-    if paths:
-        return load_runs(paths, args.quiet), f"training runs of {', '.join(paths)}"
-    return [], "the model keeps no training runs and its training recordings are not at hand"
-
-
-def _fill(args: argparse.Namespace, model: Model, profile: Profile, runs: list[Run],
-          source: str) -> InputFill | None:
-    """The InputFill of the channels the profile lacks, from the training ``runs``; None when
-    the profile holds every channel the node needs."""
-    from node.runtime.history import SLOW_TEMPERATURES
-    from node.training.prediction import InputFill, needed_channels
-
-    need = needed_channels(model)
-    lacking = [c for c in need if c not in profile.channels]
-    if not lacking:
-        return None
-    if not runs:
-        raise OrdervibError(f"the profile lacks {', '.join(lacking)}, which the model takes: add them as "
-                            "columns, or give --train REC.mcap (recordings of this engine) to fill them from")
-    want = sorted({*lacking, *(c for c in SLOW_TEMPERATURES if c not in profile.channels)})
-    fill = InputFill.fit(runs, model.schedule, want, source)
-    still = [c for c in lacking if c not in fill.channels]
-    if still:
-        raise OrdervibError(f"the profile lacks {', '.join(still)}, which the model takes, and the "
-                            f"{source} do not hold it either")
-    log.info("filled %s from %d %s, at the planned %s in each OC", ", ".join(lacking), len(runs), source,
-             model.schedule.switch)
-    return fill
-
-
-def _limits(model: Model, runs: list[Run], source: str
-            ) -> tuple[AmplitudeBound | None, IntervalWidths | None, InputFill | None]:
-    """The upper bound, the interval's widths and the targets' mean amplitude per OC (for the
-    1x-vector models' mean modulus) from the training ``runs`` (none: no bound above, the
-    interval from the CV residuals alone, the fleet curve; said once)."""
-    from node.training.prediction import AmplitudeBound, InputFill, IntervalWidths
-
-    if not runs:
-        log.warning("%s: the prediction is bounded at 0 only, not above, and its interval is the CV "
-                    "residuals' alone (narrower than a plan's error); give --train REC.mcap", source)
-        return None, None, None
-    bound = AmplitudeBound.fit(runs, model.schedule, model.targets)
-    levels = InputFill.fit(runs, model.schedule, model.targets, source)
-    log.info("interval: the chained prediction of %d %s", len(runs), source)
-    return bound, IntervalWidths.fit(model, runs, bound, levels=levels), levels
-
-
-def _training_recordings(model: Model) -> list[str]:
-    """The model's training recordings, if every one is still there with its sha256."""
-    from node.models.bundle import sha256_file
-
-    recs = model.bundles[0].training.get("recordings") or []
-    paths = []
-    for r in recs:
-        path = r.get("path") if isinstance(r, dict) else None
-        if not path or not os.path.isfile(path) or sha256_file(path) != r.get("sha256"):
-            log.info("the model's training recording %s is not there as it was: not used", path)
-            return []
-        paths.append(path)
-    return paths
-
-
-def _first_on(runs: list[Run], model: Model) -> float:
-    """The time the engine first runs in the profile (s): a stated shutdown ends there."""
+def _write(args: argparse.Namespace, preds: list[Prediction], status: int) -> None:
+    """The CSV, the plots, and the result on stdout: the per-OC table and the files written
+    (--json: with the rows marked outside, per mark, and the exit ``status``)."""
     import numpy as np
 
-    from node.runtime.ocdetect import OCDetector
-
-    on = OCDetector(model.schedule, model.config).off_level
-    speed = runs[0].column(model.schedule.switch)
-    k = np.flatnonzero(speed >= on)
-    return float(runs[0].t[int(k[0]) if k.size else 0])
-
-
-def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
-    """The CSV, the plots, and the per-OC table on stdout."""
-    import numpy as np
-
-    from node.console.table import print_table
-    from node.training.prediction import write_csv
+    from node.training.prediction_csv import write_csv
+    from node.training.prediction_reach import MARK_WORDS
 
     with replacing(args.out) as tmp:
         with open(tmp, "w", newline="") as f:
@@ -260,8 +174,15 @@ def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
         for name, n, means in p.per_oc():
             cells = table.setdefault(name, [name, str(n)])
             cells.extend(f"{v:.3f}" if np.isfinite(v) else "-" for v in means)
-    print_table(header, list(table.values()))
-    print(f"prediction written to {args.out} ({rows} rows)")
+    out = Results(args.json)
+    out.table("ocs", header, list(table.values()))
+    out.line(f"prediction written to {args.out} ({rows} rows)", "out", args.out)
+    marks = np.concatenate([p.marks for p in preds])
+    out.value("rows", rows)
+    out.value("outside", {"rows": int(np.count_nonzero(marks)), "note": preds[0].reach_note(),
+                          **{w: int(np.sum(marks == m)) for m, w in MARK_WORDS.items() if w}})
+    out.value("exit_status", status)
+    plots = []
     if args.png or args.history_png:
         from replay.views.phase_plots import save_png
         from replay.views.prediction_plots import fig_history, fig_prediction
@@ -269,4 +190,6 @@ def _write(args: argparse.Namespace, preds: list[Prediction]) -> None:
             if path:
                 with replacing(path) as tmp:
                     save_png(fig(preds), tmp)
-                print(f"plot written to {path}")
+                plots.append(path)
+                out.line(f"plot written to {path}", "plots", plots)
+    out.done()

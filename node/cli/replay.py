@@ -8,6 +8,7 @@ import math
 from typing import Any
 
 from node.cli.outputs import check_output, replacing
+from node.cli.results import add_json_option, print_json
 from node.contract import FS, bed_of
 from node.contract.errors import OrdervibError
 from node.mcap import warn_unfinished
@@ -45,14 +46,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "node's state file; read only). Default: the recording's first run is a cold start")
     p.add_argument("--quiet", action="store_true",
                    help="no progress on stderr (the result still goes to stdout)")
+    add_json_option(p)
 
 
 def replay_offline(recording: str, model: str, out: str | None, quiet: bool = False,
                    workers: int | None = None, engine_state: str | None = None,
-                   result: bool = False) -> dict[str, Any]:
+                   result: bool = False, as_json: bool = False) -> dict[str, Any]:
     """Feed every sensor message, in file order, through the node's logic; returns a summary.
 
-    quiet: no progress on stderr; result: print the summary (what was replayed and written) on stdout.
+    quiet: no progress on stderr; result: print the summary (what was replayed and written) on
+    stdout; as_json: print it as one JSON object instead (the returned summary with ``out``).
 
     workers: 1 runs the logic in a worker process, 0 in this one; None picks (see replay.offline).
     """
@@ -71,23 +74,35 @@ def replay_offline(recording: str, model: str, out: str | None, quiet: bool = Fa
             r = replay_model_file(recording, model, tmp, workers, engine_state, progress)
     if r.truncated:
         warn_unfinished(log, recording, f"{r.inputs} sensor messages")
+    span = sum(s["samples"] for s in r.beds.values()) / FS
     summary = {"inputs": r.inputs, "published": r.published, "malformed": r.malformed,
                "seconds": r.seconds, "truncated": r.truncated, "workers": r.workers,
-               "alarm_episodes": r.alarm_episodes,
-               "beds": {b: {k: s[k] for k in ("samples", "alarm_samples", "late")}
+               "alarm_episodes": r.alarm_episodes, "span_s": span,
+               "beds": {b: {k: s[k] for k in ("samples", "alarm_samples", "late", "missing")}
                         for b, s in r.beds.items()}}
-    if result:  # the result, on stdout (progress and other status go to stderr)
-        span = sum(s["samples"] for s in r.beds.values()) / FS
+    if as_json:
+        print_json({**summary, "out": out})
+    elif result:  # the result, on stdout (progress and other status go to stderr)
         print(f"replayed {r.inputs} input messages ({span:.0f} s of data) in {r.seconds:.1f} s "
               f"({span / max(r.seconds, 1e-9):.0f}x real time); published {r.published} monitor "
               f"messages; {r.malformed} malformed skipped")
         for b, s in r.beds.items():
             n_ep = sum(1 for e in r.alarm_episodes if bed_of(e["key"]) == b)
             print(f"  {b}: {s['samples']} samples, {s['alarm_samples']} alarm samples in {n_ep} "
-                  f"episode(s), missing {s['missing']}")
+                  f"episode(s), {_missing(s['missing'])}")
         if out:
             print(f"wrote {out}")
     return summary
+
+
+def _missing(counts: dict[str, int]) -> str:
+    """The missing samples per channel in words: "missing nA 1, yB 3", or "none missing".
+
+    >>> _missing({"nA": 1, "nB": 0, "yB": 3}), _missing({"nB": 0})
+    ('missing nA 1, yB 3', 'none missing')
+    """
+    some = [f"{c} {n}" for c, n in sorted(counts.items()) if n]
+    return f"missing {', '.join(some)}" if some else "none missing"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -101,10 +116,12 @@ def run(args: argparse.Namespace) -> int:
         if args.out:
             check_output(args.out, "--out", suffix=".mcap", inputs=[args.recording, args.model])
         replay_offline(args.recording, args.model, args.out, args.quiet, args.workers, args.engine_state,
-                       result=True)
+                       result=True, as_json=args.json)
         return 0
     if args.out:
         raise OrdervibError("--out goes with --model (the node offline), not with --publish")
+    if args.json:
+        raise OrdervibError("--json goes with --model (the node offline's summary), not with --publish")
     if args.engine_state:
         raise OrdervibError("--engine-state goes with --model (the node offline), not with --publish")
     if not args.speed >= 0:

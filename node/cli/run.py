@@ -48,6 +48,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bed-expiry", type=float, default=None, metavar="S",
                    help="free a bed's state after S seconds without a message from it (default 300); "
                         "its last health message says expired, a new message admits it afresh")
+    p.add_argument("--health-silence", type=float, default=None, metavar="S",
+                   help="a bed silent for S seconds (receive time) leaves the health rotation until it "
+                        "sends again; counted in the node's health as silent (default 30, at most 3600). "
+                        "The beds' health goes out 100 a second at most: each bed's once a second up "
+                        "to 100 beds, every ceil(beds / 100) s beyond")
     p.add_argument("--clock-jump", type=float, default=None, metavar="S",
                    help="a sample further than S seconds from its bed's clock is held apart until the "
                         "bed's other channels confirm the jump, else counted as a clock fault (default "
@@ -67,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from node.contract import sensor_subscription
     from node.edges.engine_file import check_engine_file
     from node.edges.zenoh import DEFAULT_ENDPOINT, config_file_endpoints, zenoh_config
+    from node.live.health_rate import HEALTH_SILENCE_MAX_S
     from node.live.node import run_node
     from node.mcap import RecordingWriter, RotatingRecorder
     from node.models.bundle import load_model
@@ -89,8 +95,11 @@ def run(args: argparse.Namespace) -> int:
             raise OrdervibError(f"{option} must be >= 1, got {value}")
     if args.bed_expiry is not None and not args.bed_expiry > 0:  # NaN too
         raise OrdervibError(f"--bed-expiry must be > 0, got {args.bed_expiry}")
+    if args.health_silence is not None and not 0 < args.health_silence <= HEALTH_SILENCE_MAX_S:  # NaN too
+        raise OrdervibError(f"--health-silence must be > 0 and <= {HEALTH_SILENCE_MAX_S:g}, "
+                            f"got {args.health_silence}")
     given = (("max_beds", args.max_beds), ("max_channels", args.max_channels),
-             ("bed_expiry_s", args.bed_expiry))
+             ("bed_expiry_s", args.bed_expiry), ("health_silence_s", args.health_silence))
     limits = {name: value for name, value in given if value is not None}
     clock = clock_policy(args.clock_jump, args.clock_hold)
     listen = args.listen
@@ -108,8 +117,10 @@ def run(args: argparse.Namespace) -> int:
                                   deferred=True, exclusive=not args.force)
     else:
         record = RecordingWriter(args.record, deferred=True, exclusive=not args.force)
-    run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file, args.beds,
-             clock=clock, **limits)
+    s = run_node(bundle, record, listen, args.connect, args.zenoh_config, args.duration, engine_file,
+                 args.beds, clock=clock, **limits)
+    print(f"stopped: {s.received} received, {s.published} published, {s.overflow} dropped; "
+          f"{args.record} finished")  # the result, on stdout
     return 0
 
 

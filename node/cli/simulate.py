@@ -97,6 +97,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="leave out the order phases yA_ph, yB_ph, yC_ph (a test bed without once-per-rev "
         "reference); the other channels are the same either way",
     )
+    p.add_argument(
+        "--tracker",
+        choices=("fixed", "drawn"),
+        default="fixed",
+        help="the vibration unit's order-tracker lag: fixed (1 s, default) or drawn per engine "
+        "in 0.5-2 s from the seed (stated in the truth JSON's rotor.tracker_s)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
@@ -104,7 +111,7 @@ def _simulation(args: argparse.Namespace) -> Simulation:
     return Simulation(runs=args.runs, seed=args.seed, fault=args.fault, fault_seed=args.fault_seed,
                       fault_size=args.fault_size, schedule=args.schedule, noise_scale=args.noise_scale,
                       bed=args.bed, plateau_scale=args.plateau_scale, skip=args.skip,
-                      channels=args.channels, phase=not args.no_phase)
+                      channels=args.channels, phase=not args.no_phase, tracker=args.tracker)
 
 
 def run(args: argparse.Namespace) -> int:

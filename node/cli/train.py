@@ -101,7 +101,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tracker-s", type=float, default=D["tracker_s"], metavar="S",
                    help="the vibration unit's order-tracker lag in seconds (its tracking filter's time "
                         "constant, from its datasheet), undone in the transient analysis: on a ramp the "
-                        "tracked peak trails the critical by the ramp rate times it (default 0: not undone)")
+                        "tracked peak trails the critical by the ramp rate times it (default: estimated from "
+                        "the training runs' resonance crossings and kept in the bundle with how it was "
+                        "found; 0: not undone)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel processes (default: up to 2)")
     p.add_argument("--allow-empty", action="store_true",

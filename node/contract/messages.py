@@ -212,9 +212,12 @@ class HealthMessage(TypedDict):
 
 class NodeHealthMessage(TypedDict):
     """``ordervib/node/<id>/health``: a node's own counters, every bed and none (what it refused
-    or lost before any bed's state); once a second while they change."""
+    or lost before any bed's state); once a second while they change. Recorded on the sensor
+    clock, as a bed's health: ``t`` the beds' latest sensor time, ``wall`` the node's clock."""
 
-    t: Annotated[float, "the node's clock, s since the Unix epoch (no bed's sensor clock)"]
+    t: Annotated[float | None, "the beds' latest sensor time, s: the largest t of the beds tracked now "
+                               "(the last one when none is); null before any sensor time, and then "
+                               "published only, not recorded (a recording keeps one timeline)"]
     wall: Wall
     node: NodeId
     beds: Beds
@@ -226,6 +229,11 @@ class NodeHealthMessage(TypedDict):
     max_beds: Annotated[int, "the bound on tracked beds"]
     max_channels: Annotated[int, "the bound on channels per bed"]
     expired: Annotated[int, "beds freed after a silence so far"]
+    silent: NotRequired[Annotated[int, "beds tracked but out of the health rotation: silent (receive "
+                                       "time) longer than the node's --health-silence"]]
+    health_every_s: NotRequired[Annotated[int, "how often each bed in the rotation has its health now, "
+                                               "s: ceil(beds / 100), the beds' health being 100 a "
+                                               "second at most"]]
     recording: Recording
     unrecorded: Unrecorded
     cpu_us_per_message: Annotated[float | None, "the worker thread's CPU time (time.thread_time) per "
@@ -237,6 +245,10 @@ class NodeHealthMessage(TypedDict):
                                    "message waiting in the node's queue, s; 0 when none waits"]
     clock: Annotated[dict[str, float | None], "the beds' clock guard: max_jump_s (s; null: no guard) "
                                               "and hold_s (s); a replay of the recording guards alike"]
+    connected: NotRequired[Annotated[bool | None, "one of the node's connect endpoints answers (a link "
+                                                  "to it is up); null: it has none (it only listens)"]]
+    routers: NotRequired[Annotated[int, "Zenoh routers the node's session reaches now"]]
+    peers: NotRequired[Annotated[int, "Zenoh peers the node's session reaches now"]]
 
 
 MESSAGE_TYPES: dict[TopicKind, type] = {

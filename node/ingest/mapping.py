@@ -23,6 +23,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 import os
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,8 +37,8 @@ from node.contract import (
     is_name,
     is_phase_channel,
 )
-from node.contract.documents import read_bounded
-from node.ingest.units import conversion, detection_factor
+from node.contract.documents import file_kind, read_bounded
+from node.ingest.units import conversion, detection_factor, same_unit
 
 MAX_MAP_BYTES = 64 * 1024  # a map file is small text
 MAX_SOURCE_CHARS = 256  # a source channel's name (or group/channel path)
@@ -47,10 +48,15 @@ FORMATS = ("mf4", "tdms", "csv")
 CHANNELS: tuple[str, ...] = SENSOR_CHANNELS + PHASE_CHANNELS  # the names a map may write
 TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # seconds per unit
 DEFAULT_MAX_GAP = 1.0  # s: no value is interpolated between source samples further apart
+# what a blank CSV cell means: auto (not sampled in a column that has a value every k-th row,
+# k >= 2, i.e. its own rate; else null), null (a dropout, written null), not-sampled (no sample:
+# the column is resampled from its other rows)
+BLANKS = ("auto", "null", "not-sampled")
 _TOP = {"bed", "format", "time", "channels", "csv"}
 _TIME = {"column", "rate", "start", "unit", "max_gap"}
-_CHANNEL = {"source", "unit", "scale", "offset", "detection", "convention", "group", "max_gap"}
-_CSV = {"delimiter", "decimal", "skip_rows"}
+_CHANNEL = {"source", "unit", "override", "scale", "offset", "detection", "convention", "group",
+            "max_gap", "blank"}
+_CSV = {"delimiter", "decimal", "skip_rows", "blank"}
 
 
 @dataclass(frozen=True)
@@ -77,10 +83,12 @@ class ChannelMap:
     """One contract channel and where it comes from.
 
     source: the channel's name in the file (TDMS: ``channel`` or ``group/channel``); unit: its
-    named unit (None: the file's, else the contract's); scale, offset: contract value =
+    named unit (None: the file's, else the contract's); override: the map's unit wins over
+    another one the file states (else that is an error); scale, offset: contract value =
     source x scale + offset (instead of a unit); detection: an order amplitude's (peak, rms,
     pk-pk); convention: a phase's (lag as the contract, or lead); group: the MDF4 channel
-    group, for a name in several; max_gap: s, this channel's (None: the map's).
+    group, for a name in several; max_gap: s, this channel's (None: the map's); blank: what
+    a blank CSV cell of it means (``BLANKS``; None: the map's ``[csv] blank``).
     """
 
     channel: str
@@ -92,14 +100,32 @@ class ChannelMap:
     convention: str = "lag"
     group: int | None = None
     max_gap: float | None = None
+    override: bool = False
+    blank: str | None = None
+
+    def source_unit(self, file_unit: str | None) -> str | None:
+        """The unit the source's values are in: the map's, else the file's (None: the contract's,
+        or ``scale`` gives the conversion). One-line error when the map names a unit and the file
+        states another (by name: rpm and RPM are one unit) and the map does not say ``override``."""
+        if self.scale is not None:
+            return None
+        file_unit = (file_unit or "").strip() or None
+        if self.unit is None:
+            return file_unit
+        if file_unit is not None and not self.override and not same_unit(self.channel, self.unit, file_unit):
+            raise OrdervibError(f"the map says unit {self.unit!r}, the file says {file_unit!r}: correct "
+                                "the map, or add override = true to its [channels."
+                                f"{self.channel}] if its unit is the right one")
+        return self.unit
 
     def affine(self, file_unit: str | None) -> tuple[float, float]:
         """(scale, offset) from the source's values to the contract's unit; ``file_unit``: the
-        unit the file gives the source (None or "": none). One-line error for an unknown unit."""
+        unit the file gives the source (None or "": none). One-line error for an unknown unit,
+        or for one the file contradicts (``source_unit``)."""
         if self.scale is not None:
             a, b = self.scale, self.offset
         else:
-            unit = self.unit if self.unit is not None else (file_unit or CHANNEL_UNITS[self.channel])
+            unit = self.source_unit(file_unit) or CHANNEL_UNITS[self.channel]
             a, b = conversion(self.channel, unit.strip())
         if self.channel not in PHASE_CHANNELS and self.detection != "peak":
             k = detection_factor(self.channel, self.detection)
@@ -116,23 +142,34 @@ class CsvSpec:
     delimiter: str = ","
     decimal: str = "."
     skip_rows: int = 0
+    blank: str = "auto"
 
 
 @dataclass(frozen=True)
 class ImportMap:
     """A whole import map: the bed written, the source format (None: by the file's suffix), the
-    clock, the channels (contract order) and the CSV layout."""
+    clock, the channels (contract order), the CSV layout and the map's own name (its path, for
+    messages)."""
 
     bed: str
     channels: tuple[ChannelMap, ...]
     format: str | None = None
     time: TimeSpec = field(default_factory=TimeSpec)
     csv: CsvSpec = field(default_factory=CsvSpec)
+    name: str = "map"
 
 
 def load_map(path: str | os.PathLike) -> ImportMap:
     """Read and check MAP.toml (at most 64 KiB); one-line ``OrdervibError`` for a bad one."""
     name = os.fspath(path)
+    try:
+        mode = os.stat(name).st_mode
+    except FileNotFoundError:
+        raise OrdervibError(f"map file not found: {name}") from None
+    except OSError as exc:
+        raise OrdervibError(f"map {name}: cannot be read ({exc.strerror})") from None
+    if stat.S_ISDIR(mode):
+        raise OrdervibError(f"map {name}: is {file_kind(mode)}, not a map file (MAP.toml)")
     try:  # a regular file of at most 64 KiB (a FIFO or a device is refused without waiting)
         raw = read_bounded(name, f"map {name}", MAX_MAP_BYTES)
     except FileNotFoundError:
@@ -233,7 +270,10 @@ def _channel(name: str, d: Any, where: str) -> ChannelMap:
         raise _fail(where, "scale must not be 0")
     detection = _text(d, "detection", where, ("peak", "rms", "pk-pk"))
     if detection is not None:
-        detection_factor(name, detection)  # an order amplitude's only
+        try:  # an order amplitude's only
+            detection_factor(name, detection)
+        except OrdervibError as exc:
+            raise _fail(where, str(exc)) from None
     convention = _text(d, "convention", where, ("lag", "lead"))
     if convention is not None and not is_phase_channel(name):
         raise _fail(where, "convention (lag or lead) is for the phase channels only")
@@ -244,11 +284,20 @@ def _channel(name: str, d: Any, where: str) -> ChannelMap:
     gap = _number(d, "max_gap", where, 0.0, RUN_GAP, open_lo=True)
     if gap is not None and gap >= RUN_GAP:
         raise _fail(where, f"max_gap must be below the contract's run gap of {RUN_GAP:g} s")
+    override = d.get("override", False)
+    if not isinstance(override, bool):
+        raise _fail(where, f"override must be true or false, got {override!r}")
+    if override and unit is None:
+        raise _fail(where, "override (the map's unit over the file's) needs unit")
+    blank = _text(d, "blank", where, BLANKS)
     cm = ChannelMap(channel=name, source=source, unit=unit, scale=scale, offset=offset or 0.0,
                     detection=detection or "peak", convention=convention or "lag", group=group,
-                    max_gap=gap)
+                    max_gap=gap, override=override, blank=blank)
     if unit is not None:
-        cm.affine(None)  # a unit the table does not know: refused with the map, before any file
+        try:  # a unit the table does not know: refused with the map, before any file
+            cm.affine(None)
+        except OrdervibError as exc:
+            raise _fail(where, str(exc)) from None
     return cm
 
 
@@ -263,7 +312,8 @@ def _csv(d: Any, where: str) -> CsvSpec:
     skip = d.get("skip_rows", 0)
     if isinstance(skip, bool) or not isinstance(skip, int) or not 0 <= skip <= MAX_SKIP_ROWS:
         raise _fail(where, f"skip_rows must be an integer in [0, {MAX_SKIP_ROWS}], got {skip!r}")
-    return CsvSpec(delimiter=delimiter, decimal=decimal, skip_rows=skip)
+    return CsvSpec(delimiter=delimiter, decimal=decimal, skip_rows=skip,
+                   blank=_text(d, "blank", where, BLANKS) or "auto")
 
 
 def parse_map(doc: dict[str, Any], name: str = "map") -> ImportMap:
@@ -286,5 +336,7 @@ def parse_map(doc: dict[str, Any], name: str = "map") -> ImportMap:
     channels = tuple(parsed[c] for c in CHANNELS if c in parsed)
     if any(c.group is not None for c in channels) and fmt not in (None, "mf4"):
         raise _fail(name, "group is for MDF4 files only")
+    if any(c.blank is not None for c in channels) and fmt not in (None, "csv"):
+        raise _fail(name, "blank (what an empty cell means) is for CSV files only")
     return ImportMap(bed=bed, channels=channels, format=fmt, time=time,
-                     csv=_csv(doc.get("csv", {}), f"{name}: [csv]"))
+                     csv=_csv(doc.get("csv", {}), f"{name}: [csv]"), name=name)

@@ -1,10 +1,12 @@
 """Reading the mapped channels of a test cell's file: ASAM MDF4, NI TDMS or CSV.
 
 Each reader returns, per contract channel of the map, the source's samples as they are in
-the file (``Series``: times in s since the epoch, raw values, the unit the file gives) and
-nothing else of the file. ``asammdf`` and ``npTDMS`` are imported only when a file of theirs
-is read, so the node runs without them. Every failure (a missing file, another format, a
-channel the file lacks, a broken file) is one ``OrdervibError`` line.
+the file (``Series``: times in s since the epoch, raw values, the unit the file gives, the
+samples the file declares) and whether the file ends before its own structure does
+(``Source.ends_early``: npTDMS's complaint about a cut TDMS file). ``asammdf`` and ``npTDMS``
+are imported only when a file of theirs is read, so the node runs without them. Every failure
+(a missing file, another format, a channel the file lacks, a broken or cut MDF4 file) is one
+``OrdervibError`` line naming the file, or the map for what the map lacks.
 """
 
 from __future__ import annotations
@@ -24,7 +26,10 @@ from typing import Any
 import numpy as np
 
 from node.contract import OrdervibError
+from node.contract.documents import file_kind
+from node.ingest.blanks import column_samples
 from node.ingest.mapping import FORMATS, ChannelMap, ImportMap
+from node.ingest.mdf4_blocks import cut_at
 
 log = logging.getLogger(__name__)
 
@@ -39,11 +44,24 @@ _INSTALL = "pip install 'ordervib[import]'"
 @dataclass(frozen=True)
 class Series:
     """One source channel as the file holds it: t (n,) s since the epoch (absolute), v (n,)
-    float64 raw values (NaN for a dropout), unit the file's unit string (None: none given)."""
+    float64 raw values (NaN for a dropout), unit the file's unit string (None: none given),
+    declared the samples the file's own structure says the channel has (None: it says none),
+    note how its samples were picked (a CSV column's blank cells), "" if as they are."""
 
     t: np.ndarray
     v: np.ndarray
     unit: str | None = None
+    declared: int | None = None
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Source:
+    """What a file gave: the mapped channels' ``Series`` (contract name -> series), and why the
+    file ends before its own structure does (None: it does not, as far as the reader sees)."""
+
+    series: dict[str, Series]
+    ends_early: str | None = None
 
 
 def source_format(path: str, fmt: str | None) -> str:
@@ -56,7 +74,7 @@ def source_format(path: str, fmt: str | None) -> str:
     except OSError as exc:
         raise OrdervibError(f"cannot read {path}: {exc.strerror}") from None
     if not os.path.isfile(path):
-        raise OrdervibError(f"{path} is not a regular file")
+        raise OrdervibError(f"{path}: is {file_kind(st.st_mode)}, not a recording file")
     if st.st_size > MAX_FILE_BYTES:
         raise OrdervibError(f"{path}: {st.st_size} bytes, more than the {MAX_FILE_BYTES >> 30} GiB read")
     if fmt is None:
@@ -78,12 +96,14 @@ def source_format(path: str, fmt: str | None) -> str:
     return fmt
 
 
-def read_source(path: str, fmt: str, imap: ImportMap) -> dict[str, Series]:
-    """Every mapped channel's ``Series`` (contract name -> series), read from ``path``."""
-    readers: dict[str, Callable[[str, ImportMap], dict[str, Series]]] = {
+def read_source(path: str, fmt: str, imap: ImportMap) -> Source:
+    """Every mapped channel's ``Series``, read from ``path``, and whether the file ends early."""
+    readers: dict[str, Callable[[str, ImportMap], Source]] = {
         "mf4": _read_mf4, "tdms": _read_tdms, "csv": _read_csv}
     if fmt != "mf4" and any(cm.group is not None for cm in imap.channels):
-        raise OrdervibError("group (a channel group number) is for MDF4 files only")
+        raise OrdervibError(f"{imap.name}: group (a channel group number) is for MDF4 files only")
+    if fmt != "csv" and any(cm.blank is not None for cm in imap.channels):
+        raise OrdervibError(f"{imap.name}: blank (what an empty cell means) is for CSV files only")
     return readers[fmt](path, imap)
 
 
@@ -123,14 +143,18 @@ def _check_count(n: int, where: str) -> None:
 
 
 # -- ASAM MDF4 (asammdf)
-def _read_mf4(path: str, imap: ImportMap) -> dict[str, Series]:
+def _read_mf4(path: str, imap: ImportMap) -> Source:
     if imap.time.column is not None or imap.time.rate is not None:
-        raise OrdervibError("an MDF4 file carries its own time (each channel group's master): "
-                            "give no [time] column or rate for it")
+        raise OrdervibError(f"{imap.name}: an MDF4 file carries its own time (each channel group's "
+                            "master): give no [time] column or rate for it")
     try:
         from asammdf import MDF
     except ImportError:
         raise OrdervibError(f"reading MDF4 needs asammdf: {_INSTALL}") from None
+    cut = cut_at(path, os.path.getsize(path))
+    if cut is not None:  # asammdf reads no part of it (not even with --allow-partial)
+        raise OrdervibError(f"{path}: not a readable MDF4 file: it ends early, {cut} (no part of a "
+                            "cut MDF4 file can be read)")
     failure = None
     with _quiet_unraisable():  # a half-built MDF object complains from its __del__
         try:
@@ -146,7 +170,7 @@ def _read_mf4(path: str, imap: ImportMap) -> dict[str, Series]:
             out[cm.channel] = _mf4_series(mdf, path, cm, start)
     finally:
         mdf.close()
-    return out
+    return Source(out)
 
 
 def _mf4_start(header: Any, path: str) -> float:
@@ -174,18 +198,19 @@ def _mf4_series(mdf: Any, path: str, cm: ChannelMap, start: float) -> Series:
         groups = ", ".join(str(g) for g, _ in entries)
         raise OrdervibError(f"{where}: in channel groups {groups}: give group in the map")
     group, index = entries[0]
-    _check_count(int(mdf.groups[group].channel_group.cycles_nr), where)
+    declared = int(mdf.groups[group].channel_group.cycles_nr)
+    _check_count(declared, where)
     try:
         sig = mdf.get(cm.source, group=group, index=index)
     except Exception as exc:  # a third-party parser on a broken file raises anything
         raise OrdervibError(f"{where}: unreadable ({_first_line(exc)})") from None
     unit = sig.unit if isinstance(sig.unit, str) else None
     return Series(t=start + np.asarray(sig.timestamps, dtype=np.float64), v=_floats(sig.samples, where),
-                  unit=unit or None)
+                  unit=unit or None, declared=declared)
 
 
 # -- NI TDMS (npTDMS)
-def _read_tdms(path: str, imap: ImportMap) -> dict[str, Series]:
+def _read_tdms(path: str, imap: ImportMap) -> Source:
     try:
         from nptdms import TdmsFile
     except ImportError:
@@ -205,8 +230,8 @@ def _read_tdms(path: str, imap: ImportMap) -> dict[str, Series]:
                 raise OrdervibError(f"{exc} (npTDMS: {said[0]})") from None
             raise
     for text in said:
-        log.warning("%s: npTDMS: %s", path, text)
-    return out
+        log.debug("%s: npTDMS: %s", path, text)
+    return Source(out, ends_early=f"npTDMS: {said[0].split(',')[0]}" if said else None)
 
 
 @contextmanager
@@ -280,7 +305,7 @@ def _tdms_series(f: Any, path: str, cm: ChannelMap, imap: ImportMap) -> Series:
             t = tv * tm.unit + (tm.start or 0.0)
         elif tm.rate is not None:
             if tm.start is None:
-                raise OrdervibError("[time] rate needs start (the time of the first sample)")
+                raise OrdervibError(f"{imap.name}: [time] rate needs start (the time of the first sample)")
             t = tm.start + np.arange(n) / tm.rate
         else:
             props = chan.properties
@@ -305,19 +330,20 @@ def _tdms_series(f: Any, path: str, cm: ChannelMap, imap: ImportMap) -> Series:
 
 
 # -- CSV
-def _read_csv(path: str, imap: ImportMap) -> dict[str, Series]:
+def _read_csv(path: str, imap: ImportMap) -> Source:
     tm = imap.time
     if tm.column is None and tm.rate is None:
-        raise OrdervibError("a CSV file needs [time] column (the time column's name) or rate in the map")
+        raise OrdervibError(f"{imap.name}: a CSV file needs [time] column (the time column's name) or "
+                            "rate in the map")
     if tm.rate is not None and tm.start is None:
-        raise OrdervibError("[time] rate needs start (the time of the first row)")
+        raise OrdervibError(f"{imap.name}: [time] rate needs start (the time of the first row)")
     try:
         raw = open(path, encoding="utf-8-sig", newline="")  # noqa: SIM115
     except OSError as exc:
         raise OrdervibError(f"cannot read {path}: {exc.strerror}") from None
     with raw:
         try:
-            return _csv_columns(raw, path, imap)
+            return Source(_csv_columns(raw, path, imap))
         except UnicodeDecodeError:
             raise OrdervibError(f"{path}: not UTF-8 text") from None
         except csv.Error as exc:
@@ -364,17 +390,29 @@ def _csv_columns(raw: io.TextIOBase, path: str, imap: ImportMap) -> dict[str, Se
     values = {c: _csv_floats(col, spec.decimal, path, names[c]) for c, col in zip(cols, cells, strict=True)}
     n = len(cells[0])
     if tm.column is not None:
-        t = values[index[tm.column]] * tm.unit + (tm.start or 0.0)
+        t = values[index[tm.column]][0] * tm.unit + (tm.start or 0.0)
     else:
         assert tm.rate is not None and tm.start is not None
         t = tm.start + np.arange(n) / tm.rate
-    return {cm.channel: Series(t=t, v=values[index[cm.source]]) for cm in imap.channels}
+    series: dict[str, Series] = {}
+    for cm in imap.channels:
+        v, blank = values[index[cm.source]]
+        picked, note, warn = column_samples(blank, cm.blank or spec.blank)
+        if note:
+            log.log(logging.WARNING if warn else logging.INFO, "%s: column %r (for %s): %s", path,
+                    cm.source, cm.channel, note)
+        if picked is not None:
+            series[cm.channel] = Series(t=t[picked], v=v[picked], note=note)
+        else:
+            series[cm.channel] = Series(t=t, v=v, note="" if warn else note)
+    return series
 
 
-def _csv_floats(col: list[str], decimal: str, path: str, name: str) -> np.ndarray:
-    """One CSV column as float64: an empty cell (or nan) is a dropout; one-line error naming
-    the first cell that is no number."""
+def _csv_floats(col: list[str], decimal: str, path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """One CSV column as float64 (an empty cell, or nan, NaN) and its blank cells (bool); one-line
+    error naming the first cell that is no number."""
     strs = [s.strip() or "nan" for s in col]
+    blank = np.fromiter((not s.strip() for s in col), dtype=bool, count=len(col))
     if decimal == ",":
         strs = [s.replace(",", ".") for s in strs]
     try:
@@ -388,4 +426,4 @@ def _csv_floats(col: list[str], decimal: str, path: str, name: str) -> np.ndarra
                     f"{path}: column {name!r}, data row {i + 1}: {s[:40]!r} is no number") from None
         raise
     v[~np.isfinite(v)] = math.nan
-    return np.asarray(v, dtype=np.float64)
+    return np.asarray(v, dtype=np.float64), blank

@@ -56,6 +56,21 @@ def conversion(channel: str, unit: str) -> tuple[float, float]:
     return table[unit]
 
 
+def same_unit(channel: str, a: str, b: str) -> bool:
+    """Whether two unit names mean one unit for contract channel ``channel``: the same name, or
+    names the table converts alike (rpm, RPM, 1/min). A name the table does not know is only
+    itself.
+
+    >>> same_unit("nB", "rpm", "1/min"), same_unit("nB", "rpm", "rad/s"), same_unit("nB", "U/min", "rpm")
+    (True, False, False)
+    """
+    a, b = a.strip(), b.strip()
+    if a == b:
+        return True
+    table = CONVERSIONS[CHANNEL_UNITS[channel]]
+    return a in table and b in table and table[a] == table[b]
+
+
 def detection_factor(channel: str, detection: str) -> float:
     """The factor from an order amplitude measured as ``detection`` (peak, rms, pk-pk) to peak.
 

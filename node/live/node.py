@@ -9,8 +9,10 @@ publishes and records every output, emits the waiting slots of a bed that fell s
 (``NodeCore.flush_idle``: the alignment wait on the node's clock, ``align_wait_s`` plus
 ``IDLE_MARGIN_NS`` after the bed's last receipt, looked at with the intake empty; replay does
 the same from the recorded receive times), flushes the recording once a second (a
-killed node loses at most the last second) and publishes a health message per
-bed once a second (``HEALTH_PER_PASS`` beds a pass, spread over the second). A transition's
+killed node loses at most the last second) and publishes the beds' health in turn, at most
+``HEALTH_MAX_PER_S`` a second whatever the beds (``node.live.health_rate``: once a second per bed
+up to 100 beds, ``HEALTH_PER_PASS`` beds a pass at most; a bed silent for ``health_silence_s``
+leaves the rotation). A transition's
 analysis (``monitor/transient``) runs in a process of its own at the lowest priority
 (``NodeCore(defer_transients=True)``, ``PendingTransient``, ``node.live.analyses``): its message
 goes out once done, in the order the transitions ended.
@@ -22,9 +24,11 @@ never recorded, never a bed, a topic or an MCAP channel (``NodeCore.route``). A 
 for ``bed_expiry_s`` (receive time) is freed: its waiting samples run, a last health message
 says ``expired: true``. The recording's channel table is bounded too
 (``RecordingWriter.max_channels``): a topic beyond it is refused and counted, the recording
-goes on. What belongs to no bed (refusals, beds tracked and expired, the worker's
-lag) goes to the node's own health, ``ordervib/node/<id>/health``
-(``NodeHealthMessage``), once a second while it changes.
+goes on. What belongs to no bed (refusals, beds tracked, silent and expired, the worker's
+lag, whether the ``connect`` endpoints answer: ``node.edges.reach``) goes to the node's own
+health, ``ordervib/node/<id>/health`` (``NodeHealthMessage``), once a second while it changes; its
+``t`` is the beds' latest sensor time (``sensor_t``), so that the node's recording keeps one
+timeline: before any sensor time it is published with ``t`` null and not recorded.
 
 Failures (docs/deployment.md, "What the node does when things go wrong"):
 
@@ -89,8 +93,10 @@ from node.contract import (
     sensor_subscription,
 )
 from node.edges.engine_file import SAVE_EVERY_S, engine_document, load_engine_states, save_engine_states
+from node.edges.reach import Reach, connect_endpoints
 from node.edges.zenoh import open_session, zenoh_config
 from node.live.analyses import TransientAnalyses
+from node.live.health_rate import HEALTH_MAX_PER_S, HEALTH_SILENCE_MAX_S, HEALTH_SILENCE_S, HealthRotation
 from node.live.intake import FairIntake
 from node.mcap import RecordingWriter
 from node.mcap.rotation import RotatingRecorder
@@ -127,8 +133,8 @@ IDLE_CHECK_S = 0.05  # how often silent beds' waiting slots are looked at, s (No
 # plus this after its last receipt
 IDLE_MARGIN_NS = 250_000_000
 SMALL_LOG = 64  # a batch's input log times in plain Python below this many messages, numpy above
-# Each bed's health goes out once a second, but at most this many a worker pass (a pass every 50 ms
-# at the least): hundreds of beds' health in one pass held every real bed's outputs behind them
+# Beds' health at most this many a worker pass (a pass every 50 ms at the least; and at most
+# HEALTH_MAX_PER_S a second): hundreds of beds' health in one pass held every real bed's outputs behind them
 HEALTH_PER_PASS = 16
 
 
@@ -185,12 +191,17 @@ class LiveNode:
                  connect: list[str] | None = None, config_file: str | None = None,
                  queue_size: int = 1_000_000, engine_file: str | None = None, beds: str = "*",
                  max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
-                 bed_expiry_s: float = BED_EXPIRY_S, clock: ClockPolicy | None = None) -> None:
+                 bed_expiry_s: float = BED_EXPIRY_S, clock: ClockPolicy | None = None,
+                 health_silence_s: float = HEALTH_SILENCE_S) -> None:
         self.subscription = sensor_subscription(beds)  # ValueError for a bad pattern, before any I/O
         if not bed_expiry_s > 0:
             raise ValueError(f"bed_expiry_s must be > 0, got {bed_expiry_s}")
+        if not 0 < health_silence_s <= HEALTH_SILENCE_MAX_S:  # NaN too
+            raise ValueError(f"health_silence_s must be in (0, {HEALTH_SILENCE_MAX_S:g}], "
+                             f"got {health_silence_s}")
         self.beds = beds  # the beds this node serves (a key-expression chunk, see sensor_subscription)
         self.bed_expiry_s = bed_expiry_s
+        self.health_silence_s = health_silence_s  # a bed silent this long leaves the health rotation, s
         self.engine_file = engine_file  # each bed's engine history (node.edges.engine_file)
         self.core = NodeCore(bundle, load_engine_states(engine_file) if engine_file else None,
                              beds=beds, max_beds=max_beds, max_channels=max_channels, clock=clock,
@@ -200,6 +211,7 @@ class LiveNode:
         self._engine_next = 0.0  # monotonic time of the next save
         self.writer = RecordingWriter(record) if isinstance(record, str) else record
         self.conf = zenoh_config(listen, connect, config_file)
+        self.reach = Reach(connect_endpoints(self.conf), time.monotonic())  # restarted by start()
         # each sample stamped by the session's clock as it arrives (Zenoh's HLC, in its receive
         # path): the receive time, though the worker takes it later from the intake
         self.conf.insert_json5("timestamping/enabled", '{"router": true, "peer": true, "client": true}')
@@ -224,7 +236,10 @@ class LiveNode:
         self._gc_start = 0.0
         self._cpu_mark = (0.0, 0)  # the worker's thread CPU time (s) and messages taken at its last tick
         self._cpu_us: float | None = None  # worker CPU per message over the last interval with any, us
-        self._health_due: deque[str] = deque()  # beds whose health of this second is still to go out
+        self._rotation = HealthRotation(HEALTH_MAX_PER_S)  # beds whose health is still to go out, the rate
+        self._silent = 0  # beds tracked but out of the rotation (silent for health_silence_s)
+        self._in_rotation = 0  # beds in the rotation at the last tick
+        self.sensor_t: float | None = None  # the beds' latest sensor time, s (node health's t)
 
     @property
     def recording(self) -> bool:
@@ -243,6 +258,7 @@ class LiveNode:
         import zenoh
         # see the module: never BLOCK on a subscriber
         self.attach(open_session(self.conf), zenoh.Encoding.APPLICATION_JSON, zenoh.CongestionControl.DROP)
+        self.reach = Reach(self.reach.endpoints, time.monotonic())
         self.token = self.session.liveliness().declare_token(liveliness_key(str(self.session.zid())))
         quiet_gc()  # set up: what lives on is frozen before the first message
         intake: Any = zenoh.handlers.FifoChannel(self.queue_size)  # full: Zenoh holds the links back
@@ -302,7 +318,8 @@ class LiveNode:
 
     def _send(self, outs: Sequence[tuple[str, dict | Any]]) -> list[Row]:
         """Publish (key, message) outputs in turn; their rows for the recording, each stamped
-        with its publish time (``_record_many``'s rows).
+        with its publish time (``_record_many``'s rows); a message whose ``t`` is None (the node's
+        health before any sensor time) has none: the recording keeps the sensor clock's timeline.
 
         Each goes by ``Session.put``: no publisher is declared per key. Every key a session
         declares is a node of Zenoh's key tree, which its receive threads walk for each message on
@@ -321,9 +338,11 @@ class LiveNode:
             # waits at most Zenoh's wait_before_drop for a congested subscriber
             put_key(key, data, encoding=enc, congestion_control=congestion)
             put += clock() - t0
-            rows.append((key, log_ns(msg["t"]), wall(), data))
+            t = msg["t"]
+            if t is not None:  # (the node's health before any sensor time: published, not recorded)
+                rows.append((key, log_ns(t), wall(), data))
         self._spent["put"] += put
-        self.stats.published += len(rows)
+        self.stats.published += len(outs)
         return rows
 
     def _drain(self) -> list[tuple[str, bytes, int]]:
@@ -428,7 +447,7 @@ class LiveNode:
                 batch = self._drain()
                 if batch:
                     self.handle_batch(batch)
-                if self._health_due:
+                if self._rotation.due:
                     self._publish_health(HEALTH_PER_PASS)
                 self._publish_analysed()
                 if time.monotonic() >= next_idle:
@@ -444,7 +463,7 @@ class LiveNode:
                     rest = took - spent["core"] - spent["put"] - spent["flush"]
                     log.warning("worker stalled %.2f s over %d messages (%s, recording and rest %.2f s)",
                                 took, len(batch), ", ".join(f"{k} {v:.2f} s" for k, v in spent.items()), rest)
-            self._publish_health(len(self._health_due))  # this second's last ones
+            self._publish_health(len(self._rotation.due))  # this rotation's last ones, within the rate
             self._publish_analysed(wait=True)  # every transition before the stream's end first
             self.publish(self.core.finish())
             self._publish_analysed(wait=True)  # the runs' last ones
@@ -494,16 +513,20 @@ class LiveNode:
         return str(session.zid()) if session is not None else ""
 
     def node_health(self, wall: float) -> NodeHealthMessage:
-        """The node's own health: what belongs to no bed (``NodeHealthMessage``)."""
+        """The node's own health: what belongs to no bed (``NodeHealthMessage``); ``t`` the beds'
+        latest sensor time (``sensor_t``, None before any), ``wall`` the node's clock."""
         refused = {r.value: self.core.refused[r.value] for r in Refused}
         refused[Refused.RECORDING.value] = self.writer.refused
-        return {"t": wall, "wall": wall, "node": self.node_id, "beds": self.beds,
+        reach = self.reach
+        return {"t": self.sensor_t, "wall": wall, "node": self.node_id, "beds": self.beds,
                 "received": self.stats.received, "dropped": self.stats.overflow, "refused": refused,
                 "tracked": len(self.core.beds), "max_beds": self.core.max_beds,
                 "max_channels": self.core.max_channels, "expired": self.stats.expired,
+                "silent": self._silent, "health_every_s": self._rotation.period_s(self._in_rotation),
                 "recording": self.recording, "unrecorded": self.unrecorded,
                 "cpu_us_per_message": self._cpu_us, "worker_lag_s": self._worker_lag(),
-                "clock": self.core.clock.settings()}
+                "clock": self.core.clock.settings(), "connected": reach.connected,
+                "routers": reach.routers, "peers": reach.peers}
 
     def _worker_lag(self) -> float:
         """How long ago the worker last found the intake empty, s: at least the wait of any message
@@ -522,20 +545,22 @@ class LiveNode:
             self._cpu_us = round((cpu - last_cpu) / (taken - last_taken) * 1e6, 1)
 
     def _tick(self) -> None:
-        """Once a second: silent beds expired, each bed's health message, the node's own when it
-        changed, and the recording flushed."""
+        """Once a second: silent beds expired, the beds' health in turn (``node.live.health_rate``),
+        the node's own when it changed, and the recording flushed."""
         self._measure_cpu()
         wall = time.time()
         self._expire(wall)
-        self._publish_health(len(self._health_due))  # the last second's not yet out: now
-        self._health_due.extend(bed for bed, state in self.core.beds.items()
-                                if state.latest_t is not None)  # (a bed of malformed messages has no time)
+        self._publish_health(len(self._rotation.due))  # the rotation's left-overs first, within the rate
+        self._rotate()
         self._publish_health(HEALTH_PER_PASS)
+        info = getattr(getattr(self, "session", None), "info", None)  # (a stand-in session has none)
+        if info is not None:
+            self.reach.check(info, time.monotonic())
         node = self.node_health(wall)
         counters = {k: v for k, v in node.items() if k not in ("t", "wall")}
         if counters != self._node_health:
             self._node_health = counters
-            self._publish(node_health_key(node["node"]), node)
+            self._publish(node_health_key(node["node"]), node)  # (no sensor time yet: not recorded)
         t0 = time.perf_counter()
         self._flush()
         if time.monotonic() >= self._engine_next:
@@ -559,23 +584,46 @@ class LiveNode:
         if outs:
             self.publish(outs)
 
+    def _rotate(self) -> None:
+        """At a tick: the beds' latest sensor time, the beds out of the health rotation (silent
+        for ``health_silence_s``) counted, and, the last rotation done, the next one queued: each
+        bed with a sensor time heard from within the silence (a bed of malformed messages has
+        no time)."""
+        timed = [(bed, state.latest_t) for bed, state in self.core.beds.items() if state.latest_t is not None]
+        if timed:
+            self.sensor_t = max(t for _, t in timed)
+        now, silence, last = time.time_ns(), int(self.health_silence_s * 1e9), self._last_recv
+        rotation = [bed for bed, _ in timed if now - last.get(bed, now) <= silence]
+        self._silent = len(timed) - len(rotation)
+        self._in_rotation = len(rotation)
+        self._rotation.refill(rotation)
+
     def _publish_health(self, n: int) -> None:
-        """The health of the next ``n`` beds due this second (``_tick``), each still tracked."""
-        due, beds = self._health_due, self.core.beds
-        outs = []
-        for _ in range(min(n, len(due))):
-            bed = due.popleft()
-            if bed in beds:  # (not expired since the tick)
-                outs.append((health_key(bed), self.health(bed, time.time())))
+        """The health of the next ``n`` beds of the rotation (``_tick``), each still tracked, as
+        far as the rate allows."""
+        beds = self.core.beds
+        outs = [(health_key(bed), self.health(bed, time.time()))
+                for bed in self._rotation.take(n, time.monotonic())
+                if bed in beds]  # (not expired since the tick)
         if outs:
             self.publish(outs)
+            self._rotation.note(len(outs), time.monotonic())
 
     def _expire(self, wall: float) -> None:
         """Free the beds silent (receive time) for ``bed_expiry_s``: their waiting samples run and
-        go out, a last health message says ``expired: true``."""
+        go out, a last health message says ``expired: true`` (within the health rate: a bed whose
+        last health finds no room waits for a later tick)."""
         now = time.time_ns()
         silence = int(self.bed_expiry_s * 1e9)
-        gone = [name for name in self.core.beds if now - self._last_recv.setdefault(name, now) > silence]
+        room = self._rotation.room(time.monotonic())
+        gone: list[str] = []
+        silent = [name for name in self.core.beds if now - self._last_recv.setdefault(name, now) > silence]
+        for name in silent:
+            if self.core.beds[name].latest_t is not None:
+                if room <= 0:
+                    continue  # its last health: at a later tick
+                room -= 1
+            gone.append(name)
         for name in gone:
             for key, msg in self.core.flush_bed(name):
                 self._publish(key, msg)
@@ -584,6 +632,7 @@ class LiveNode:
                 last = self.health(name, wall)
                 last["expired"] = True
                 self._publish(health_key(name), last)
+                self._rotation.note(1, time.monotonic())
             self.core.forget(name)
             for per_bed in (self._lag, self._lag_max, self._last_recv):
                 per_bed.pop(name, None)
@@ -632,8 +681,10 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
              listen: list[str] | None, connect: list[str] | None, config_file: str | None,
              duration: float | None, engine_file: str | None = None, beds: str = "*",
              max_beds: int = MAX_BEDS, max_channels: int = MAX_CHANNELS,
-             bed_expiry_s: float = BED_EXPIRY_S, clock: ClockPolicy | None = None) -> LiveStats:
-    """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged.
+             bed_expiry_s: float = BED_EXPIRY_S, clock: ClockPolicy | None = None,
+             health_silence_s: float = HEALTH_SILENCE_S) -> LiveStats:
+    """The node until SIGINT, SIGTERM or ``duration`` seconds; status lines are logged, the
+    closing counts returned (``ordervib run`` prints them: its result).
 
     Raises ``OrdervibError`` (one line) when the worker thread died (the watchdog stops
     the node within ``WATCHDOG_S``) or when the recording failed.
@@ -645,8 +696,8 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
     deadline = None if duration is None else time.monotonic() + duration
     with LiveNode(bundle, record, listen, connect, config_file, engine_file=engine_file, beds=beds,
                   max_beds=max_beds, max_channels=max_channels, bed_expiry_s=bed_expiry_s,
-                  clock=clock) as node:
-        where = listen or connect or f"the endpoints of {config_file}"
+                  clock=clock, health_silence_s=health_silence_s) as node:
+        where = ", ".join(listen or connect or []) or f"the endpoints of {config_file}"
         log.info("ordervib node on %s, serving beds %s; recording to %s; per-sample modules %s; Ctrl-C stops",
                  where, beds, record, native.state())
         while node.thread.is_alive():  # the watchdog
@@ -661,10 +712,7 @@ def run_node(bundle: Bundle | Model, record: str | RecordingWriter | RotatingRec
         raise OrdervibError(f"engine state {engine_file} not saved ({s.engine_file_error}): what the "
                             f"node learnt of the engines since its last save is lost; monitoring went on "
                             f"({s.received} received, {s.published} published), {record} finished")
-    if s.recording_error is None:
-        log.info("stopped: %d received, %d published, %d dropped; %s finished",
-                 s.received, s.published, s.overflow, record)
-    else:
+    if s.recording_error is not None:
         raise OrdervibError(f"the recording {record} failed ({s.recording_error}): {s.unrecorded} "
                             f"messages unrecorded; monitoring went on ({s.received} received, "
                             f"{s.published} published)")

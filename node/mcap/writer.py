@@ -18,8 +18,9 @@ of the messages when the chunk closes. Layout (``node.mcap.format``):
   replay than level 3 for 4 % more bytes; lz4 or none), uncompressed CRC computed,
   each followed by its Message Index records (one per channel, ascending channel id)
   unless ``message_index=False``.
+- Metadata records (``add_metadata``, e.g. what an import read), after the last chunk.
 - Data End (data section CRC 0: not computed, which the spec allows).
-- Summary: Schemas, Channels, Statistics, Chunk Indexes; Summary Offsets;
+- Summary: Schemas, Channels, Statistics, Chunk Indexes, Metadata Indexes; Summary Offsets;
   Footer with the summary CRC; closing magic.
 
 With ``background=True`` chunks are compressed (and their CRC computed) in a
@@ -140,6 +141,7 @@ class McapWriter:
         self._blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # add_columns: offsets,
         # channel ids and log times of its messages in the open chunk
         self._chunk_indexes: list[bytes] = []
+        self._metadata: list[tuple[str, dict[str, str]]] = []  # written at finish, after the chunks
         self._counts: dict[int, int] = {}
         self.message_count = 0  # messages in closed chunks
         self._t_min: int | None = None
@@ -172,6 +174,11 @@ class McapWriter:
         return self._register(self._channels, _record(
             Opcode.CHANNEL, U16.pack(cid) + U16.pack(schema_id) + _string(topic)
             + _string(message_encoding) + U32.pack(len(meta)) + meta))
+
+    def add_metadata(self, name: str, entries: dict[str, str]) -> None:
+        """A Metadata record (a name and string pairs), written after the last chunk and listed in
+        the summary's Metadata Index."""
+        self._metadata.append((name, dict(entries)))
 
     # -- messages
     def add(self, cid: int, log_time: int, publish_time: int, data: bytes, sequence: int = 0) -> None:
@@ -354,16 +361,24 @@ class McapWriter:
         finally:
             if self._pool is not None:
                 self._pool.shutdown()
+        metadata_indexes = []
+        for name, entries in self._metadata:
+            pairs = b"".join(_string(k) + _string(v) for k, v in entries.items())
+            start = self.bytes_out
+            self._pending += _record(Opcode.METADATA, _string(name) + U32.pack(len(pairs)) + pairs)
+            metadata_indexes.append(_record(Opcode.METADATA_INDEX, U64.pack(start)
+                                            + U64.pack(self.bytes_out - start) + _string(name)))
         self._pending += _record(Opcode.DATA_END, U32.pack(0))
         summary_start = self.bytes_out
         summary = bytearray()
         offsets = bytearray()
         counts = b"".join(CHANNEL_U64.pack(c, k) for c, k in sorted(self._counts.items()))
         stats = _record(Opcode.STATISTICS, STATISTICS.pack(
-            self.message_count, len(self._schemas), len(self._channels), 0, 0,
+            self.message_count, len(self._schemas), len(self._channels), 0, len(self._metadata),
             len(self._chunk_indexes), self._t_min or 0, self._t_max) + U32.pack(len(counts)) + counts)
         for op, records in ((Opcode.SCHEMA, self._schemas), (Opcode.CHANNEL, self._channels),
-                            (Opcode.STATISTICS, [stats]), (Opcode.CHUNK_INDEX, self._chunk_indexes)):
+                            (Opcode.STATISTICS, [stats]), (Opcode.CHUNK_INDEX, self._chunk_indexes),
+                            (Opcode.METADATA_INDEX, metadata_indexes)):
             if records:
                 start = len(summary)
                 for r in records:
@@ -545,6 +560,10 @@ class RecordingWriter:
                 payloads = [payloads[i] for i in kept.tolist()]
         writer.add_columns(cids, log_times, publish_times, payloads)
         self.count += len(cids)
+
+    def add_metadata(self, name: str, entries: dict[str, str]) -> None:
+        """A Metadata record (``name``, string pairs) in the recording, after its last chunk."""
+        self._open().add_metadata(name, entries)
 
     @property
     def bytes_written(self) -> int:

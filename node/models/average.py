@@ -8,10 +8,10 @@ anchored curve by its anchor's noise, a vector curve where the phase is noisy, a
 model where its free run drifts; their mean errs less than the best of them (study:
 docs/tuning.md#curve_average).
 
-Members may be of any kind (``node.models.kinds``), predict the amplitude or the order's 1x
-vector (a vector curve) and read different inputs: the model's inputs are their union
-(``params["inputs"]``), each member reads its own columns; the runtime's ``start`` takes the
-measured amplitudes and, when a member needs them, the 1x vectors.
+Members may be of any single kind (``node.models.single_kinds``: not an average), predict the
+amplitude or the order's 1x vector (a vector curve) and read different inputs: the model's
+inputs are their union (``params["inputs"]``), each member reads its own columns; the runtime's
+``start`` takes the measured amplitudes and, when a member needs them, the 1x vectors.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import numpy as np
 from node.contract.vector import NAN_VECTOR
 from node.models.curve import CurveModel, CurveRuntime
 from node.models.ocmodel import Method, OCModel, OCRuntime, Trajectory
+from node.models.single_kinds import fit_single_model, single_model_from_arrays
 
 
 def average_params(members: Sequence[tuple[str, dict, Sequence[str]]]) -> dict:
@@ -145,10 +146,8 @@ class AverageModel:
     @classmethod
     def fit(cls, method: Method, params: dict, trajs: Sequence[Trajectory]) -> AverageModel:
         """Each member fitted on the trajectories' columns of its inputs."""
-        from node.models.kinds import fit_oc_model  # (kinds maps "average" to this class)
-
         cols = _columns(params)
-        members = tuple(fit_oc_model(_method(m), dict(m["params"]), [_member_traj(t, c) for t in trajs])
+        members = tuple(fit_single_model(_method(m), dict(m["params"]), [_member_traj(t, c) for t in trajs])
                         for m, c in zip(params["members"], cols))
         return cls(dict(params), members, sum(m.repaired for m in members))
 
@@ -170,14 +169,10 @@ class AverageModel:
     @classmethod
     def from_arrays(cls, method: Method, params: dict, arrays: Mapping[str, np.ndarray],
                     repaired: int = 0) -> AverageModel:
-        from node.models.kinds import model_from_arrays
-
         members = []
         for i, m in enumerate(params["members"]):
-            if _method(m) is Method.AVERAGE:
-                raise ValueError("an average's member cannot be an average")
             mine = {k.split("/", 1)[1]: v for k, v in arrays.items() if k.split("/", 1)[0] == f"m{i}"}
-            members.append(model_from_arrays(_method(m), dict(m["params"]), mine))
+            members.append(single_model_from_arrays(_method(m), dict(m["params"]), mine))
         return cls(dict(params), tuple(members), repaired)
 
 

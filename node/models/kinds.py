@@ -1,5 +1,6 @@
 """Which class each OC model method is, for training (``fit_oc_model``) and for the bundle
-loader (``model_from_arrays``)."""
+loader (``model_from_arrays``): the single kinds (``node.models.single_kinds``) and the average
+of them (``node.models.average``)."""
 
 from __future__ import annotations
 
@@ -8,21 +9,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from node.models.average import AverageModel
-from node.models.curve import CurveModel
-from node.models.ocmodel import (
-    Method,
-    OCModel,
-    OCModelKind,
-    RegressionModel,
-    StateSpaceModel,
-    Trajectory,
-)
-from node.models.prom import ParametricOCModel
+from node.models.ocmodel import Method, OCModel, OCModelKind, Trajectory
+from node.models.single_kinds import SINGLE_KINDS
 
-KINDS: dict[Method, OCModelKind] = {
-    Method.WDMD: StateSpaceModel, Method.DELAY_DMD: StateSpaceModel, Method.LASSO: RegressionModel,
-    Method.CURVE: CurveModel, Method.PROM: ParametricOCModel, Method.AVERAGE: AverageModel,
-}
+KINDS: dict[Method, OCModelKind] = {**SINGLE_KINDS, Method.AVERAGE: AverageModel}
 
 
 def fit_oc_model(method: str, params: dict, trajs: Sequence[Trajectory]) -> OCModel:

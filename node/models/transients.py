@@ -100,6 +100,7 @@ class Kind:
 
 
 TRACKER_S_MAX = 60.0  # the longest order-tracker lag that can be undone, s
+TRACKER_FROM = ("estimated", "given", "none")  # how a bundle's tracker lag was found
 
 
 @dataclass(frozen=True)
@@ -108,7 +109,11 @@ class TransientSettings:
 
     speed: the channel the 1x vector is analysed on (the target's own shaft; None: the
     schedule's switch channel); phase: the target's phase channel is used; tracker_s: the order
-    tracker's lag undone (s; 0: none, alike in training and monitoring); min_amplitude: criticals
+    tracker's lag undone (s; 0: none, alike in training and monitoring); tracker_from: how it was
+    found (``TRACKER_FROM``: "estimated" from the training runs' resonance crossings,
+    ``node.runtime.tracker_lag``; "given" by ``train --tracker-s``; "none": neither);
+    tracker_spread: the estimate's spread over the crossings (s), tracker_crossings: how many
+    crossings it rests on; min_amplitude: criticals
     below it (the target's unit) are left out; k_sigma, floor_pct, match_pct: the alarm rule
     (module docstring).
     """
@@ -120,11 +125,16 @@ class TransientSettings:
     k_sigma: float = K_SIGMA
     floor_pct: float = FLOOR_PCT
     match_pct: float = MATCH_PCT
+    tracker_from: str = "none"
+    tracker_spread: float = 0.0
+    tracker_crossings: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {"speed": self.speed, "phase": self.phase, "tracker_s": self.tracker_s,
                 "min_amplitude": self.min_amplitude, "k_sigma": self.k_sigma,
-                "floor_pct": self.floor_pct, "match_pct": self.match_pct}
+                "floor_pct": self.floor_pct, "match_pct": self.match_pct,
+                "tracker_from": self.tracker_from, "tracker_spread": self.tracker_spread,
+                "tracker_crossings": self.tracker_crossings}
 
     @classmethod
     def from_dict(cls, d: object) -> TransientSettings:
@@ -140,12 +150,20 @@ class TransientSettings:
             raise ValueError(f"transients.settings.phase must be true or false, got {phase!r}")
         nums = {}
         for key, lo, hi in (("tracker_s", 0.0, TRACKER_S_MAX), ("min_amplitude", 0.0, 1e6),
-                            ("k_sigma", 0.0, 1e3), ("floor_pct", 0.0, 100.0), ("match_pct", 0.0, 100.0)):
+                            ("k_sigma", 0.0, 1e3), ("floor_pct", 0.0, 100.0), ("match_pct", 0.0, 100.0),
+                            ("tracker_spread", 0.0, TRACKER_S_MAX)):
             v = d.get(key, getattr(cls(), key))
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                 raise ValueError(f"transients.settings.{key} must be a number in [{lo:g}, {hi:g}], got {v!r}")
             nums[key] = float(v)
-        return cls(speed, phase, **nums)
+        how = d.get("tracker_from", "given" if nums["tracker_s"] > 0 else "none")  # (older bundles)
+        crossings = d.get("tracker_crossings", 0)
+        if how not in TRACKER_FROM:
+            raise ValueError(f"transients.settings.tracker_from must be one of {', '.join(TRACKER_FROM)}, "
+                             f"got {how!r}")
+        if isinstance(crossings, bool) or not isinstance(crossings, int) or not 0 <= crossings <= 10**6:
+            raise ValueError(f"transients.settings.tracker_crossings must be a count, got {crossings!r}")
+        return cls(speed, phase, **nums, tracker_from=how, tracker_crossings=crossings)
 
 
 @dataclass(frozen=True)

@@ -6,9 +6,9 @@
 - :func:`rpm_from_tacho`, :func:`tacho_pulse_times`: speed from a tacho signal.
 
 The trackers return an :class:`OrderTrack` with time-major arrays; amplitudes are
-peak amplitudes of ``a*cos(p*theta + phi)`` and phases ``phi`` refer to the shaft
-angle integrated from the speed, zero at the first sample. Invalid input raises
-ValueError.
+peak amplitudes of ``a*cos(p*theta - phi)`` and phases the contract's lag ``phi`` in
+degrees, in [-180, 180), from the shaft angle integrated from the speed, zero at the
+first sample (put it on the once-per-rev mark). Invalid input raises ValueError.
 """
 
 from .angle import rpm_from_tacho, shaft_revolutions, tacho_pulse_times

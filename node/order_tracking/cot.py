@@ -39,6 +39,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy.interpolate import CubicSpline
 from scipy.signal import firwin, kaiserord, resample_poly
 
+from node.contract.vector import order_lags
+
 from ._checks import check_below_nyquist, check_fs, check_orders, check_rpm, check_signal
 from .angle import shaft_revolutions, time_at_revolutions
 from .result import OrderTrack
@@ -113,8 +115,8 @@ def cot_orders(x: object, fs: float, rpm: object, orders: object, *,
 
     Returns
     -------
-    OrderTrack with times (K_out,) s at block centres, amplitudes and phases
-    (K_out, n_orders), rpm (K_out,) the speed at those times.
+    OrderTrack with times (K_out,) s at block centres, amplitudes and phases (lags, degrees in
+    [-180, 180)) (K_out, n_orders), rpm (K_out,) the speed at those times.
     """
     fs = check_fs(fs)
     sig = check_signal(x)
@@ -158,5 +160,5 @@ def cot_orders(x: object, fs: float, rpm: object, orders: object, *,
     centre_rev = starts + float(np.dot(w, j) / w.sum()) / n
     times = time_at_revolutions(rev, speed, fs, centre_rev)
     rpm_out = np.interp(times, np.arange(sig.size) / fs, speed)
-    return OrderTrack(times=times, amplitudes=np.abs(coeff), phases=np.angle(coeff),
+    return OrderTrack(times=times, amplitudes=np.abs(coeff), phases=order_lags(coeff),
                       orders=ords, rpm=rpm_out, method="cot")

@@ -9,7 +9,8 @@ angle-domain integral, and by a Hann window in angle:
     c_p(m) = 2 sum_n w_n x_n exp(-i 2 pi p rev_n) d rev_n / sum_n w_n d rev_n,
     w_n = 0.5 + 0.5 cos(2 pi (rev_n - rev_m) / B),  |rev_n - rev_m| <= B / 2,
 
-so ``a*cos(2 pi p rev + phi)`` gives c_p = a e^{i phi}. The Hann window is three complex
+so ``a*cos(2 pi p rev + phi)`` gives c_p = a e^{i phi}, returned as the lag -phi in degrees
+(``node.contract.vector.order_lags``). The Hann window is three complex
 exponentials in angle, so every window sum is a difference of cumulative sums: O(K) per order
 whatever B (the reason it is written by hand; scipy has no angle-domain TVDFT). Integer orders
 differing by 2 / B or more leak nothing into each other; an amplitude linear in angle is read
@@ -20,6 +21,8 @@ last B / 2 revolutions) the output is NaN.
 from __future__ import annotations
 
 import numpy as np
+
+from node.contract.vector import order_lags
 
 from ._checks import check_below_nyquist, check_fs, check_orders, check_rpm, check_signal
 from .angle import shaft_revolutions
@@ -45,16 +48,16 @@ def tvdft_orders(x: object, fs: float, rpm: object, orders: object, *, block_rev
 
     Returns
     -------
-    OrderTrack with times (K,) = n / fs s, amplitudes and phases (K, n_orders) (NaN where the
-    window does not fit), rpm (K,) as given.
+    OrderTrack with times (K,) = n / fs s, amplitudes and phases (lags, degrees in [-180, 180))
+    (K, n_orders) (NaN where the window does not fit), rpm (K,) as given.
 
     >>> fs, n = 1000.0, 20000
     >>> rpm = np.linspace(600.0, 1800.0, n)
     >>> rev = shaft_revolutions(rpm, fs)
-    >>> tr = tvdft_orders(3.0 * np.cos(2 * np.pi * rev + 0.5), fs, rpm, [1.0])
+    >>> tr = tvdft_orders(3.0 * np.cos(2 * np.pi * rev - np.radians(30.0)), fs, rpm, [1.0])
     >>> k = n // 2
     >>> round(float(tr.amplitudes[k, 0]), 4), round(float(tr.phases[k, 0]), 4)
-    (3.0, 0.5)
+    (3.0, 30.0)
     """
     fs = check_fs(fs)
     sig = check_signal(x)
@@ -83,5 +86,5 @@ def tvdft_orders(x: object, fs: float, rpm: object, orders: object, *, block_rev
                + 0.25 * turn * _window_sums(base * np.conj(turn), lo, hi))
         coeff[:, j] = 2.0 * num / den
     coeff[~fits] = np.nan
-    return OrderTrack(times=np.arange(sig.size) / fs, amplitudes=np.abs(coeff), phases=np.angle(coeff),
+    return OrderTrack(times=np.arange(sig.size) / fs, amplitudes=np.abs(coeff), phases=order_lags(coeff),
                       orders=ords, rpm=speed, method="tvdft")

@@ -6,7 +6,8 @@ Model (x: (K,) real signal at fs Hz; order k with reference angle theta_k (rad))
                               = sum_k u_k[n] cos(Θ_k[n]) - v_k[n] sin(Θ_k[n]) + e[n]
     structural equation  u_k[n] - 2 u_k[n+1] + u_k[n+2] = eps (same for v_k)
 
-with Θ_k = p_k theta_k and the complex envelope z_k = u_k + i v_k = a_k e^{i phi_k}.
+with Θ_k = p_k theta_k and the complex envelope z_k = u_k + i v_k = a_k e^{i phi_k} (the phase
+returned is the lag -phi_k in degrees, ``node.contract.vector.order_lags``).
 Writing the envelope as two real parts (instead of fitting x with a complex
 exponential only) models the negative-frequency half of each real order exactly, so
 slow orders and near-DC order frequencies carry no image error.
@@ -53,6 +54,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
 from scipy.sparse.linalg import splu
+
+from node.contract.vector import order_lags
 
 from ._checks import (
     check_below_nyquist,
@@ -185,8 +188,8 @@ def vkf_orders(x: object, fs: float, rpm: object, orders: object, *,
 
     Returns
     -------
-    OrderTrack with times (K,) = n/fs s, amplitudes and phases (K, n_orders), rpm
-    as given ((K,) or (K, n_orders)).
+    OrderTrack with times (K,) = n/fs s, amplitudes and phases (lags, degrees in
+    [-180, 180)) (K, n_orders), rpm as given ((K,) or (K, n_orders)).
     """
     fs = check_fs(fs)
     sig = check_signal(x)
@@ -217,4 +220,4 @@ def vkf_orders(x: object, fs: float, rpm: object, orders: object, *,
     env = z.reshape(sig.size, ords.size, 2)
     cplx = env[..., 0] + 1j * env[..., 1]
     return OrderTrack(times=np.arange(sig.size) / fs, amplitudes=np.abs(cplx),
-                      phases=np.angle(cplx), orders=ords, rpm=speed, method="vkf")
+                      phases=order_lags(cplx), orders=ords, rpm=speed, method="vkf")

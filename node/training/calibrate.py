@@ -34,7 +34,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -44,9 +43,7 @@ from node.models.config import RuntimeConfig
 from node.models.result import Calibration, OCResult
 from node.runtime.alarms import RUN_SCALE_PRIOR_OCS, ResidualCheck, RunScale, StepCheck
 from node.runtime.ocdetect import OCDetector
-
-if TYPE_CHECKING:
-    from node.training.train import OCData
+from node.training.ocdata import OCData
 
 FALSE_ALARMS_PER_HOUR = 0.5  # false-alarm budget on normal runs per hour (residual + step rules)
 THRESHOLD_MARGIN = 1.25  # never below margin x an OC's largest CV peak score

@@ -14,15 +14,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from node.contract import FS
 from node.models.envelope import OUTSIDE, Envelope
-
-if TYPE_CHECKING:
-    from node.training.train import OCData
+from node.training.ocdata import OCData
 
 MIN_OUTSIDE = int(FS)  # CV samples outside (1 s) an OC needs for a band factor of its own
 

@@ -56,7 +56,8 @@ DEFAULT_OPTIONS: dict[str, Any] = {
     "plateaus": True,  # each OC learns what the run's earlier plateaus add (node.models.plateau)
     "settle": True,  # each OC learns its re-anchor on the visit's settled level (node.models.settle)
     "chirp_rate": False,  # the switch speed's rate (``node.runtime.chirp``) among the candidate inputs
-    "tracker_s": 0.0,  # the vibration unit's order-tracker lag (s) the transient analysis undoes; 0: none
+    "tracker_s": None,  # the vibration unit's order-tracker lag (s) the transient analysis undoes; 0: none;
+    # None: estimated from the training runs' resonance crossings (node.runtime.tracker_lag)
 }
 MODEL_OPTIONS = tuple(DEFAULT_OPTIONS)
 
@@ -77,7 +78,8 @@ def check_options(o: dict) -> None:
         if not all(0 < x < 1 for x in rconds):
             raise OrdervibError("--rcond-grid values must lie in (0, 1)")
     try:  # the bundle's own rule for the setting (TransientSettings)
-        TransientSettings.from_dict({"tracker_s": o["tracker_s"]})
+        if o["tracker_s"] is not None:
+            TransientSettings.from_dict({"tracker_s": o["tracker_s"]})
     except ValueError:
         raise OrdervibError(f"--tracker-s must be a number of seconds in [0, {TRACKER_S_MAX:g}], "
                             f"got {o['tracker_s']!r}") from None
@@ -276,6 +278,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         runs = [add_chirp_rate(r, schedule.switch) for r in runs]
     labels = label_runs(runs, schedule, models=True)  # once for every target: segments, run_curve, checks
     n_models = (_count(grid) if grid else 0) + (len(PROM_CANDIDATES) if use_prom else 0)
+    lag = _tracker_lag(runs, schedule, targets, o["tracker_s"])
     for target in targets:
         log.info("training %s for %s on %d run(s), %d OCs and the rundown, leave-one-run-out CV over %d "
                  "model candidates "
@@ -307,13 +310,34 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
                                 f"no-model)")
         checks = calibrate_checks(runs, schedule, target, per_rule, use_phase=o["phase"], labels=labels)
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
-        settings = transient_settings(runs, schedule, target, tracker_s=float(o["tracker_s"]))
+        settings = dataclasses.replace(transient_settings(runs, schedule, target), **lag)
         transients = fleet_transients(runs, schedule, target, settings)
         bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks, transients))
         trained.append((target, results))
     if use_history:  # said once the model stands (a failure: one line)
         log.log(*cooling_note(config.history_cooling))
     return Model(tuple(bundles)), trained
+
+
+def _tracker_lag(runs: list[Run], schedule: Schedule, targets: list[str], given: float | None
+                 ) -> dict[str, Any]:
+    """The transient settings' tracker lag: ``given`` (``--tracker-s``), else estimated from the
+    runs (``node.training.transients.tracker_lag``, pooled over the targets; 0 where no crossing
+    pins it), logged with how it was found."""
+    from node.training.transients import tracker_lag, transient_settings
+
+    if given is not None:
+        return {"tracker_s": float(given), "tracker_from": "given" if given > 0 else "none"}
+    settings = {t: transient_settings(runs, schedule, t) for t in targets}
+    est, fits = tracker_lag(runs, schedule, targets, settings)
+    if est is None:
+        log.warning("order tracker's lag: no resonance crossing of the training runs pins it (%d fitted): "
+                    "not undone (--tracker-s gives it)", len(fits))
+        return {"tracker_s": 0.0, "tracker_from": "none"}
+    log.info("order tracker's lag: %.2f s (spread %.2f s) estimated from %d resonance crossing(s) "
+             "(%d fitted)", est.tau, est.spread, est.crossings, est.fitted)
+    return {"tracker_s": round(est.tau, 4), "tracker_from": "estimated",
+            "tracker_spread": round(est.spread, 4), "tracker_crossings": est.crossings}
 
 
 def cooling_note(cooling: float) -> tuple[int, str]:

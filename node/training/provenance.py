@@ -1,6 +1,8 @@
 """Whether a run was among a model's training runs: "in-sample", "held-out" or "unknown".
 
-The one rule behind the words of ``ordervib evaluate`` and ``ordervib report``. Training
+The one rule behind the words of ``ordervib evaluate`` and ``ordervib report``, and behind
+whether a model was trained on given recording files (``trained_on``: ``ordervib demo`` reuses
+its model, ``training_recordings``: ``ordervib predict`` reads them again). Training
 records its runs in every bundle's ``training`` dict (``training_record``, kept in
 manifest.json): the recordings read (``{"path", "sha256"}``), the number of runs, and each
 run's span ``[bed, t_first, t_last]`` (s since the epoch: its first and last sample on the
@@ -33,11 +35,15 @@ recordings' hashes: a run of another file is then "unknown", neither in-sample n
 
 from __future__ import annotations
 
+import logging
+import os
 from collections.abc import Sequence
 
 from node.contract import FS
-from node.models.bundle import Bundle, Model
+from node.models.bundle import Bundle, Model, as_model, sha256_file
 from node.training.runs import Run
+
+log = logging.getLogger(__name__)
 
 IN_SAMPLE = "in-sample"  # among the model's training runs
 HELD_OUT = "held-out"  # not among them
@@ -73,12 +79,16 @@ def _spans(training: dict) -> list[tuple[str, float, float]] | None:
         return None
 
 
+def _recordings(training: dict) -> list[dict]:
+    """The training recordings a record names, ``{"path", "sha256"}`` as training wrote them
+    (an entry of another type: an empty dict)."""
+    recs = training.get("recordings")
+    return [r if isinstance(r, dict) else {} for r in recs] if isinstance(recs, list) else []
+
+
 def _hashes(training: dict) -> set[str]:
     """The sha256 of the training recordings a record names."""
-    recs = training.get("recordings")
-    if not isinstance(recs, list):
-        return set()
-    return {r["sha256"] for r in recs if isinstance(r, dict) and isinstance(r.get("sha256"), str)}
+    return {r["sha256"] for r in _recordings(training) if isinstance(r.get("sha256"), str)}
 
 
 def _one(training: dict, run: Run, sha256: str | None) -> str:
@@ -110,3 +120,24 @@ def run_provenance(model: Bundle | Model, runs: Sequence[Run],
         words = {_one(rec, run, None if sha256 is None else sha256[i]) for rec in records}
         out.append(IN_SAMPLE if IN_SAMPLE in words else UNKNOWN if UNKNOWN in words else HELD_OUT)
     return out
+
+
+def trained_on(model: Bundle | Model, recordings: Sequence[str | os.PathLike]) -> bool:
+    """Whether every bundle of ``model`` was trained on exactly the files ``recordings``, in
+    order, by their sha256 (``sha256_file``): its record names their hashes and no other."""
+    hashes = [sha256_file(path) for path in recordings]
+    return all([r.get("sha256") for r in _recordings(b.training)] == hashes for b in as_model(model).bundles)
+
+
+def training_recordings(model: Bundle | Model) -> list[str]:
+    """The paths of the model's training recordings, as training recorded them, when every one
+    is still the file training read (its sha256 as recorded); else none (the first one not there
+    as it was is logged)."""
+    paths = []
+    for rec in _recordings(as_model(model).bundles[0].training):
+        path = rec.get("path")
+        if not isinstance(path, str) or not os.path.isfile(path) or sha256_file(path) != rec.get("sha256"):
+            log.info("the model's training recording %s is not there as it was: not used", path)
+            return []
+        paths.append(path)
+    return paths

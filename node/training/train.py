@@ -16,7 +16,6 @@ import signal
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -49,6 +48,7 @@ from node.training.dataset import (
 )
 from node.training.envelope import band_factors, cv_outside, fit_envelope
 from node.training.features import Term, combine_terms, segment_term
+from node.training.ocdata import OCData
 from node.training.plateau_fit import Visit, choose_settle, choose_shift, visit_tables
 from node.training.runs import Run
 
@@ -155,46 +155,6 @@ def grid_points(grid: dict[str, list]) -> list[dict]:
 
 
 
-@dataclass
-class OCData:
-    """Everything one OC's CV needs, per training run: the candidate channels' arrays."""
-
-    name: str
-    target: str
-    candidates: list[str]
-    runs: list[int]  # run index of each segment
-    y: list[np.ndarray]  # target from the history start to the segment end
-    X: list[np.ndarray]  # candidates, same rows
-    start: list[int]  # index of the OC's first sample in y / X
-    at: list[int] = field(default_factory=list)  # index of the OC's first sample in its run
-    switch: str = ""  # the schedule's switch channel
-    curves: list[dict] = field(default_factory=list)  # curve candidates (CurveModel params)
-    z: list[np.ndarray] = field(default_factory=list)  # the target's 1x vectors, y's rows (empty: no phase)
-    proms: list[dict] = field(default_factory=list)  # parametric candidates (ParametricOCModel params)
-    unranked: list[str] = field(default_factory=list)  # candidates only the parametric models take
-    folds: dict[int, int] = field(default_factory=dict)  # run -> its CV fold (``run_folds``; empty: its own)
-    # each row's visit for the plateau shift (node.training.plateau_fit; None: not known), and
-    # whether the shift is on the 1x vector; None: no shift learned
-    plateaus: list[Visit | None] = field(default_factory=list)
-    plateau_vector: bool | None = None
-    settle: bool = False  # learn the settle anchor (node.models.settle)
-
-    def fold(self, run: int) -> int:
-        """The CV fold of ``run``: the run itself (leave one run out) unless ``folds`` says otherwise."""
-        return self.folds.get(run, run)
-
-    def fold_ids(self) -> list[int]:
-        return sorted({self.fold(r) for r in self.runs})
-
-    def held_out(self, f: int) -> list[int]:
-        """The segments (rows) fold ``f`` holds out."""
-        return [i for i, r in enumerate(self.runs) if self.fold(r) == f]
-
-    def fitted_on(self, f: int) -> list[int]:
-        """The segments (rows) fold ``f`` fits on: every other fold's."""
-        return [i for i, r in enumerate(self.runs) if self.fold(r) != f]
-
-
 # Leave-one-run-out CV up to MAX_FOLDS training runs; beyond, MAX_FOLDS folds of contiguous
 # runs (``run_folds``), as scikit-learn's grouped K-fold: the fits per candidate stay at
 # MAX_FOLDS whatever the runs, each on (1 - 1/MAX_FOLDS) of them (40 runs of an engine: the CV
@@ -232,8 +192,10 @@ def _ranked_columns(d: OCData) -> list[int]:
     return [j for j, c in enumerate(d.candidates) if c not in d.unranked]
 
 
-def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int,
-                   terms: list[Term | None] | None = None) -> tuple[list[str], list[tuple[str, float]]]:
+def select_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int,
+                  terms: list[Term | None] | None = None) -> tuple[list[str], list[tuple[str, float]]]:
+    """The inputs of an OC's state-space candidates from its segments ``rows``: ``inputs`` when
+    given, else the ``k`` best ranked (MS-DPCCA) with their ranking [(channel, score)]."""
     if inputs is not None:
         return inputs, []
     cols = _ranked_columns(d)
@@ -244,7 +206,8 @@ def _choose_inputs(d: OCData, rows: list[int], inputs: list[str] | None, k: int,
     return [d.candidates[cols[j]] for j in order[:k]], ranking
 
 
-def _trajs(d: OCData, rows: list[int], inputs: list[str]) -> list[Trajectory]:
+def oc_trajectories(d: OCData, rows: list[int], inputs: list[str]) -> list[Trajectory]:
+    """The OC's segments ``rows`` as trajectories on the columns ``inputs``."""
     cols = [d.candidates.index(c) for c in inputs]
     return [Trajectory(d.y[i], d.X[i][:, cols], d.start[i], d.z[i] if d.z else None) for i in rows]
 
@@ -261,9 +224,9 @@ def _predict_pairs(model: OCModel, trajs: list[Trajectory]) -> list[tuple[np.nda
     return out
 
 
-def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
-                    fold_inputs: dict[int, list[str]], bound: float = math.inf, parts: bool = True
-                    ) -> tuple[float, list[tuple[np.ndarray, np.ndarray]]]:
+def cross_validate_candidate(d: OCData, folds: list[int], method: str, params: dict,
+                             fold_inputs: dict[int, list[str]], bound: float = math.inf, parts: bool = True
+                             ) -> tuple[float, list[tuple[np.ndarray, np.ndarray]]]:
     """Pooled eps of ``method`` with ``params`` over the CV ``folds`` (``OCData.fold``: leave one
     run out, or blocks of runs), and the held-out (measured, predicted) pairs in fold order (inf
     and no pairs when a fit fails).
@@ -282,7 +245,7 @@ def _cross_validate(d: OCData, folds: list[int], method: str, params: dict,
             m = fit(d.fitted_on(f), chosen)
         except (np.linalg.LinAlgError, ValueError):
             return float("inf"), []
-        pairs = _predict_pairs(m, _trajs(d, d.held_out(f), chosen))
+        pairs = _predict_pairs(m, oc_trajectories(d, d.held_out(f), chosen))
         pairs_all += pairs
         if bound < math.inf:
             for y, p in pairs:  # the terms of pooled_eps's sum, in its order: a prefix of it
@@ -300,14 +263,14 @@ def _fold_fitter(d: OCData, method: str, params: dict, fold_inputs: dict[int, li
     once for every fold: the model ``fit_oc_model`` gives on those rows, bit for bit, without
     re-binning every other run in every fold (40 runs: 13 s of curve CV per OC before)."""
     if not parts or Method(method) is not Method.CURVE or len({tuple(c) for c in fold_inputs.values()}) != 1:
-        return lambda rows, inputs: fit_oc_model(method, params, _trajs(d, rows, inputs))
+        return lambda rows, inputs: fit_oc_model(method, params, oc_trajectories(d, rows, inputs))
     inputs = next(iter(fold_inputs.values()))  # every fold's: the one input of the curve
     done: dict[int, CurvePart] = {}
 
     def fit(rows: list[int], _: list[str]) -> OCModel:
         for i in rows:
             if i not in done:
-                done[i] = CurveModel.part(params, _trajs(d, [i], inputs)[0])
+                done[i] = CurveModel.part(params, oc_trajectories(d, [i], inputs)[0])
         return CurveModel.from_parts(params, [done[i] for i in rows])
     return fit
 
@@ -343,7 +306,7 @@ def _best_average(pool: list[Scored]) -> Scored:
     return best
 
 
-def _curve_inputs(d: OCData, curve: dict) -> list[str] | None:
+def curve_model_inputs(d: OCData, curve: dict) -> list[str] | None:
     """The one input of a curve candidate (the switch speed or run_curve); None: not a candidate."""
     if Variant(curve.get("variant", Variant.FLEET)).on_vector and not d.z:
         return None
@@ -381,19 +344,19 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     fold_inputs = {}
     terms = _ranking_terms(d) if inputs is None else None
     for f in folds:
-        fold_inputs[f] = _choose_inputs(d, d.fitted_on(f), inputs, n_inputs, terms)[0]
+        fold_inputs[f] = select_inputs(d, d.fitted_on(f), inputs, n_inputs, terms)[0]
     # The curves first: the best of them bounds what a grid or parametric model must reach
     # (``prune``: a candidate is dropped once its folds so far prove it cannot be chosen).
     cv_scores: list[tuple[dict, float]] = []
     ranked: list[Scored] = []  # the CURVE_AVERAGE best curves so far, best first
     for curve in d.curves:
-        curve_inputs = _curve_inputs(d, curve)
+        curve_inputs = curve_model_inputs(d, curve)
         if curve_inputs is None:
             continue
         # a curve beyond the CURVE_AVERAGE best so far is neither the best nor a member
         bound = ranked[-1][0] if prune and len(ranked) == CURVE_AVERAGE else math.inf
-        score, pairs_all = _cross_validate(d, folds, Method.CURVE, curve, dict.fromkeys(folds, curve_inputs),
-                                           bound, parts=prune)
+        score, pairs_all = cross_validate_candidate(d, folds, Method.CURVE, curve,
+                                                    dict.fromkeys(folds, curve_inputs), bound, parts=prune)
         cv_scores.append(({"method": Method.CURVE.value, **curve}, score))
         if np.isfinite(score):
             ranked = sorted([*ranked, (score, Method.CURVE.value, curve, pairs_all, curve_inputs)],
@@ -406,7 +369,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
     best: tuple[float, dict, list[tuple[np.ndarray, np.ndarray]]] | None = None
     for params in grid_points(grid) if grid else []:
         bound = min(member_bound, best[0] if best is not None else math.inf) if prune else math.inf
-        score, pairs_all = _cross_validate(d, folds, method, params, fold_inputs, bound)
+        score, pairs_all = cross_validate_candidate(d, folds, method, params, fold_inputs, bound)
         cv_scores.append((params, score))
         if best is None or score < best[0]:
             best = (score, params, pairs_all)
@@ -414,7 +377,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         raise ValueError("empty hyper-parameter grid")
     cv_eps, params, pairs = best or (float("inf"), {}, [])
     all_rows = list(range(len(d.runs)))
-    chosen, ranking = _choose_inputs(d, all_rows, inputs, n_inputs, terms)
+    chosen, ranking = select_inputs(d, all_rows, inputs, n_inputs, terms)
     grid_best: Scored | None = (cv_eps, str(Method(method)), params, pairs, chosen) \
         if best is not None and np.isfinite(cv_eps) and Method(method) is not Method.PROM else None
     for prom in d.proms:  # the parametric models, on the same folds: the lowest CV of all models
@@ -422,8 +385,8 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         if any(c not in d.candidates for c in prom_inputs):
             continue
         bound = min(to_beat, cv_eps) if prune else math.inf
-        score, pairs_all = _cross_validate(d, folds, Method.PROM, prom, dict.fromkeys(folds, prom_inputs),
-                                           bound)
+        score, pairs_all = cross_validate_candidate(d, folds, Method.PROM, prom,
+                                                    dict.fromkeys(folds, prom_inputs), bound)
         cv_scores.append(({"method": Method.PROM.value, **prom}, score))
         if score < cv_eps:
             method, cv_eps, params, pairs, chosen = Method.PROM, score, prom, pairs_all, prom_inputs
@@ -448,7 +411,7 @@ def train_oc(d: OCData, method: str, grid: dict[str, list], inputs: list[str] | 
         settle, moved = choose_settle([d.held_out(f) for f in folds], pairs)
         if settle is not None:
             pairs, cv_eps = moved, pooled_eps(moved)
-    trajs = _trajs(d, all_rows, chosen)
+    trajs = oc_trajectories(d, all_rows, chosen)
     model = fit_oc_model(method, params, trajs)
     train_eps = pooled_eps(_predict_pairs(model, trajs))
     calib = None

@@ -13,20 +13,23 @@ from __future__ import annotations
 import logging
 from collections import defaultdict
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from node.contract import ORDER_CHANNELS, SPEED_CHANNELS, phase_channel
+from node.contract import CHANNEL_UNITS, ORDER_CHANNELS, SPEED_CHANNELS, phase_channel
 from node.contract.schedule import Schedule
 from node.models.transients import JOIN_PCT, FleetStat, FleetTransients, Kind, Resonance, TransientSettings
-from node.runtime.transient_watch import TransientWatch
+from node.runtime.tracker_lag import LagEstimate, LagFit, combine, ramp_lags
+from node.runtime.transient import find_transitions
+from node.runtime.transient_watch import VELOCITY_UNIT, TransientWatch
 from node.training.runs import Run
 
 log = logging.getLogger(__name__)
 
 
 def transient_settings(runs: Sequence[Run], schedule: Schedule, target: str,
-                       **kw: float) -> TransientSettings:
+                       **kw: Any) -> TransientSettings:
     """The analysis of ``target``'s transitions: on its own shaft's speed where every run holds it
     (a tracked order: yA on nA, ...; else the switch channel), with its phase where every run
     holds that; ``kw``: further settings (tracker_s, k_sigma, ...)."""
@@ -35,6 +38,39 @@ def transient_settings(runs: Sequence[Run], schedule: Schedule, target: str,
     speed = own if held else None
     phase = bool(runs) and all(phase_channel(target) in r.channels for r in runs)
     return TransientSettings(speed=speed, phase=phase, **kw)
+
+
+MAX_LAG_FITS = 24  # crossings fitted for the tracker's lag (enough for its median; bounded time)
+
+
+def tracker_lag(runs: Sequence[Run], schedule: Schedule, targets: Sequence[str],
+                settings: dict[str, TransientSettings] | None = None,
+                most: int = MAX_LAG_FITS) -> tuple[LagEstimate | None, list[LagFit]]:
+    """The order tracker's lag estimated from the runs' resonance crossings (``node.runtime.
+    tracker_lag``): every ramp of the switch channel, per target with a phase channel on the
+    speed its settings name (default ``transient_settings``'), until ``most`` crossings pin
+    it; pooled over the targets (one vibration unit). The estimate (None: no crossing pinned
+    it) and every crossing fitted."""
+    fits: list[LagFit] = []
+    for run in runs:
+        if schedule.switch not in run.channels:
+            continue
+        spans = find_transitions(run.column(schedule.switch))
+        for target in targets:
+            st = (settings or {}).get(target) or transient_settings(runs, schedule, target)
+            ph = phase_channel(target)
+            if not st.phase or ph not in run.channels or target not in run.channels:
+                continue
+            speed = run.column(st.speed or schedule.switch)
+            amp, phase = run.column(target), run.column(ph)
+            velocity = CHANNEL_UNITS.get(target) == VELOCITY_UNIT
+            for sp in spans:
+                part = slice(sp.start, sp.stop)
+                fits += ramp_lags(speed[part], amp[part], phase[part], velocity=velocity,
+                                  min_amplitude=st.min_amplitude)
+                if sum(f.identified for f in fits) >= most:
+                    return combine(fits), fits
+    return combine(fits), fits
 
 
 def run_transients(run: Run, schedule: Schedule, target: str, settings: TransientSettings,

@@ -448,9 +448,6 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     kinds: each run's provenance (default: ``run_provenance`` of the bundle)."""
     from node.contract import OrdervibError
     from node.training.prediction import (
-        AmplitudeBound,
-        InputFill,
-        IntervalWidths,
         RecordedPrediction,
         history_after,
         needed_channels,
@@ -461,6 +458,7 @@ def prediction_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
         stated_history,
         with_interval,
     )
+    from node.training.prediction_aids import AmplitudeBound, InputFill, IntervalWidths
     from node.training.provenance import PROVENANCES, TABLE_WORDS, run_provenance
     from replay.views.prediction_plots import fig_history, fig_prediction
 
