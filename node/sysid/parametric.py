@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+from scipy import sparse
 from scipy.linalg import subspace_angles
 from scipy.optimize import linear_sum_assignment
 from sklearn.base import BaseEstimator
@@ -282,6 +283,20 @@ def _as_pairs(sample: Any) -> tuple[list[np.ndarray], list[np.ndarray]]:
     return [p[0] for p in pairs], [p[1] for p in pairs]
 
 
+def _as_sample_list(samples: Any) -> list[Any]:
+    """``fit``'s samples as a list, one entry per parameter sample. One array (scikit-learn's X)
+    is refused: sparse, complex, non-finite or empty arrays with the usual one-line messages
+    (``as_matrix``), any other with what ``fit`` takes instead."""
+    if isinstance(samples, (list, tuple)):
+        return list(samples)
+    if sparse.issparse(samples) or isinstance(samples, np.ndarray) or hasattr(samples, "__array__"):
+        arr = as_matrix(samples, "samples", min_rows=1, min_cols=1, allow_1d=False)
+        raise ValueError(f"samples is one array of shape {arr.shape} (scikit-learn's X: {arr.shape[0]} "
+                         f"sample(s) of {arr.shape[1]} feature(s)): ParametricROM.fit takes a list with "
+                         f"one (Y, U) pair (or list of pairs) per parameter sample, and params")
+    return list(samples)
+
+
 class ParametricFallbackWarning(UserWarning):
     """A :class:`ParametricROM` that uses a sample's model as it is instead of interpolating: the
     whole model (no setting beats the nearest sample's model by leave-one-sample-out) or some
@@ -501,7 +516,7 @@ class ParametricROM(BaseEstimator):
         """Fit a model per sample: ``samples`` a list (one per sample) of (Y, U) pairs or lists of
         pairs (Y (K, p), U (K, m)); ``params`` (n,) or (n, q). With ``validate="loo"`` the
         settings are chosen on these data (see ``validate``). Returns self."""
-        samples = list(samples)
+        samples = _as_sample_list(samples)
         P = self._check_samples(params, len(samples))
         self.estimators_ = []
         data = []
