@@ -28,6 +28,7 @@ import copy
 import logging
 import warnings
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -41,9 +42,10 @@ from node.sysid.joint_block import modes as joint_modes
 from node.sysid.memo import ContentMemo
 from node.sysid.metrics import mac
 from node.sysid.observer import estimate_state
-from node.sysid.prom_loo import Candidate, Validation
+from node.sysid.prom_loo import Candidate, Data, Validation
 from node.sysid.prom_loo import nearest as nearest_sample
 from node.sysid.prom_loo import validate as loo_validate
+from node.sysid.prom_residues import fit as fit_residues
 from node.sysid.statespace import PoleResidue, StateSpace
 from node.sysid.validation import as_matrix
 
@@ -57,6 +59,7 @@ FALLBACKS = ("nearest", "drop")
 BLOCKS = ("joint", "interpolate", "none", "auto")
 MATCHES = ("continuation", "assignment", "auto")
 VALIDATES = ("loo", "none")
+RESIDUES = ("data", "model")
 # continuation's matching cost of a factor e between two modes' peak shares: a mode's peak gain
 # changes slowly along the parameter, a jump by 100 (a physical mode to a noise mode) costs 0.46
 SHARE_WEIGHT = 0.1
@@ -110,6 +113,9 @@ def static_gain(ss: StateSpace) -> np.ndarray:
 
 
 _FORMS: ContentMemo[tuple[PoleResidue, np.ndarray]] = ContentMemo(512)
+# a sample's kept modes' residues fitted to its data, per pole set: the folds and candidates of a
+# leave-one-sample-out validation refit the same samples with the same modes
+_RESIDUES: ContentMemo[tuple[np.ndarray, np.ndarray] | None] = ContentMemo(512)
 
 
 def _modal_form(ss: StateSpace) -> tuple[PoleResidue, np.ndarray]:
@@ -460,7 +466,7 @@ class ParametricROM(BaseEstimator):
                  weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5,
                  static: bool = False, clip: bool = False, verbose: bool = True,
                  match: str = "auto", veer_gap: float = 0.1, fallback: str = "nearest",
-                 block: str = "auto", validate: str = "loo") -> None:
+                 block: str = "auto", validate: str = "loo", residues: str = "data") -> None:
         self.base_estimator = base_estimator
         self.n_pairs = n_pairs
         self.n_real = n_real
@@ -476,6 +482,7 @@ class ParametricROM(BaseEstimator):
         self.fallback = fallback
         self.block = block
         self.validate = validate
+        self.residues = residues
 
     def __repr__(self, N_CHAR_MAX: int = 700) -> str:
         """scikit-learn's repr; once fitted, followed by how the settings were decided."""
@@ -499,6 +506,8 @@ class ParametricROM(BaseEstimator):
             raise ValueError(f"fallback must be one of {FALLBACKS}, got {self.fallback!r}")
         if self.block not in BLOCKS:
             raise ValueError(f"block must be one of {BLOCKS}, got {self.block!r}")
+        if self.residues not in RESIDUES:
+            raise ValueError(f"residues must be one of {RESIDUES}, got {self.residues!r}")
         if self.validate not in VALIDATES:
             raise ValueError(f"validate must be one of {VALIDATES}, got {self.validate!r}")
         if not 0 <= float(self.veer_gap) < 1:
@@ -527,12 +536,17 @@ class ParametricROM(BaseEstimator):
             data.append(list(zip(Ys, Us)))
         models = [_model_of(est) for est in self.estimators_]
         if self.validate == "none":
-            return self._build(models, P, self._default_choice(P.shape[1]), Validation("off", None))
+            return self._build(models, P, self._default_choice(P.shape[1]), Validation("off", None),
+                               data=data)
         scale = _range_scale(P)
-        val = loo_validate(models, P, scale, data, self._candidates(P.shape[1]), self._fold)
+
+        def fold(cand: Candidate, rest: list[int]) -> ParametricROM:
+            return self._fold(cand, [models[j] for j in rest], P[rest], [data[j] for j in rest])
+
+        val = loo_validate(models, P, scale, data, self._candidates(P.shape[1]), fold)
         if not val.held_out:
             return self._build(models, P, self._default_choice(P.shape[1]),
-                               Validation("no interior sample", None))
+                               Validation("no interior sample", None), data=data)
         best = val.best()
         assert best is not None
         means = val.mean_scores()
@@ -542,7 +556,7 @@ class ParametricROM(BaseEstimator):
             if not (means[c] < near):
                 continue
             try:
-                self._build(models, P, val.candidates[c], val, warn=False)
+                self._build(models, P, val.candidates[c], val, warn=False, data=data)
                 chosen = val.candidates[c]
                 break
             except (ValueError, np.linalg.LinAlgError):
@@ -587,13 +601,15 @@ class ParametricROM(BaseEstimator):
             out += [Candidate(match, block, k, w) for block in blocks for k in pairs for w in weights]
         return [first] + [c for c in out if c != first]
 
-    def _fold(self, cand: Candidate, models: list[StateSpace], P: np.ndarray) -> ParametricROM:
-        """A ROM of ``cand``'s settings from some samples' models (a leave-one-out fold), quiet."""
+    def _fold(self, cand: Candidate, models: list[StateSpace], P: np.ndarray,
+              data: list[Data]) -> ParametricROM:
+        """A ROM of ``cand``'s settings from some samples' models and data (a leave-one-out
+        fold), quiet."""
         rom = copy.copy(self)
         rom.verbose = False
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ParametricFallbackWarning)
-            return rom._build(models, P, cand, Validation("fold", cand), warn=False)
+            return rom._build(models, P, cand, Validation("fold", cand), warn=False, data=data)
 
     def _check_samples(self, params: Any, n: int) -> np.ndarray:
         self._check_params()
@@ -617,8 +633,9 @@ class ParametricROM(BaseEstimator):
         return self._build(models, P, self._default_choice(P.shape[1]), Validation("no data", None))
 
     def _build(self, models: list[StateSpace], P: np.ndarray, cand: Candidate, val: Validation,
-               warn: bool = True) -> ParametricROM:
-        """The ROM of settings ``cand`` from the samples' models at P (n, q)."""
+               warn: bool = True, data: list[Data] | None = None) -> ParametricROM:
+        """The ROM of settings ``cand`` from the samples' models at P (n, q) (and their data:
+        with ``residues="data"`` the kept modes' residues and D are fitted to them)."""
         self.choice_ = cand
         self.validation_ = val if val.chosen is not None or val.rule == "loo" else \
             Validation(val.rule, cand)
@@ -650,6 +667,8 @@ class ParametricROM(BaseEstimator):
         self._fb_pair = np.concatenate([np.full(f.fs.shape[1], i == 0 and cand.n_pairs > 0)
                                         for i, f in enumerate(found)])
         self.D_ = np.stack([pr.D.real for pr in prs])
+        if data is not None and self.residues == "data":
+            self._refit_residues(data, [f.R for f in found])
         self._joints = [fit_joint(self._s[:, cols], self._R[:, cols], P, self._scale, b.X, b.Y, b.C,
                                   self.scheme == "modal") if cand.block == "joint" else None
                         for cols, b in zip(self._groups, self._blocks)]
@@ -657,6 +676,36 @@ class ParametricROM(BaseEstimator):
         if warn:
             self._warn_unmatched()
         return self
+
+    def _refit_residues(self, data: list[Data], copied: list[np.ndarray]) -> None:
+        """Each sample's kept modes' residues (matched and fallback) and D fitted to its data
+        (:mod:`node.sysid.prom_residues`), its poles kept; a sample whose fit fails keeps its
+        model's. The veering groups' common-basis blocks are rebuilt from the new residues (a
+        group without one then keeps the copied residues, ``copied``: ``_match``'s R per kind)."""
+        pair = np.arange(self._s.shape[1]) < self._n_pairs_kept
+        for i, runs in enumerate(data):
+            have = np.isfinite(self._fb_s[i])
+            s = np.r_[self._s[i], self._fb_s[i, have]]
+            flags = np.r_[pair, self._fb_pair[have]]
+            z = np.exp(s * self.dt_)
+            got = _RESIDUES.get([z.real, z.imag, flags, *[a for run in runs for a in run]],
+                                partial(fit_residues, z, flags, runs))
+            if got is None:
+                continue
+            near1 = np.abs(z - 1.0) < 1e-12
+            ratio = np.where(near1, 1.0 / self.dt_, s / np.where(near1, 1.0, z - 1.0))
+            R = got[0] * ratio[:, None, None]
+            r = self._s.shape[1]
+            self._R[i] = R[:r]
+            self._fb_R[i, have] = R[r:]
+            self.D_[i] = got[1]
+        before = np.concatenate(copied, axis=1)
+        for g, cols in enumerate(self._groups):
+            block = _common_basis(self._s[:, cols], self._R[:, cols], self.scheme == "modal")
+            if block is None:
+                self._R[:, cols] = before[:, cols]
+            else:
+                self._blocks[g] = block
 
     def _build_empty(self, models: list[StateSpace], P: np.ndarray) -> None:
         """No setting builds from all samples: no modes (``at`` returns the nearest sample's model)."""
@@ -787,7 +836,7 @@ class ParametricROM(BaseEstimator):
 
         s, R = take(good)
         fb = [j for j in ranked if j not in good] if self.fallback == "nearest" else []
-        fs, fR = take(fb, ok)
+        fs, fR = take(fb)  # each sample's own mode of the track, matched up to it or not
         kept = [(gi, [good.index(j) for j in grp]) for gi, grp in enumerate(groups)
                 if all(j in good for j in grp)]
         return _Matched(s, R, [cols for _, cols in kept], [blocks[gi] for gi, _ in kept], fs, fR)

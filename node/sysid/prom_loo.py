@@ -144,14 +144,15 @@ def score(model: StateSpace, data: Data) -> float:
 
 
 def validate(models: Sequence[StateSpace], P: np.ndarray, scale: np.ndarray, data: Sequence[Data],
-             candidates: Sequence[Candidate], build: Callable[[Candidate, list[StateSpace], np.ndarray], Any],
+             candidates: Sequence[Candidate], build: Callable[[Candidate, list[int]], Any],
              ) -> Validation:
     """Score every candidate by leave-one-sample-out over the interior samples.
 
-    ``build(candidate, models, P)`` returns a fitted ROM (with ``at_weights`` and ``weights_for``)
-    or raises ValueError / LinAlgError; candidates that differ only in ``weights`` share one build.
-    The chosen candidate is the lowest mean score (the first within ``TIE`` of it); ``fallback`` when it does
-    not beat the nearest sample's model's mean score.
+    ``build(candidate, rest)`` returns a ROM built from the samples ``rest`` (indices), with
+    ``at_weights`` and ``weights_for``, or raises ValueError / LinAlgError; candidates that
+    differ only in ``weights`` share one build. The chosen candidate is the lowest mean score
+    (the first within ``TIE`` of it); ``fallback`` when it does not beat the nearest sample's
+    model's mean score.
     """
     held = interior(P, scale)
     scores = np.full((len(candidates), len(held)), np.inf)
@@ -165,7 +166,7 @@ def validate(models: Sequence[StateSpace], P: np.ndarray, scale: np.ndarray, dat
             key = (cand.match, cand.block, cand.n_pairs)
             if key not in built:
                 try:
-                    built[key] = build(cand, [models[j] for j in rest], P[rest])
+                    built[key] = build(cand, rest)
                 except (ValueError, np.linalg.LinAlgError):
                     built[key] = None
             rom = built[key]
