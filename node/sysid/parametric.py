@@ -42,6 +42,7 @@ from node.sysid.joint_block import modes as joint_modes
 from node.sysid.memo import ContentMemo
 from node.sysid.metrics import mac
 from node.sysid.observer import estimate_state
+from node.sysid.prom_loo import MARGIN as LOO_MARGIN
 from node.sysid.prom_loo import Candidate, Data, Validation
 from node.sysid.prom_loo import nearest as nearest_sample
 from node.sysid.prom_loo import validate as loo_validate
@@ -553,7 +554,7 @@ class ParametricROM(BaseEstimator):
         near = float(np.mean(val.nearest))
         chosen = None
         for c in val.ranking():  # the best setting that builds from all samples
-            if not (means[c] < near):
+            if not (means[c] < LOO_MARGIN * near):
                 continue
             try:
                 self._build(models, P, val.candidates[c], val, warn=False, data=data)
@@ -741,9 +742,9 @@ class ParametricROM(BaseEstimator):
         """The one warning of a ROM whose ``at`` returns the nearest sample's model."""
         near = float(np.mean(self.validation_.nearest))
         held = ", ".join(str(i) for i in self.validation_.held_out)
-        why = (f"no setting beats the nearest sample's model by leave-one-sample-out on sample(s) "
-               f"{held} (best {best[0].label()}: eps_td {best[1]:.3g}, nearest sample's model "
-               f"{near:.3g})") if best[1] >= near or not np.isfinite(best[1]) else \
+        why = (f"no setting beats {LOO_MARGIN:g} x the nearest sample's model by leave-one-sample-out on "
+               f"sample(s) {held} (best {best[0].label()}: eps_td {best[1]:.3g}, nearest sample's model "
+               f"{near:.3g})") if best[1] >= LOO_MARGIN * near or not np.isfinite(best[1]) else \
             f"no setting builds from all samples (best by leave-one-sample-out: {best[0].label()})"
         warnings.warn(f"{type(self).__name__}: {why}; at(p) returns the nearest sample's model "
                       f"({self._mode_names()})", ParametricFallbackWarning, stacklevel=3)
