@@ -210,3 +210,25 @@ def test_arrays_round_trip_gives_the_same_models(rom):
     bad = {**rom.to_arrays(), "rom_format": np.array([99])}
     with pytest.raises(ValueError, match="format 99"):
         ParametricROM.from_arrays(bad)
+
+
+def test_residues_of_given_poles_are_recovered_from_data_with_an_unknown_initial_state():
+    """prom_residues.fit: the exact residues and D of known poles from a run that does not start
+    at rest (its free response is fitted too), a real pole beside the pairs."""
+    from node.sysid.prom_residues import fit as fit_residues
+    f = freqs_hz(0.3)
+    ss = system(f)
+    pr = ss.to_pole_residue()
+    up = pr.poles.imag > 0
+    z = np.r_[pr.poles[up], 0.9 + 0j]
+    R = np.concatenate([pr.residues[up], np.array([[[0.2], [-0.1], [0.05]]]) + 0j])
+    D = np.array([[0.01], [0.0], [-0.02]])
+    truth = PoleResidue(np.r_[z[:3], z[:3].conj(), z[3:]], np.concatenate([R[:3], R[:3].conj(), R[3:]]),
+                        D + 0j, DT).to_statespace()
+    x0 = np.random.default_rng(1).normal(size=truth.n_states)
+    Y = truth.simulate(U[:2000], x0)
+    got = fit_residues(z, np.array([True, True, True, False]), [(Y, U[:2000])])
+    assert got is not None
+    np.testing.assert_allclose(got[0], R, atol=1e-8 * np.abs(R).max())
+    np.testing.assert_allclose(got[1], D, atol=1e-8)
+    assert fit_residues(np.array([1.01 + 0j]), np.array([False]), [(Y, U[:2000])]) is None  # unstable

@@ -424,7 +424,14 @@ class ParametricROM(BaseEstimator):
             sample's fitted model (``fallback_``) with one :class:`ParametricFallbackWarning`.
             Without an interior sample (two samples, or none inside the others' hull),
             ``fit_models`` (models, no data) or ``"none"``: the settings as given, ``"auto"``
-            as noted and all ``n_pairs``. Either way ``validation_`` says how it decided.
+            as noted and all ``n_pairs``. Either way ``validation_`` says how it decided. A
+            setting is used only when its mean score is below 0.85 times the nearest sample's
+            (``prom_loo.MARGIN``: the folds are coarser than the final model).
+        residues: ``"data"`` (default): each sample's kept modes' residues (and D) are fitted to
+            that sample's data by output-error least squares, its poles kept
+            (:mod:`node.sysid.prom_residues`: unbiased by output noise, and they take up what the
+            modes left out explained); ``fit_models`` (no data) copies them. ``"model"``: copied
+            from each sample's identified model.
 
     Learned attributes: ``estimators_`` (the fitted copies), ``params_`` (n, q), ``poles_``
     (n, r) complex discrete-time poles of the matched modes (the pairs by their upper-half-plane
