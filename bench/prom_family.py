@@ -2,7 +2,7 @@
 ``ParametricROM`` is no worse than the nearest sample's model, near a model fitted directly at
 the judged parameter, and warns when it falls back.
 
-    python -m bench prom-family [--cases 200] [--first 0]
+    python -m bench prom-family [--cases 200] [--first 0] [--jobs 1]
 
 Cases ``first`` .. ``first + cases - 1`` (seeded; kind and noise cycle with the seed). Prints the
 distribution per class (crossing / veering / neither) and noise level and the pass fractions
@@ -15,6 +15,8 @@ import argparse
 import logging
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
 
 import numpy as np
 
@@ -23,25 +25,33 @@ from harness import prom_family as pf
 from node.console.table import print_table
 
 
+def _case(seed: int) -> pf.Result:
+    logging.getLogger("node.sysid.parametric").setLevel(logging.ERROR)
+    return pf.run_case(pf.make_case(seed))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench prom-family", description=__doc__.split("\n")[0])
     ap.add_argument("--cases", type=int, default=200, help="number of cases (default %(default)s)")
     ap.add_argument("--first", type=int, default=0, help="first seed (default %(default)s)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="cases run in parallel processes (default %(default)s)")
     args = ap.parse_args(argv)
     logging.getLogger("node.sysid.parametric").setLevel(logging.ERROR)
     t0 = time.perf_counter()
     cmd = "python -m bench prom-family " + " ".join(sys.argv[2:] if argv is None else argv)
     print(f"# Parametric ROM on a generated family ({cmd.strip()}; ordervib {node.__version__})\n")
     results = []
-    for seed in range(args.first, args.first + args.cases):
-        r = pf.run_case(pf.make_case(seed))
-        results.append(r)
-        rules = (("worse than nearest", r.not_worse), ("far from direct", r.near_direct),
-                 ("silent fallback", r.honest))
-        flags = [name for name, ok in rules if not ok]
-        if flags:
-            print(f"{r.case.label()}: rom {r.rom:.3g}, direct {r.direct:.3g}, nearest {r.nearest:.3g}: "
-                  f"{', '.join(flags)}", flush=True)
+    seeds = range(args.first, args.first + args.cases)
+    with ProcessPoolExecutor(args.jobs) if args.jobs > 1 else nullcontext() as pool:
+        for r in (pool.map(_case, seeds) if pool is not None else map(_case, seeds)):
+            results.append(r)
+            rules = (("worse than nearest", r.not_worse), ("far from direct", r.near_direct),
+                     ("silent fallback", r.honest))
+            flags = [name for name, ok in rules if not ok]
+            if flags:
+                print(f"{r.case.label()}: rom {r.rom:.3g}, direct {r.direct:.3g}, nearest {r.nearest:.3g}: "
+                      f"{', '.join(flags)}", flush=True)
     rows = []
     for kind in pf.KINDS:
         for noise in pf.NOISES:

@@ -64,13 +64,20 @@ def test_matching_follows_the_modes_through_the_crossing(rom):
 
 
 def test_the_interpolated_model_is_the_library_model_at_each_sample(rom):
+    copied = ParametricROM(base(), n_pairs=3, residues="model").fit(samples([freqs_hz(p) for p in PS]), PS)
     for i, p in enumerate(PS):
         lib, m = rom.library_model(i), rom.at(p).model_
         for a, b in ((lib.A, m.A), (lib.B, m.B), (lib.C, m.C), (lib.D, m.D)):
             np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12 * np.abs(a).max())
-        # and the library model is the fitted model (its dominant modes are all of it here)
+        # residues="model": the library model is the fitted model (its dominant modes are all of it here)
         fitted = rom.estimators_[i].model_
-        assert eps_fd(fitted.frequency_response(FREQS), lib.frequency_response(FREQS)) < 1e-6
+        lib_copied = copied.library_model(i)
+        assert eps_fd(fitted.frequency_response(FREQS), lib_copied.frequency_response(FREQS)) < 1e-6
+        # residues="data" (default): the same poles, the residues fitted to the sample's data, closer
+        # to the truth than the fitted model's own (whose identification error is 2-3e-4 here)
+        truth = system(freqs_hz(p)).frequency_response(FREQS)
+        assert eps_fd(truth, lib.frequency_response(FREQS)) < 1e-5 < \
+            eps_fd(truth, fitted.frequency_response(FREQS))
 
 
 @pytest.mark.parametrize("scheme", ["modal", "direct"])
@@ -203,3 +210,25 @@ def test_arrays_round_trip_gives_the_same_models(rom):
     bad = {**rom.to_arrays(), "rom_format": np.array([99])}
     with pytest.raises(ValueError, match="format 99"):
         ParametricROM.from_arrays(bad)
+
+
+def test_residues_of_given_poles_are_recovered_from_data_with_an_unknown_initial_state():
+    """prom_residues.fit: the exact residues and D of known poles from a run that does not start
+    at rest (its free response is fitted too), a real pole beside the pairs."""
+    from node.sysid.prom_residues import fit as fit_residues
+    f = freqs_hz(0.3)
+    ss = system(f)
+    pr = ss.to_pole_residue()
+    up = pr.poles.imag > 0
+    z = np.r_[pr.poles[up], 0.9 + 0j]
+    R = np.concatenate([pr.residues[up], np.array([[[0.2], [-0.1], [0.05]]]) + 0j])
+    D = np.array([[0.01], [0.0], [-0.02]])
+    truth = PoleResidue(np.r_[z[:3], z[:3].conj(), z[3:]], np.concatenate([R[:3], R[:3].conj(), R[3:]]),
+                        D + 0j, DT).to_statespace()
+    x0 = np.random.default_rng(1).normal(size=truth.n_states)
+    Y = truth.simulate(U[:2000], x0)
+    got = fit_residues(z, np.array([True, True, True, False]), [(Y, U[:2000])])
+    assert got is not None
+    np.testing.assert_allclose(got[0], R, atol=1e-8 * np.abs(R).max())
+    np.testing.assert_allclose(got[1], D, atol=1e-8)
+    assert fit_residues(np.array([1.01 + 0j]), np.array([False]), [(Y, U[:2000])]) is None  # unstable

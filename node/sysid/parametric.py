@@ -28,9 +28,11 @@ import copy
 import logging
 import warnings
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
+from scipy import sparse
 from scipy.linalg import subspace_angles
 from scipy.optimize import linear_sum_assignment
 from sklearn.base import BaseEstimator
@@ -40,9 +42,11 @@ from node.sysid.joint_block import modes as joint_modes
 from node.sysid.memo import ContentMemo
 from node.sysid.metrics import mac
 from node.sysid.observer import estimate_state
-from node.sysid.prom_loo import Candidate, Validation
+from node.sysid.prom_loo import MARGIN as LOO_MARGIN
+from node.sysid.prom_loo import Candidate, Data, Validation
 from node.sysid.prom_loo import nearest as nearest_sample
 from node.sysid.prom_loo import validate as loo_validate
+from node.sysid.prom_residues import fit as fit_residues
 from node.sysid.statespace import PoleResidue, StateSpace
 from node.sysid.validation import as_matrix
 
@@ -56,6 +60,7 @@ FALLBACKS = ("nearest", "drop")
 BLOCKS = ("joint", "interpolate", "none", "auto")
 MATCHES = ("continuation", "assignment", "auto")
 VALIDATES = ("loo", "none")
+RESIDUES = ("data", "model")
 # continuation's matching cost of a factor e between two modes' peak shares: a mode's peak gain
 # changes slowly along the parameter, a jump by 100 (a physical mode to a noise mode) costs 0.46
 SHARE_WEIGHT = 0.1
@@ -109,6 +114,9 @@ def static_gain(ss: StateSpace) -> np.ndarray:
 
 
 _FORMS: ContentMemo[tuple[PoleResidue, np.ndarray]] = ContentMemo(512)
+# a sample's kept modes' residues fitted to its data, per pole set: the folds and candidates of a
+# leave-one-sample-out validation refit the same samples with the same modes
+_RESIDUES: ContentMemo[tuple[np.ndarray, np.ndarray] | None] = ContentMemo(512)
 
 
 def _modal_form(ss: StateSpace) -> tuple[PoleResidue, np.ndarray]:
@@ -282,6 +290,20 @@ def _as_pairs(sample: Any) -> tuple[list[np.ndarray], list[np.ndarray]]:
     return [p[0] for p in pairs], [p[1] for p in pairs]
 
 
+def _as_sample_list(samples: Any) -> list[Any]:
+    """``fit``'s samples as a list, one entry per parameter sample. One array (scikit-learn's X)
+    is refused: sparse, complex, non-finite or empty arrays with the usual one-line messages
+    (``as_matrix``), any other with what ``fit`` takes instead."""
+    if isinstance(samples, (list, tuple)):
+        return list(samples)
+    if sparse.issparse(samples) or isinstance(samples, np.ndarray) or hasattr(samples, "__array__"):
+        arr = as_matrix(samples, "samples", min_rows=1, min_cols=1, allow_1d=False)
+        raise ValueError(f"samples is one array of shape {arr.shape} (scikit-learn's X: {arr.shape[0]} "
+                         f"sample(s) of {arr.shape[1]} feature(s)): ParametricROM.fit takes a list with "
+                         f"one (Y, U) pair (or list of pairs) per parameter sample, and params")
+    return list(samples)
+
+
 class ParametricFallbackWarning(UserWarning):
     """A :class:`ParametricROM` that uses a sample's model as it is instead of interpolating: the
     whole model (no setting beats the nearest sample's model by leave-one-sample-out) or some
@@ -402,7 +424,14 @@ class ParametricROM(BaseEstimator):
             sample's fitted model (``fallback_``) with one :class:`ParametricFallbackWarning`.
             Without an interior sample (two samples, or none inside the others' hull),
             ``fit_models`` (models, no data) or ``"none"``: the settings as given, ``"auto"``
-            as noted and all ``n_pairs``. Either way ``validation_`` says how it decided.
+            as noted and all ``n_pairs``. Either way ``validation_`` says how it decided. A
+            setting is used only when its mean score is below 0.85 times the nearest sample's
+            (``prom_loo.MARGIN``: the folds are coarser than the final model).
+        residues: ``"data"`` (default): each sample's kept modes' residues (and D) are fitted to
+            that sample's data by output-error least squares, its poles kept
+            (:mod:`node.sysid.prom_residues`: unbiased by output noise, and they take up what the
+            modes left out explained); ``fit_models`` (no data) copies them. ``"model"``: copied
+            from each sample's identified model.
 
     Learned attributes: ``estimators_`` (the fitted copies), ``params_`` (n, q), ``poles_``
     (n, r) complex discrete-time poles of the matched modes (the pairs by their upper-half-plane
@@ -445,7 +474,7 @@ class ParametricROM(BaseEstimator):
                  weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5,
                  static: bool = False, clip: bool = False, verbose: bool = True,
                  match: str = "auto", veer_gap: float = 0.1, fallback: str = "nearest",
-                 block: str = "auto", validate: str = "loo") -> None:
+                 block: str = "auto", validate: str = "loo", residues: str = "data") -> None:
         self.base_estimator = base_estimator
         self.n_pairs = n_pairs
         self.n_real = n_real
@@ -461,6 +490,7 @@ class ParametricROM(BaseEstimator):
         self.fallback = fallback
         self.block = block
         self.validate = validate
+        self.residues = residues
 
     def __repr__(self, N_CHAR_MAX: int = 700) -> str:
         """scikit-learn's repr; once fitted, followed by how the settings were decided."""
@@ -484,6 +514,8 @@ class ParametricROM(BaseEstimator):
             raise ValueError(f"fallback must be one of {FALLBACKS}, got {self.fallback!r}")
         if self.block not in BLOCKS:
             raise ValueError(f"block must be one of {BLOCKS}, got {self.block!r}")
+        if self.residues not in RESIDUES:
+            raise ValueError(f"residues must be one of {RESIDUES}, got {self.residues!r}")
         if self.validate not in VALIDATES:
             raise ValueError(f"validate must be one of {VALIDATES}, got {self.validate!r}")
         if not 0 <= float(self.veer_gap) < 1:
@@ -501,7 +533,7 @@ class ParametricROM(BaseEstimator):
         """Fit a model per sample: ``samples`` a list (one per sample) of (Y, U) pairs or lists of
         pairs (Y (K, p), U (K, m)); ``params`` (n,) or (n, q). With ``validate="loo"`` the
         settings are chosen on these data (see ``validate``). Returns self."""
-        samples = list(samples)
+        samples = _as_sample_list(samples)
         P = self._check_samples(params, len(samples))
         self.estimators_ = []
         data = []
@@ -512,22 +544,27 @@ class ParametricROM(BaseEstimator):
             data.append(list(zip(Ys, Us)))
         models = [_model_of(est) for est in self.estimators_]
         if self.validate == "none":
-            return self._build(models, P, self._default_choice(P.shape[1]), Validation("off", None))
+            return self._build(models, P, self._default_choice(P.shape[1]), Validation("off", None),
+                               data=data)
         scale = _range_scale(P)
-        val = loo_validate(models, P, scale, data, self._candidates(P.shape[1]), self._fold)
+
+        def fold(cand: Candidate, rest: list[int]) -> ParametricROM:
+            return self._fold(cand, [models[j] for j in rest], P[rest], [data[j] for j in rest])
+
+        val = loo_validate(models, P, scale, data, self._candidates(P.shape[1]), fold)
         if not val.held_out:
             return self._build(models, P, self._default_choice(P.shape[1]),
-                               Validation("no interior sample", None))
+                               Validation("no interior sample", None), data=data)
         best = val.best()
         assert best is not None
         means = val.mean_scores()
         near = float(np.mean(val.nearest))
         chosen = None
         for c in val.ranking():  # the best setting that builds from all samples
-            if not (means[c] < near):
+            if not (means[c] < LOO_MARGIN * near):
                 continue
             try:
-                self._build(models, P, val.candidates[c], val, warn=False)
+                self._build(models, P, val.candidates[c], val, warn=False, data=data)
                 chosen = val.candidates[c]
                 break
             except (ValueError, np.linalg.LinAlgError):
@@ -572,13 +609,15 @@ class ParametricROM(BaseEstimator):
             out += [Candidate(match, block, k, w) for block in blocks for k in pairs for w in weights]
         return [first] + [c for c in out if c != first]
 
-    def _fold(self, cand: Candidate, models: list[StateSpace], P: np.ndarray) -> ParametricROM:
-        """A ROM of ``cand``'s settings from some samples' models (a leave-one-out fold), quiet."""
+    def _fold(self, cand: Candidate, models: list[StateSpace], P: np.ndarray,
+              data: list[Data]) -> ParametricROM:
+        """A ROM of ``cand``'s settings from some samples' models and data (a leave-one-out
+        fold), quiet."""
         rom = copy.copy(self)
         rom.verbose = False
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ParametricFallbackWarning)
-            return rom._build(models, P, cand, Validation("fold", cand), warn=False)
+            return rom._build(models, P, cand, Validation("fold", cand), warn=False, data=data)
 
     def _check_samples(self, params: Any, n: int) -> np.ndarray:
         self._check_params()
@@ -602,8 +641,9 @@ class ParametricROM(BaseEstimator):
         return self._build(models, P, self._default_choice(P.shape[1]), Validation("no data", None))
 
     def _build(self, models: list[StateSpace], P: np.ndarray, cand: Candidate, val: Validation,
-               warn: bool = True) -> ParametricROM:
-        """The ROM of settings ``cand`` from the samples' models at P (n, q)."""
+               warn: bool = True, data: list[Data] | None = None) -> ParametricROM:
+        """The ROM of settings ``cand`` from the samples' models at P (n, q) (and their data:
+        with ``residues="data"`` the kept modes' residues and D are fitted to them)."""
         self.choice_ = cand
         self.validation_ = val if val.chosen is not None or val.rule == "loo" else \
             Validation(val.rule, cand)
@@ -635,6 +675,8 @@ class ParametricROM(BaseEstimator):
         self._fb_pair = np.concatenate([np.full(f.fs.shape[1], i == 0 and cand.n_pairs > 0)
                                         for i, f in enumerate(found)])
         self.D_ = np.stack([pr.D.real for pr in prs])
+        if data is not None and self.residues == "data":
+            self._refit_residues(data, [f.R for f in found])
         self._joints = [fit_joint(self._s[:, cols], self._R[:, cols], P, self._scale, b.X, b.Y, b.C,
                                   self.scheme == "modal") if cand.block == "joint" else None
                         for cols, b in zip(self._groups, self._blocks)]
@@ -642,6 +684,36 @@ class ParametricROM(BaseEstimator):
         if warn:
             self._warn_unmatched()
         return self
+
+    def _refit_residues(self, data: list[Data], copied: list[np.ndarray]) -> None:
+        """Each sample's kept modes' residues (matched and fallback) and D fitted to its data
+        (:mod:`node.sysid.prom_residues`), its poles kept; a sample whose fit fails keeps its
+        model's. The veering groups' common-basis blocks are rebuilt from the new residues (a
+        group without one then keeps the copied residues, ``copied``: ``_match``'s R per kind)."""
+        pair = np.arange(self._s.shape[1]) < self._n_pairs_kept
+        for i, runs in enumerate(data):
+            have = np.isfinite(self._fb_s[i])
+            s = np.r_[self._s[i], self._fb_s[i, have]]
+            flags = np.r_[pair, self._fb_pair[have]]
+            z = np.exp(s * self.dt_)
+            got = _RESIDUES.get([z.real, z.imag, flags, *[a for run in runs for a in run]],
+                                partial(fit_residues, z, flags, runs))
+            if got is None:
+                continue
+            near1 = np.abs(z - 1.0) < 1e-12
+            ratio = np.where(near1, 1.0 / self.dt_, s / np.where(near1, 1.0, z - 1.0))
+            R = got[0] * ratio[:, None, None]
+            r = self._s.shape[1]
+            self._R[i] = R[:r]
+            self._fb_R[i, have] = R[r:]
+            self.D_[i] = got[1]
+        before = np.concatenate(copied, axis=1)
+        for g, cols in enumerate(self._groups):
+            block = _common_basis(self._s[:, cols], self._R[:, cols], self.scheme == "modal")
+            if block is None:
+                self._R[:, cols] = before[:, cols]
+            else:
+                self._blocks[g] = block
 
     def _build_empty(self, models: list[StateSpace], P: np.ndarray) -> None:
         """No setting builds from all samples: no modes (``at`` returns the nearest sample's model)."""
@@ -677,9 +749,9 @@ class ParametricROM(BaseEstimator):
         """The one warning of a ROM whose ``at`` returns the nearest sample's model."""
         near = float(np.mean(self.validation_.nearest))
         held = ", ".join(str(i) for i in self.validation_.held_out)
-        why = (f"no setting beats the nearest sample's model by leave-one-sample-out on sample(s) "
-               f"{held} (best {best[0].label()}: eps_td {best[1]:.3g}, nearest sample's model "
-               f"{near:.3g})") if best[1] >= near or not np.isfinite(best[1]) else \
+        why = (f"no setting beats {LOO_MARGIN:g} x the nearest sample's model by leave-one-sample-out on "
+               f"sample(s) {held} (best {best[0].label()}: eps_td {best[1]:.3g}, nearest sample's model "
+               f"{near:.3g})") if best[1] >= LOO_MARGIN * near or not np.isfinite(best[1]) else \
             f"no setting builds from all samples (best by leave-one-sample-out: {best[0].label()})"
         warnings.warn(f"{type(self).__name__}: {why}; at(p) returns the nearest sample's model "
                       f"({self._mode_names()})", ParametricFallbackWarning, stacklevel=3)
@@ -772,7 +844,7 @@ class ParametricROM(BaseEstimator):
 
         s, R = take(good)
         fb = [j for j in ranked if j not in good] if self.fallback == "nearest" else []
-        fs, fR = take(fb, ok)
+        fs, fR = take(fb)  # each sample's own mode of the track, matched up to it or not
         kept = [(gi, [good.index(j) for j in grp]) for gi, grp in enumerate(groups)
                 if all(j in good for j in grp)]
         return _Matched(s, R, [cols for _, cols in kept], [blocks[gi] for gi, _ in kept], fs, fR)
