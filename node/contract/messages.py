@@ -82,8 +82,7 @@ class MonitorMessage(TypedDict):
     """``testbed/<bed>/monitor/<target>``: one aligned sample of the modelled channel."""
 
     t: Annotated[float, "time of the sample, s (the sensor clock)"]
-    oc: Annotated[str | None, "the operating condition in force (\"rundown\" from the last plateau's "
-                              "departure to standstill), null only while the engine is off"]
+    oc: Annotated[str | None, "the operating condition in force, null outside any"]
     phase: Annotated[Phase, "where in the OC the engine is"]
     measured: Annotated[float | None, "measured value of the target"]
     predicted: Annotated[float | None, "the model's prediction of the target"]
@@ -112,8 +111,7 @@ class OCMessage(TypedDict):
     """``testbed/<bed>/monitor/oc``: one message at each OC or phase switch."""
 
     t: Annotated[float, "time of the switch, s (the sensor clock)"]
-    oc: Annotated[str | None, "the OC now in force (\"rundown\" after the last plateau), null while "
-                              "the engine is off"]
+    oc: Annotated[str | None, "the OC now in force, null outside any"]
     phase: Annotated[Phase, "the phase now"]
     previous: Annotated[str | None, "the OC in force before"]
 
