@@ -6,6 +6,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from sklearn.utils.estimator_checks import check_estimator
 
 from node.cli import main
 from node.runtime import align
@@ -63,3 +64,20 @@ def node_messages(bundle, runs) -> list[dict]:
             vals = {c: float(run.data[k, j]) for j, c in enumerate(run.channels)}
             out.append(pipe.step(AlignedSample(float(run.t[k]), vals, k == 0))[0])
     return out
+
+
+def check_estimator_statuses(estimator: object, expected_failed: dict[str, str],
+                             may_skip: set[str]) -> dict[str, set[str]]:
+    """scikit-learn's ``check_estimator`` on ``estimator``: asserts that no check fails but the
+    named ``expected_failed`` ones, that each of those really fails (no stale entry) and that
+    none is skipped but ``may_skip``; returns the check names by status."""
+    results = check_estimator(estimator, expected_failed_checks=expected_failed, on_fail=None,
+                              on_skip=None)
+    failed = [f"{r['check_name']}: {r['exception']!r}" for r in results if r["status"] == "failed"]
+    assert not failed, "\n".join(failed)
+    by_status: dict[str, set[str]] = {}
+    for r in results:
+        by_status.setdefault(r["status"], set()).add(r["check_name"])
+    assert by_status.get("xfail", set()) == set(expected_failed)
+    assert by_status.get("skipped", set()) <= may_skip
+    return by_status
