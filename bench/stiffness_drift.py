@@ -137,7 +137,7 @@ def effect(run: Run, twin: Run, sched: Schedule, onset: float) -> tuple[float, f
             own[a:b + 1] = True
     k = int(np.flatnonzero(win)[np.argmax(m[win])])
     oc, phase = OCDetector(sched, RuntimeConfig(), FS).label(run.column("nB"))
-    where = f"{sched.names[oc[k]]} {Phase.from_code(int(phase[k])).value}" if oc[k] >= 0 else "-"
+    where = f"{sched.segments[oc[k]]} {Phase.from_code(int(phase[k])).value}" if oc[k] >= 0 else "-"
     return float(m[win].max()), float(m[win & own].max()) if (win & own).any() else 0.0, where
 
 

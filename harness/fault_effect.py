@@ -41,7 +41,7 @@ class FaultEffect:
 def band_per_sample(run: Run, bundle: Bundle, schedule: Schedule, fs: float = FS) -> np.ndarray:
     """(K,) residual alarm band (threshold x sigma, target units) of the OC in force; NaN without model."""
     det = OCDetector(schedule, bundle.config, fs)
-    names = [o.name for o in schedule.ocs]
+    names = schedule.segments  # (the rundown last)
     bands = {}
     for i, name in enumerate(names):
         res = bundle.oc(name)

@@ -83,6 +83,11 @@ def _node(bundle, run, shift: float) -> list[dict]:
     return out
 
 
+def _model(m: dict) -> str:
+    """The name of the model in force of a monitor message (its OC's; in the start, the start's)."""
+    return m["model"].split(":", 1)[1].split("@", 1)[0]
+
+
 def test_the_node_says_where_it_extrapolates_holds_the_inputs_and_widens_the_band(campaign):
     bundle = load_bundle(campaign / "m")
     assert all(r.envelope is not None and r.envelope.inputs == tuple(r.inputs)
@@ -94,17 +99,17 @@ def test_the_node_says_where_it_extrapolates_holds_the_inputs_and_widens_the_ban
     assert modelled and all(m["envelope"] is not None for m in modelled)
     assert all(m["envelope"] is None for m in msgs if m["predicted"] is None)
     takes_tf = {r.name for r in bundle.ocs if r.model is not None and "tF" in r.inputs}
-    outside = [m for m in hot if m["predicted"] is not None and m["oc"] in takes_tf]
+    outside = [m for m in hot if m["predicted"] is not None and _model(m) in takes_tf]
     assert outside and all(m["envelope"] > OUTSIDE for m in outside)
     for m in outside:
-        res = bundle.oc(m["oc"])
+        res = bundle.oc(_model(m))
         c = res.calibration
         held = f"{res.model.method.value}:{res.name}{HELD}"
         assert m["model"] in (held, held + CURVE)  # the curve guard may name itself after it
         assert m["band"] == pytest.approx(c.threshold * c.sigma * m["run_scale"] * res.envelope.band_factor)
     for m in modelled:  # inside, the model's own name and band
         if m["envelope"] <= OUTSIDE:
-            c = bundle.oc(m["oc"]).calibration
+            c = bundle.oc(_model(m)).calibration
             assert HELD not in m["model"]
             assert m["band"] == pytest.approx(c.threshold * c.sigma * m["run_scale"])
     # beyond the training range of tF the prediction is the one at its edge: it no longer moves

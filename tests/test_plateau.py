@@ -107,10 +107,11 @@ def short_settle(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def _with_shifts(bundle, vector: bool, earlier: int = 0):
-    """Every OC but the first given a shift on the run's plateau of OC ``earlier`` (a hand-made law)."""
+    """Every OC but the first given a shift on the run's plateau of OC ``earlier`` (a hand-made law;
+    the rundown and the start, which training never gives one, none)."""
     law = PlateauShift((earlier,), (0.2, 0.5, 0.1), (0.3, 0.2), vector, 5.0)
-    ocs = [dataclasses.replace(r, plateau=law) if i and r.model is not None else r
-           for i, r in enumerate(bundle.ocs)]
+    ocs = [dataclasses.replace(r, plateau=law) if r.model is not None and r.name in bundle.schedule.names[1:]
+           else r for r in bundle.ocs]
     return dataclasses.replace(bundle, ocs=ocs)
 
 

@@ -124,30 +124,43 @@ def _table(bundle: Bundle, runs: list[Run], preds: list[SegmentPrediction], word
     """The per-OC table of one target's bundle over the predictions ``preds`` of some of
     ``runs``, their eps_td named ``word`` (e.g. held-out), and its mean line, in ``out`` (as
     JSON: under ``key``)."""
-    from node.training.evaluation import curve_eps, score_segments
+    from node.training.evaluation import coverage, curve_eps, score_segments, start_evaluation
 
     evals = score_segments(bundle.ocs, bundle.schedule, preds)
     base_eps = [float("nan")] * len(evals)
     if bundle.curve is not None:
         base_eps = curve_eps(bundle.curve, runs, preds, bundle.schedule, bundle.target)
-    header = ["OC", "model", "segments", f"{word} eps_td", "CV eps_td", "baseline eps_td", "outside",
-              "on the curve"]
+    header = ["OC", "model", "segments", f"{word} eps_td", "coverage", "CV eps_td", "baseline eps_td",
+              "outside", "on the curve"]
     rows = []
     hold, base = [], []
     for e, b in zip(evals, base_eps):
         res = bundle.oc(e.name)
         rows.append([e.name, res.kind if res else "-", str(e.n_segments), _f(e.eps),
-                     _f(res.cv_eps if res else float("nan")), _f(b), _share(e.outside, e.samples),
-                     _share(e.guarded, e.samples)])
+                     _share(e.predicted, e.samples), _f(res.cv_eps if res else float("nan")), _f(b),
+                     _share(e.outside, e.predicted), _share(e.guarded, e.predicted)])
         if np.isfinite(e.eps):
             hold.append(e.eps)
             base.append(b)
     out.table(key, header, rows)
     if hold:
-        out.line(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} OCs "
-                 f"(characteristic-curve baseline {np.nanmean(base):.3f})", f"{key} mean eps_td",
+        out.line(f"mean {word} eps_td {np.mean(hold):.3f} over {len(hold)} segments, every sample scored "
+                 f"(one without a prediction a miss) (characteristic-curve baseline {np.nanmean(base):.3f})",
+                 f"{key} mean eps_td",
                  {"eps_td": float(np.mean(hold)), "ocs": len(hold), "baseline": float(np.nanmean(base))})
-    outside, samples = sum(e.outside for e in evals), sum(e.samples for e in evals if np.isfinite(e.eps))
+    start = start_evaluation(bundle.ocs, bundle.schedule, preds)
+    if start is not None:
+        res = bundle.oc(start.name)
+        cv = res.cv_eps if res else float("nan")
+        out.line(f"of {bundle.schedule.names[0]}, its start until the speed leaves the speed it held (model "
+                 f"{start.name}): {res.kind if res else '-'}, {word} eps_td {_f(start.eps)}, coverage "
+                 f"{_share(start.predicted, start.samples)}, CV eps_td {_f(cv)}", f"{key} start",
+                 {"model": start.name, "eps_td": start.eps, "coverage": start.coverage, "cv_eps_td": cv})
+    covered, total = coverage(runs, bundle.schedule, preds, bundle.config)
+    if total:
+        out.line(f"coverage light-off to standstill: {_share(covered, total)} of {total} samples predicted",
+                 f"{key} coverage", {"predicted": covered, "samples": total})
+    outside, samples = sum(e.outside for e in evals), sum(e.predicted for e in evals)
     if samples:
         guarded = sum(e.guarded for e in evals)
         counts = {"modelled": samples, "outside": outside, "on_the_curve": guarded}
@@ -172,7 +185,7 @@ def _plot(bundle: Bundle, preds: list[SegmentPrediction], png: Path) -> bool:
     """Predicted against measured per OC, written to png; False when no OC was found."""
     from replay.report.figures import segments_figure
 
-    fig = segments_figure(bundle.schedule.names, preds, bundle.target)
+    fig = segments_figure(bundle.schedule.models, preds, bundle.target)
     if fig is None:
         log.warning("no OC of the model in the recordings: no plot")
         return False

@@ -60,7 +60,7 @@ from node.contract.messages import (
     json_schema,
 )
 from node.contract.payload import check_sample, decode_sample, decode_samples, log_time_ns, log_times_ns
-from node.contract.schedule import OperatingCondition, Schedule, load_schedule
+from node.contract.schedule import RUNDOWN, OperatingCondition, Schedule, load_schedule
 
 __all__ = [
     "CHANNEL_UNITS", "FS", "MONITOR_SUBSCRIPTION", "OFF_FRACTION", "ORDER_CHANNELS", "PHASE_CHANNELS",
@@ -75,5 +75,5 @@ __all__ = [
     "OCMessage", "Phase", "Reason", "Refused",
     "SensorSample", "TransientCritical", "TransientMessage", "json_schema", "check_sample", "decode_sample",
     "decode_samples", "log_time_ns", "log_times_ns",
-    "OrdervibError", "OperatingCondition", "Schedule", "load_schedule",
+    "OrdervibError", "OperatingCondition", "RUNDOWN", "Schedule", "load_schedule",
 ]

@@ -82,7 +82,8 @@ class MonitorMessage(TypedDict):
     """``testbed/<bed>/monitor/<target>``: one aligned sample of the modelled channel."""
 
     t: Annotated[float, "time of the sample, s (the sensor clock)"]
-    oc: Annotated[str | None, "the operating condition in force, null outside any"]
+    oc: Annotated[str | None, "the operating condition in force (\"rundown\" from the last plateau's "
+                              "departure to standstill), null only while the engine is off"]
     phase: Annotated[Phase, "where in the OC the engine is"]
     measured: Annotated[float | None, "measured value of the target"]
     predicted: Annotated[float | None, "the model's prediction of the target"]
@@ -111,7 +112,8 @@ class OCMessage(TypedDict):
     """``testbed/<bed>/monitor/oc``: one message at each OC or phase switch."""
 
     t: Annotated[float, "time of the switch, s (the sensor clock)"]
-    oc: Annotated[str | None, "the OC now in force, null outside any"]
+    oc: Annotated[str | None, "the OC now in force (\"rundown\" after the last plateau), null while "
+                              "the engine is off"]
     phase: Annotated[Phase, "the phase now"]
     previous: Annotated[str | None, "the OC in force before"]
 

@@ -10,18 +10,29 @@ States, per sample:
 * ``transition`` into OC i: the speed has left the speed it held (by half the
   tolerance and still moving away, for ``depart_s``) heading for OC i, the
   next OC of the schedule that lies in that direction; a transition that goes
-  past its target's band is re-targeted the same way (or ends ``off``);
-* ``off``: the engine is stopped, starting, at idle or at any held speed that
-  is not a scheduled plateau (oc None).
+  past its target's band is re-targeted the same way. The start is the first
+  OC's transition: from the first speed above the off level (light-off), when
+  it lies below the first OC's band, to that OC's plateau; a speed held on the
+  way (idle) does not end it (light-off: the speed above the off level for ``depart_s``).
+  Until it leaves that held speed (or, without one, reaches the plateau) the start has a
+  model of its own (``segment``, ``Schedule.start``), the OC's model from there;
+* ``transition`` in the rundown (index ``len(schedule.ocs)``, ``Schedule.rundown``):
+  a departure downward with no later OC in that direction (fuel off), to standstill;
+  a speed held on the way that is no scheduled plateau does not end it, a departure
+  upward from it is a transition into the next OC ahead;
+* ``off``: the engine is stopped (below the off level), or held at a speed that
+  is no scheduled plateau outside the start and the rundown (a recording that
+  begins mid-run, an upward departure with no OC ahead) (oc None).
 
 A plateau reached that is not the expected one (an aborted or re-run OC, a
-departure with no later OC in its direction) takes over once it has held
+plateau held during the rundown) takes over once it has held
 for ``settle_s``. Non-finite speeds hold the
 previous state. All memory is a few seconds of smoothed speed.
 """
 
 from __future__ import annotations
 
+import itertools  # noqa: F401  (the doctest's)
 import math
 from collections import deque
 from typing import NamedTuple
@@ -89,10 +100,12 @@ class OCDetector:
     >>> from node.contract.schedule import OperatingCondition, Schedule
     >>> det = OCDetector(Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0))))
     >>> speed = np.r_[np.linspace(0.0, 4000.0, 400), np.full(200, 4000.0), np.linspace(4000.0, 6000.0, 200),
-    ...               np.full(200, 6000.0)]
+    ...               np.full(200, 6000.0), np.linspace(6000.0, 0.0, 400)]
     >>> oc, phase = det.label(speed)
-    >>> [(o, Phase.from_code(p).value) for o, p in dict.fromkeys(zip(oc.tolist(), phase.tolist()))]
-    [(-1, 'off'), (0, 'steady'), (1, 'transition'), (1, 'steady')]
+    >>> [(o, Phase.from_code(p).value) for (o, p), _ in itertools.groupby(zip(oc.tolist(), phase.tolist()))]
+    ... # doctest: +NORMALIZE_WHITESPACE
+    [(-1, 'off'), (0, 'transition'), (0, 'steady'), (1, 'transition'), (1, 'steady'),
+     (2, 'transition'), (-1, 'off')]
     """
 
     def __init__(self, schedule: Schedule, config: RuntimeConfig | None = None, fs: float = FS) -> None:
@@ -107,6 +120,9 @@ class OCDetector:
         self.n_depart = max(1, round(c.detector_depart_s * fs))
         self.n_settle = max(self.n_confirm, round(c.detector_settle_s * fs))
         self.off_level = off_speed(float(self.speeds.max()), c.detector_off_fraction)  # rpm
+        self.rundown = schedule.rundown  # the rundown's OC index (len(schedule.ocs))
+        self.start = schedule.start  # the start's model index (``segment``)
+        self._start_below = float(self.speeds[0]) * (1.0 - self.tol)  # a light-off below it starts OC 0
         self.reset()
 
     def reset(self) -> None:
@@ -119,6 +135,9 @@ class OCDetector:
         self._away = 0  # consecutive samples away from the anchor
         self._direction = 1.0  # of the transition under way: +1 up, -1 down
         self._since = 0  # samples since the state last changed
+        self._on = False  # the speed has been above the off level since the last off
+        self._above = 0  # samples above the off level since the last off, up to depart_s
+        self._start = False  # in the start (OC 0's transition from light-off)
 
     # -- helpers --------------------------------------------------------------
     def _held(self, n: int, centre: float, band: float) -> bool:
@@ -156,9 +175,19 @@ class OCDetector:
         oc, phase = self.state
 
         if speed < self.off_level:
-            self._anchor, self._last, self._away = None, -1, 0
+            self._anchor, self._last, self._away, self._on, self._above = None, -1, 0, False, 0
             self._set(OCState(None, Phase.OFF))
             return self.state
+        if not self._on:  # light-off (or a recording that begins with the engine running)
+            self._above += 1  # (held above the off level for depart_s: noise at the crossing is no start)
+            if self._above < self.n_depart:
+                return self.state
+            self._on = True
+            if phase is Phase.OFF and speed < self._start_below:
+                self._direction = 1.0
+                self._set(OCState(0, Phase.TRANSITION))
+                self._start = True
+                return self.state
 
         if phase is Phase.STEADY:
             assert oc is not None and self._anchor is not None  # set on arrival
@@ -171,7 +200,7 @@ class OCDetector:
             self._count_away(s, nominal)
             return self.state
 
-        if phase is Phase.TRANSITION:
+        if phase is Phase.TRANSITION and oc != self.rundown:
             assert oc is not None  # a transition heads for an OC
             target = self._nominal[oc]
             band = self.tol * target
@@ -189,11 +218,12 @@ class OCDetector:
                 later = [int(j) for j in near if j > self._last]
                 self._arrive(later[0] if later else int(near[0]))
             else:
-                self._anchor = s
-                self._set(OCState(None, Phase.OFF))
+                self._anchor = s  # held there: the start and the rundown go on, anything else is off
+                if oc != self.rundown and not self._start:
+                    self._set(OCState(None, Phase.OFF))
             return self.state
-        if phase is Phase.OFF and self._anchor is not None:
-            self._count_away(s, self._anchor)
+        if (phase is Phase.OFF or oc == self.rundown or self._start) and self._anchor is not None:
+            self._count_away(s, self._anchor)  # (from the rundown: up, into the OC ahead)
         return self.state
 
     def _count_away(self, s: float, nominal: float) -> None:
@@ -222,29 +252,41 @@ class OCDetector:
 
     def _depart(self, s: float, direction: float | None = None) -> None:
         assert self._anchor is not None
+        self._start = False  # (a start's departure from its hold: the first OC's model from here)
         self._direction = math.copysign(1.0, s - self._anchor) if direction is None else direction
         target = self._target(self._direction)
         self._away = 0
-        if target is None:
+        if target is None:  # none ahead: down, the rundown (fuel off); up, no OC
             self._anchor = None
-            self._set(OCState(None, Phase.OFF))
+            down = self._direction < 0
+            self._set(OCState(self.rundown, Phase.TRANSITION) if down else OCState(None, Phase.OFF))
         else:
             self._set(OCState(target, Phase.TRANSITION))
 
     def _set(self, state: OCState) -> None:
         if state != self.state:
             self._since = 0
+            self._start = False  # (set again by a light-off)
         self.state = state
 
-    def label(self, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    @property
+    def segment(self) -> int | None:
+        """The model in force (``Schedule.models``): the OC's (or the rundown's), but the start's
+        (``Schedule.start``) in the first OC's transition from light-off until it leaves the
+        speed it held (or reaches the plateau)."""
+        return self.start if self._start else self.state.oc
+
+    def label(self, speed: np.ndarray, models: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Run over a speed series (K,): OC index per sample (-1: none) and phase codes.
 
         Phase codes: 0 off, 1 transition, 2 steady. Continues from the current state.
+        models: the model index (``segment``) instead of the OC's: the start's apart.
         """
         oc = np.empty(len(speed), dtype=np.int64)
         ph = np.empty(len(speed), dtype=np.int8)
         for k, v in enumerate(np.asarray(speed, dtype=float)):
             st = self.step(v)
-            oc[k] = -1 if st.oc is None else st.oc
+            seg = self.segment if models else st.oc
+            oc[k] = -1 if seg is None else seg
             ph[k] = st.phase.code
         return oc, ph

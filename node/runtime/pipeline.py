@@ -3,7 +3,11 @@
 Live (Zenoh) and offline replay feed the very same ``MonitorPipeline``, so
 they give the very same numbers. Per sample: the OC detector steps on the
 switch speed; at an OC switch the OC's model is seeded from the measured
-past (a bounded ring buffer) and then steps once per sample; its residual
+past (a bounded ring buffer) and then steps once per sample (the start is
+the first OC's transition, with a model of its own until it leaves the speed
+it held, ``OCDetector.segment``; after the last plateau the rundown, ``oc``
+"rundown", has its model like an OC where the bundle holds one: a bundle
+trained without them leaves them ``no-model``); its residual
 goes to the OC's ``ResidualCheck`` (``reason`` "residual"). Model-free checks
 flag, with or without a model, an abrupt step of the measured target during a
 steady plateau (``StepCheck``, ``reason`` "step") and a target stuck on one value
@@ -54,7 +58,7 @@ from node.runtime.align import AlignedSample
 from node.runtime.chirp import CHIRP_RATE, ChirpRate
 from node.runtime.guard import CURVE, guard_of
 from node.runtime.history import HISTORY_CHANNELS, SLOW_TEMPERATURES, EngineState, HistoryTracker
-from node.runtime.ocdetect import OCDetector, OCState
+from node.runtime.ocdetect import OCDetector
 from node.runtime.plateaus import RunPlateaus
 from node.runtime.rows import RecentRows
 from node.runtime.runcurve import RUN_CURVE, RunCurve
@@ -114,7 +118,10 @@ class MonitorPipeline:
             raise ValueError("a shared OC detector must have the pipeline's schedule and settings")
         self._follows = detector is not None  # another pipeline steps the detector
         self.detector = detector or OCDetector(bundle.schedule, cfg, FS)
-        self._names = bundle.schedule.names  # a tuple built on each access: keep one
+        # per model index (``OCDetector.segment``, ``Schedule.models``): its ``oc`` (the start's: the
+        # first OC's) and its model's name (tuples built on each access: keep them)
+        self._names = (*bundle.schedule.segments, bundle.schedule.names[0])
+        self._models = bundle.schedule.models
         self._uses_history = any(c in HISTORY_CHANNELS for c in bundle.inputs)
         slow = SLOW_TEMPERATURES if self._uses_history or slow_temperatures else ()
         # the vector rule: a sliding and an anchored StepCheck on the 1x vector (either may be off);
@@ -126,7 +133,7 @@ class MonitorPipeline:
         pooled = self._drift.threshold if self._drift is not None else math.inf
         per_oc = bundle.checks.get("vector_drift_thresholds") or {}
         self._drift_thr = [float(per_oc.get(n, pooled)) or math.inf  # 0: off in that OC
-                           for n in bundle.schedule.names]
+                           for n in self._models]
         self._phase_ch = phase_channel(self.target)
         vector_models = any(predicts_vector(r.model) for r in bundle.ocs)
         shifts = [r.plateau for r in bundle.ocs if r.plateau is not None]
@@ -167,7 +174,7 @@ class MonitorPipeline:
         # the chirp rate (node.runtime.chirp), when a model takes it as input
         self._chirp = ChirpRate() if CHIRP_RATE in self.channels else None
         # this run's plateaus, when an OC model's plateau shift reads them (node.runtime.plateaus)
-        self._plateaus = RunPlateaus(len(self._names)) if shifts else None
+        self._plateaus = RunPlateaus(len(bundle.schedule.names)) if shifts else None
 
     def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
         self.transient = None
@@ -177,7 +184,8 @@ class MonitorPipeline:
         vals = self._filled(values)
         detector = self.detector
         st = detector.state if self._follows else detector.step(values.get(self.switch, _NAN))
-        oc, phase = st
+        phase = st.phase
+        oc = detector.segment  # the model in force (the start's apart from its OC's)
         oc_changed = oc != self._state[0]
         if self._curve is not None:
             vals[RUN_CURVE] = self._curve.step(vals[self.switch], vals[self.target], oc_changed)
@@ -190,7 +198,7 @@ class MonitorPipeline:
             vals.update(zip(HISTORY_CHANNELS, known))
         oc_msg = None
         if oc_changed or phase != self._state[1]:
-            oc_msg = self._switch(sample.t, st, oc_changed)
+            oc_msg = self._switch(sample.t, oc, phase, oc_changed)
         measured = values.get(self.target, _NAN)
         # one dict literal per sample, its keys in the contract's order (the JSON bytes follow it)
         if self._uses_phase:
@@ -339,17 +347,21 @@ class MonitorPipeline:
                 rule.reset()
         self._active = None  # its segment is not this run's: RunScale never hears of it
 
-    def _switch(self, t: float, st: OCState, oc_changed: bool) -> dict:
-        """The OC or phase changed at this sample: the OC message, and the OC's model in force."""
-        prev = self._state[0]
+    def _switch(self, t: float, oc: int | None, phase: Phase, oc_changed: bool) -> dict | None:
+        """The model (``oc``: its index) or phase changed at this sample: the OC's model in force,
+        and the OC message (None: the OC and phase it names unchanged, the start's model ending)."""
+        prev, before = self._state
         if oc_changed:
             if self._plateaus is not None:
-                self._plateaus.switch(st.oc)
-            self._activate(st.oc)
-            if self._drift is not None and st.oc is not None:
-                self._drift.threshold = self._drift_thr[st.oc]
-        self._state = (st.oc, st.phase)
-        return {"t": t, "oc": self._name(st.oc), "phase": st.phase.value, "previous": self._name(prev)}
+                self._plateaus.switch(oc)
+            self._activate(oc)
+            if self._drift is not None and oc is not None:
+                self._drift.threshold = self._drift_thr[oc]
+        self._state = (oc, phase)
+        name, was = self._name(oc), self._name(prev)
+        if name == was and phase is before:
+            return None
+        return {"t": t, "oc": name, "phase": phase.value, "previous": was}
 
     def _filled(self, values: dict[str, float]) -> dict[str, float]:
         """Hold each channel's last finite value over dropouts (NaN before the first); in place."""
@@ -368,7 +380,7 @@ class MonitorPipeline:
         self._active = None
         if oc is None:
             return
-        res = self.bundle.oc(self._names[oc])
+        res = self.bundle.oc(self._models[oc])
         if res is None or res.model is None or res.calibration is None:
             return
         rt = res.model.runtime()

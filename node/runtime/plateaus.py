@@ -23,7 +23,8 @@ _NAN = complex(math.nan, math.nan)
 
 
 class RunPlateaus:
-    """Stateful, bounded (one level per OC, the last second of levels).
+    """Stateful, bounded (one level per OC, the last second of levels). OC indices from
+    ``n_ocs`` on (the rundown, ``Schedule.rundown``) are visits that keep no plateau.
 
     >>> rp = RunPlateaus(2)
     >>> rp.switch(0)
@@ -57,7 +58,7 @@ class RunPlateaus:
     def switch(self, oc: int | None) -> None:
         """The OC changed (None: none) before the next sample: the visit that ends keeps its
         plateau, the level before the switch is taken."""
-        if self._oc is not None and self._n >= MIN_SAMPLES:
+        if self._oc is not None and self._oc < self.n_ocs and self._n >= MIN_SAMPLES:  # (the rundown: none)
             self.levels[self._oc] = self.current
         vals = [v for v in self._recent if v == v]
         self.pre = sum(vals, 0j) / len(vals) if vals else _NAN

@@ -111,14 +111,15 @@ def add_run_curve(run, schedule, target: str, fleet: tuple[np.ndarray, np.ndarra
                   codes: np.ndarray | None = None):
     """``run`` (a ``node.mcap.Run``) with the ``run_curve`` column appended.
 
-    codes: the run's (K,) OC index per sample (``OCDetector.label``; None: labelled here).
+    codes: the run's (K,) model index per sample (``OCDetector.label`` by model, as the node
+    switches its models; None: labelled here).
     """
     from node.runtime.ocdetect import OCDetector
 
     if RUN_CURVE in run.channels or schedule.switch not in run.channels or target not in run.channels:
         return run
     if codes is None:
-        codes = OCDetector(schedule).label(run.column(schedule.switch))[0]
+        codes = OCDetector(schedule).label(run.column(schedule.switch), models=True)[0]
     col = run_curve_column(run.column(schedule.switch), run.column(target), codes, fleet)
     return dataclasses.replace(run, data=np.column_stack([run.data, col]),
                                channels=(*run.channels, RUN_CURVE))

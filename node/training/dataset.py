@@ -2,12 +2,14 @@
 are its segments in every training run).
 
 A segment is the samples of one run that the causal OC detector assigns to one
-OC (its transition, then its plateau), plus the index where it starts, so the
-samples before it serve as the history that seeds the model.
+OC (its transition, then its plateau; the first OC's transition from light-off)
+or to the rundown (index ``Schedule.rundown``), plus the index where it starts, so
+the samples before it serve as the history that seeds the model.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,12 +21,14 @@ from node.contract.vector import order_vectors
 from node.models.config import RuntimeConfig
 from node.runtime.history import add_history
 from node.runtime.ocdetect import OCDetector
+from node.runtime.runcurve import hold_last
 from node.training.runs import Run
 
 
 @dataclass(frozen=True)
 class Segment:
-    """Samples [start, stop) of run ``run`` belong to OC ``oc`` (schedule index)."""
+    """Samples [start, stop) of run ``run`` belong to OC ``oc`` (schedule index; the rundown's,
+    ``Schedule.rundown``; with labels by model, the start's, ``Schedule.start``)."""
 
     run: int
     oc: int
@@ -58,14 +62,16 @@ def fill_gaps(X: np.ndarray) -> np.ndarray:
 Labels = tuple[np.ndarray, np.ndarray]  # a run's (K,) OC index per sample (-1: none), (K,) Phase code
 
 
-def label_runs(runs: list[Run], schedule: Schedule) -> list[Labels]:
+def label_runs(runs: list[Run], schedule: Schedule, models: bool = False) -> list[Labels]:
     """Every run labelled by the causal OC detector (default settings, a fresh one per run), as
-    the node labels it: once per training, for the segments, run_curve and the checks alike."""
+    the node labels it: once per training, for the segments, run_curve and the checks alike.
+    models: by the model in force (``OCDetector.segment``: the start's apart from the first OC's,
+    as training and the node's models cut them), not the OC."""
     out: list[Labels] = []
     for r, run in enumerate(runs):
         if schedule.switch not in run.channels:
             raise OrdervibError(f"run {r} has no {schedule.switch!r} channel, needed to find the OCs")
-        out.append(OCDetector(schedule).label(run.column(schedule.switch)))
+        out.append(OCDetector(schedule).label(run.column(schedule.switch), models))
     return out
 
 
@@ -113,12 +119,26 @@ def run_arrays(run: Run, target: str, inputs: list[str]) -> RunArrays:
 
 def target_vectors(run: Run, target: str) -> np.ndarray | None:
     """The target order's 1x vectors (K,) complex, amplitude and phase each held over gaps as
-    ``run_arrays`` holds them (the node holds each channel's last value); None without phase."""
+    the node holds them (its last value; NaN before the first: a run's first samples often have
+    no phase); None without phase."""
     ph = phase_channel(target)
     if ph not in run.channels or target not in run.channels:
         return None
-    held = fill_gaps(np.column_stack([run.column(target), run.column(ph)]))
-    return order_vectors(held[:, 0], held[:, 1])
+    return order_vectors(hold_last(run.column(target)), hold_last(run.column(ph)))
+
+
+def first_seen(run: Run, channels: Sequence[str]) -> int:
+    """The first sample by which every one of ``channels`` has been measured (``len(run.t)``:
+    never). The node seeds a model from the measured past from there on (its rows before hold
+    a channel never seen): what matters for a segment near the run's start, as the first OC's
+    from light-off."""
+    k = 0
+    for c in channels:
+        ok = np.isfinite(run.column(c))
+        if not ok.any():
+            return len(run.t)
+        k = max(k, int(np.argmax(ok)))
+    return k
 
 
 def time_order(runs: list[Run]) -> list[int]:

@@ -1,5 +1,11 @@
 """Held-out evaluation of a trained switching model, the way the node runs it:
-per OC segment, seeded from the measured past, free run across the OC."""
+per OC segment, seeded from the measured past, free run across the OC.
+
+Every segment is scored, the start (the first OC's transition from light-off) and the
+rundown included: a sample without a prediction (no model for the segment, or its inputs
+not yet seen) is a miss, its error its measured value (``SegmentPrediction.scored``), and
+each OC's coverage (the share of its samples predicted) is reported beside its eps_td.
+"""
 
 from __future__ import annotations
 
@@ -21,7 +27,14 @@ from node.runtime.history import HISTORY_CHANNELS
 from node.runtime.runcurve import RUN_CURVE, add_run_curve, hold_last
 from node.sysid.metrics import pooled_eps
 from node.training.calibrate import alarm_mask
-from node.training.dataset import label_runs, run_arrays, segment_runs, target_vectors, with_history
+from node.training.dataset import (
+    first_seen,
+    label_runs,
+    run_arrays,
+    segment_runs,
+    target_vectors,
+    with_history,
+)
 from node.training.plateau_fit import shifted, visit_tables
 from node.training.runs import Run
 
@@ -36,6 +49,16 @@ class SegmentPrediction:
     envelope: np.ndarray | None = None  # (K,) the model's envelope value (None: the model has none)
     guarded: np.ndarray | None = None  # (K,) bool: predicted with the curve (None: no guard)
 
+    @property
+    def scored(self) -> np.ndarray:
+        """(K,) the prediction as scored: a sample without one (NaN) a miss, predicted 0."""
+        return np.where(np.isfinite(self.predicted), self.predicted, 0.0)
+
+    @property
+    def covered(self) -> int:
+        """Samples with a prediction."""
+        return int(np.count_nonzero(np.isfinite(self.predicted)))
+
     def widened(self, res: OCResult) -> np.ndarray:
         """(K,) the residual over the band's widening (``Envelope.band_factor`` where outside)."""
         r = self.measured - self.predicted
@@ -47,12 +70,18 @@ class SegmentPrediction:
 @dataclass
 class OCEvaluation:
     name: str
-    eps: float  # pooled over the segments evaluated; nan when the OC has no model or data
+    eps: float  # pooled over every sample of the segments evaluated (a miss: see the module); nan: none
     n_segments: int
     alarm_samples: int  # samples flagged (persistent smoothed score beyond threshold)
     samples: int
     outside: int = 0  # samples beyond the model's envelope (predicted with its inputs held at the edge)
     guarded: int = 0  # samples the curve guard predicted with the characteristic curve
+    predicted: int = 0  # samples with a prediction
+
+    @property
+    def coverage(self) -> float:
+        """The share of the samples with a prediction (nan: no sample)."""
+        return self.predicted / self.samples if self.samples else float("nan")
 
 
 def derived_runs(runs: list[Run], schedule: Schedule, target: str, channels: list[str],
@@ -74,7 +103,9 @@ def derived_runs(runs: list[Run], schedule: Schedule, target: str, channels: lis
 def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedule,
                      target: str, fleet: tuple[np.ndarray, np.ndarray] | None = None,
                      config: RuntimeConfig | None = None) -> list[SegmentPrediction]:
-    """Free-run predictions of every OC segment found in ``runs`` that has a model.
+    """Free-run predictions of every segment found in ``runs`` (each OC's, the rundown's, the
+    start's: ``Schedule.models``, ``oc`` their index), predicted NaN where its OC has no model
+    (a miss when scored).
 
     fleet: the bundle's characteristic curve, needed when a model takes ``run_curve``.
     config: the bundle's settings (the measured past seeding each segment, ``history_s``;
@@ -93,17 +124,20 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
     guard = guard_of(fleet, config)
     if guard is not None:  # what the node sees: the target as measured, the switch speed held
         seen = [(run.column(target), hold_last(run.column(schedule.switch))) for run in runs]
-    labels = label_runs(runs, schedule)
+    labels = label_runs(runs, schedule, models=True)  # (as the node switches its models)
     shifts = [r.plateau for r in by_oc.values() if r.plateau is not None]
     visits = visit_tables(runs, [codes for codes, _ in labels], target, len(schedule.names),
                           shifts[0].vector) if shifts else None  # the run's plateaus, as the node's
     for s in segment_runs(runs, schedule, labels=labels):
         res = by_oc.get(s.oc)
-        if res is None or res.model is None:
-            continue
         ra = arrays[s.run]
+        if res is None or res.model is None:
+            out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], ra.y[s.start:s.stop],
+                                         np.full(s.stop - s.start, np.nan)))
+            continue
         cols = [inputs_needed.index(c) for c in res.inputs]
-        lo = max(0, s.start - hist)
+        # the measured past as the node seeds from it: from the first row holding every channel
+        lo = min(max(0, s.start - hist, first_seen(runs[s.run], [target, *res.inputs])), s.start)
         z = vectors[s.run]
         U = ra.U[lo:s.stop][:, cols]
         env = None
@@ -139,36 +173,106 @@ def evaluate(results: list[OCResult], runs: list[Run], schedule: Schedule,
 
 def score_segments(results: list[OCResult], schedule: Schedule, preds: list[SegmentPrediction]
                    ) -> list[OCEvaluation]:
-    """Per OC (schedule order), eps pooled over the segments of ``preds`` and the samples the
-    alarm rule flags there (e.g. only the held-out runs' predictions: see
-    ``node.training.provenance``)."""
+    """Per OC (schedule order), then the rundown (``Schedule.segments``): eps pooled over every
+    sample of the segments of ``preds`` (a sample without a prediction a miss: ``scored_pairs``;
+    the first OC's with its start's, ``pooled``), the share predicted, and the samples the alarm
+    rule flags there, each by its own model's rule (e.g. only the held-out runs' predictions:
+    see ``node.training.provenance``)."""
     by_name = {r.name: r for r in results}
     out = []
-    for j, name in enumerate(schedule.names):
-        mine = [p for p in preds if p.oc == j]
+    for j, name in enumerate(schedule.segments):
+        mine = [p for p in preds if p.oc in pooled(schedule, j)]
         res = by_name.get(name)
+        samples = sum(p.t.size for p in mine)
+        covered = sum(p.covered for p in mine)
+        eps = pooled_eps(scored_pairs(mine)) if mine else float("nan")
         if not mine or res is None or res.calibration is None:
-            out.append(OCEvaluation(name, float("nan"), len(mine), 0, sum(p.t.size for p in mine)))
+            out.append(OCEvaluation(name, eps, len(mine), 0, samples, predicted=covered))
             continue
-        alarms = sum(int(alarm_mask(p.widened(res), res).sum()) for p in mine)
+        alarms = _alarm_samples(by_name, schedule, mine)
         outside = sum(int(np.sum(p.envelope > OUTSIDE)) for p in mine if p.envelope is not None)
         guarded = sum(int(np.sum(p.guarded)) for p in mine if p.guarded is not None)
-        out.append(OCEvaluation(name, pooled_eps([(p.measured, p.predicted) for p in mine]),
-                                len(mine), alarms, sum(p.t.size for p in mine), outside, guarded))
+        out.append(OCEvaluation(name, eps, len(mine), alarms, samples, outside, guarded, covered))
     return out
+
+
+def pooled(schedule: Schedule, j: int) -> tuple[int, ...]:
+    """The model indices (``Schedule.models``) whose segments segment ``j`` (``Schedule.segments``)
+    pools: the first OC's with its start's (the contract's first OC holds its start).
+
+    >>> from node.contract.schedule import OperatingCondition
+    >>> s = Schedule((OperatingCondition("A", 4000.0), OperatingCondition("B", 6000.0)))
+    >>> pooled(s, 0), pooled(s, 2)
+    ((0, 3), (2,))
+    """
+    return (j, schedule.start) if j == 0 else (j,)
+
+
+def start_evaluation(results: list[OCResult], schedule: Schedule, preds: list[SegmentPrediction]
+                     ) -> OCEvaluation | None:
+    """The start's part of the first OC (its own model, ``Schedule.start``) scored alone, as
+    ``score_segments`` scores an OC; None: no start in ``preds``."""
+    mine = [p for p in preds if p.oc == schedule.start]
+    if not mine:
+        return None
+    alarms = _alarm_samples({r.name: r for r in results}, schedule, mine)
+    return OCEvaluation(schedule.models[schedule.start], pooled_eps(scored_pairs(mine)), len(mine), alarms,
+                        sum(p.t.size for p in mine), predicted=sum(p.covered for p in mine))
+
+
+def _alarm_samples(by_name: dict[str, OCResult], schedule: Schedule, preds: list[SegmentPrediction]) -> int:
+    """The samples of ``preds`` the alarm rule flags, each segment by its own model's rule."""
+    n = 0
+    for p in preds:
+        res = by_name.get(schedule.models[p.oc])
+        if res is not None and res.calibration is not None:
+            n += int(alarm_mask(p.widened(res), res).sum())
+    return n
+
+
+def scored_pairs(preds: list[SegmentPrediction]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(measured, prediction as scored) of each of ``preds`` over its measured samples: the one
+    rule of scoring, a sample without a prediction a miss (``SegmentPrediction.scored``)."""
+    out = []
+    for p in preds:
+        ok = np.isfinite(p.measured)
+        out.append((p.measured, p.scored) if ok.all() else (p.measured[ok], p.scored[ok]))
+    return out
+
+
+def coverage(runs: list[Run], schedule: Schedule, preds: list[SegmentPrediction],
+             config: RuntimeConfig | None = None) -> tuple[int, int]:
+    """(samples predicted, samples) from light-off to standstill: each run's samples from the
+    first to the last whose switch speed is at or above the off level (the OC detector's,
+    ``config``'s), and of them those with a prediction in ``preds`` (predictions of ``runs``)."""
+    from node.runtime.ocdetect import OCDetector
+
+    off = OCDetector(schedule, config).off_level
+    done = [np.zeros(len(r.t), dtype=bool) for r in runs]
+    for p in preds:
+        k0 = int(np.searchsorted(runs[p.run].t, p.t[0])) if p.t.size else 0
+        done[p.run][k0:k0 + p.t.size] |= np.isfinite(p.predicted)
+    predicted = total = 0
+    for run, d in zip(runs, done):
+        on = np.flatnonzero(np.nan_to_num(run.column(schedule.switch), nan=-np.inf) >= off)
+        if on.size:
+            predicted += int(d[on[0]:on[-1] + 1].sum())
+            total += int(on[-1] + 1 - on[0])
+    return predicted, total
 
 
 def baseline_eps(train_runs: list[Run], test_runs: list[Run], schedule: Schedule,
                  target: str) -> list[float]:
-    """Per-OC eps_td of the characteristic-curve baseline fitted on the training runs."""
+    """Per-OC eps_td of the characteristic-curve baseline fitted on the training runs (every OC,
+    then the rundown: ``Schedule.segments``)."""
     sw = schedule.switch
     tr = [run_arrays(r, target, [sw]) for r in train_runs]
     cc = CharacteristicCurve().fit(np.concatenate([a.U[:, 0] for a in tr]),
                                    np.concatenate([a.y for a in tr]))
     te = [run_arrays(r, target, [sw]) for r in test_runs]
-    segs = segment_runs(test_runs, schedule)
+    segs = segment_runs(test_runs, schedule)  # (by OC: the first's with its start)
     out = []
-    for j in range(len(schedule.ocs)):
+    for j in range(len(schedule.segments)):
         pairs = [(te[s.run].y[s.start:s.stop], cc.predict(te[s.run].U[s.start:s.stop, 0]))
                  for s in segs if s.oc == j]
         out.append(pooled_eps(pairs) if pairs else float("nan"))
@@ -191,12 +295,13 @@ def curve_predictions(curve: tuple[np.ndarray, np.ndarray], runs: list[Run],
 
 def curve_eps(curve: tuple[np.ndarray, np.ndarray], runs: list[Run], preds: list[SegmentPrediction],
               schedule: Schedule, target: str) -> list[float]:
-    """Per OC (schedule order) the eps_td of a bundle's characteristic curve over the segments of
-    ``preds`` (the same samples as the model's, see ``curve_predictions``); nan where none."""
+    """Per OC (schedule order, then the rundown) the eps_td of a bundle's characteristic curve over
+    the segments of ``preds`` (the same samples as the model's, see ``curve_predictions``); nan
+    where none."""
     base = curve_predictions(curve, runs, preds, schedule.switch, target)
     out = []
-    for j in range(len(schedule.names)):
-        mine = [(p.measured, b) for p, b in zip(preds, base) if p.oc == j]
+    for j in range(len(schedule.segments)):
+        mine = [(p.measured, b) for p, b in zip(preds, base) if p.oc in pooled(schedule, j)]
         num = sum(float(np.sum((m - b) ** 2)) for m, b in mine)
         den = sum(float(np.sum(m ** 2)) for m, _ in mine)
         out.append(float(np.sqrt(num / den)) if den else float("nan"))

@@ -276,11 +276,12 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
     trained: list[tuple[str, list[OCResult]]] = []
     if o["chirp_rate"]:  # a derived candidate input, as the node derives it (section 3.3)
         runs = [add_chirp_rate(r, schedule.switch) for r in runs]
-    labels = label_runs(runs, schedule)  # once for every target: segments, run_curve, checks
+    labels = label_runs(runs, schedule, models=True)  # once for every target: segments, run_curve, checks
     n_models = (_count(grid) if grid else 0) + (len(PROM_CANDIDATES) if use_prom else 0)
     lag = _tracker_lag(runs, schedule, targets, o["tracker_s"])
     for target in targets:
-        log.info("training %s for %s on %d run(s), %d OCs, leave-one-run-out CV over %d model candidates "
+        log.info("training %s for %s on %d run(s), %d OCs and the rundown, leave-one-run-out CV over %d "
+                 "model candidates "
                  "per OC%s", method, target, len(runs), len(schedule.ocs), n_models,
                  f" and up to {len(CURVE_CANDIDATES)} curves" if o["curves"] else "")
 

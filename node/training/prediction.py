@@ -501,9 +501,9 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
             if key not in keys:
                 continue
             j = keys[key]
-            p = msg["predicted"]
-            if msg["oc"] is not None:
-                oc[k] = index[msg["oc"]]
+            if msg["oc"] is not None:  # (the rundown, no plateau OC: -1, as outside every OC)
+                oc[k] = index.get(msg["oc"], -1)
+            p = msg["predicted"] if oc[k] >= 0 else None  # a plan's prediction: the OCs' (no interval else)
             ph = msg.get("predicted_phase")
             e = msg.get("envelope")
             if e is not None:

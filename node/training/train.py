@@ -38,6 +38,7 @@ from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, pea
 from node.training.dataset import (
     Labels,
     Segment,
+    first_seen,
     label_runs,
     run_arrays,
     segment_runs,
@@ -443,7 +444,9 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
                 proms: list[dict] | None = None, unranked: list[str] | None = None,
                 visits: list[dict[int, Visit]] | None = None, plateau_vector: bool = False,
                 settle: bool = False) -> list[OCData]:
-    """Per-OC arrays from runs: each segment with up to ``history_s`` of past before it.
+    """Per-OC arrays from runs (``Schedule.models``: every OC, the rundown, the start), each
+    segment with up to ``history_s`` of past before it (``segments``: cut from labels by model,
+    ``label_runs(models=True)``; None: cut here so).
 
     curves: each OC's curve candidates (``CURVE_CANDIDATES``; None: none). phase: the target's
     1x vectors too (``OCData.z``) when every run holds its phase channel. proms: the parametric
@@ -451,23 +454,29 @@ def oc_datasets(runs: list[Run], schedule: Schedule, target: str, candidates: li
     visits: per run, its visits by start (``plateau_fit.visit_tables``; on the 1x vector with
     ``plateau_vector``): each OC learns its plateau shift (None: none).
     """
-    segments = segment_runs(runs, schedule) if segments is None else segments
+    segments = segment_runs(runs, schedule, labels=label_runs(runs, schedule, True)) if segments is None \
+        else segments
     arrays = [run_arrays(run, target, candidates) for run in runs]
     vectors = [target_vectors(run, target) for run in runs] if phase else []
     zs = [v for v in vectors if v is not None]
     if not zs or len(zs) < len(runs):
         zs = []
     hist = int(history_s * FS)
+    seen = [first_seen(run, [target, schedule.switch]) for run in runs]
     out = []
-    for j, name in enumerate(schedule.names):
+    for j, name in enumerate(schedule.models):
+        plateau = j < schedule.rundown  # the rundown and the start have none: no shift, no settle anchor
         d = OCData(name, target, list(candidates), [], [], [], [], switch=schedule.switch,
                    curves=[dict(c) for c in curves or []], proms=[dict(c) for c in proms or []],
                    unranked=list(unranked or []), folds=run_folds(len(runs)),
-                   plateau_vector=plateau_vector if visits is not None else None, settle=settle)
+                   plateau_vector=plateau_vector if visits is not None and plateau else None,
+                   settle=settle and plateau)
         for s in segments:
             if s.oc != j:
                 continue
-            lo = max(0, s.start - hist)
+            # the past the node seeds from: from the first row with the target and the switch
+            # measured (the node's rule also awaits the model's inputs, here not yet chosen)
+            lo = min(max(0, s.start - hist, seen[s.run]), s.start)
             ra = arrays[s.run]
             d.runs.append(s.run)
             d.y.append(ra.y[lo:s.stop])
@@ -582,7 +591,8 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
           history: bool = False, phase: bool = True, prom: bool = True, prune: bool = True,
           fade: bool = True, labels: list[Labels] | None = None, plateaus: bool = True,
           settle: bool = True) -> list[OCResult]:
-    """Train every OC of the schedule. ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
+    """Train every OC of the schedule, the rundown and the start (``Schedule.models``).
+    ``inputs=None`` selects them by MS-DPCCA (top ``n_inputs``).
 
     config: the run-time settings the bundle will carry (default ``RuntimeConfig()``); each
     OC's model is evaluated seeded from ``config.history_s`` of past, as the node seeds it.
@@ -611,7 +621,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
     prune: stop a candidate's CV once it cannot be chosen, and make the curves' folds from the
     runs' parts (``train_oc``; the same models; False: the full CV, slower).
 
-    labels: each run's OC labels (``label_runs``; None: labelled here), computed once per
+    labels: each run's labels by model (``label_runs(models=True)``; None: labelled here), computed once per
     training by the caller that trains several targets.
 
     plateaus: each OC also learns what the run's earlier plateaus add to its model's plateau
@@ -631,7 +641,7 @@ def train(runs: list[Run], schedule: Schedule, target: str = "yB", method: str =
         raise OrdervibError("no runs to train on")
     if any(target not in r.channels for r in runs):
         raise OrdervibError(f"target channel {target!r} is missing from some run")
-    labels = label_runs(runs, schedule) if labels is None else labels
+    labels = label_runs(runs, schedule, models=True) if labels is None else labels
     if fleet is not None:
         runs = [add_run_curve(r, schedule, target, fleet, codes) for r, (codes, _) in zip(runs, labels)]
     if history or prom:

@@ -52,7 +52,7 @@ def dpcca_rows(runs: Sequence[Run], schedule: Schedule, target: str
                     value[channels.index(have[col - 1])] = v
         rows.append((s.oc, s.run, value))
     rows.sort(key=lambda x: (x[0], x[1]))
-    labels = [f"{schedule.names[o]} · run {r + 1}" for o, r, _ in rows]
+    labels = [f"{schedule.segments[o]} · run {r + 1}" for o, r, _ in rows]
     return labels, channels, np.array([v for _, _, v in rows]).reshape(len(rows), len(channels))
 
 

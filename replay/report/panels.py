@@ -22,13 +22,15 @@ from node.models.baseline import CharacteristicCurve
 from node.models.bundle import Bundle
 from node.runtime.history import HISTORY_CHANNELS
 from node.sysid.metrics import pooled_eps, pooled_r2
-from node.training.dataset import Segment, segment_runs
+from node.training.dataset import Segment, label_runs, segment_runs
 from node.training.evaluation import (
     SegmentPrediction,
     curve_predictions,
     derived_runs,
+    pooled,
     predict_segments,
     score_segments,
+    scored_pairs,
 )
 from node.training.runs import Run
 from replay.offline import NodeAlarms
@@ -69,6 +71,10 @@ class RunSet:
 
 def _f(x: float, digits: int = 3) -> str:
     return f"{x:.{digits}f}" if np.isfinite(x) else "-"
+
+
+def _pct(x: float) -> str:
+    return f"{100.0 * x:.1f} %" if np.isfinite(x) else "-"
 
 
 def _g(x: float) -> str:
@@ -168,7 +174,7 @@ def _oc_parameters(bundle: Bundle, runs: list[Run], schedule: Schedule, target: 
     inputs = sorted({c for r in bundle.ocs if r.model is not None for c in r.inputs})
     full = derived_runs(runs, schedule, target, [*inputs, *HISTORY_CHANNELS], bundle.curve,
                         bundle.config)
-    segs = segment_runs(full, schedule)
+    segs = segment_runs(full, schedule, labels=label_runs(full, schedule, models=True))  # (each model's)
     out = []
     for res in bundle.ocs:
         if res.model is None:
@@ -256,7 +262,7 @@ def target_episodes(alarms: NodeAlarms, runs: RunSet, schedule: Schedule, target
     out = []
     for e in mine:
         bed = (parse_monitor_key(e["key"]) or ("", ""))[0]
-        i, into, oc = _locate(runs.runs, segs, schedule.names, bed, float(e["start"]))
+        i, into, oc = _locate(runs.runs, segs, schedule.segments, bed, float(e["start"]))
         out.append(Episode(runs.labels[i] if i is not None else bed, oc, into,
                            float(e["end"]) - float(e["start"]), str(e["reason"])))
     return out
@@ -331,9 +337,10 @@ def score_runs(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str) ->
 
 @dataclass(frozen=True)
 class OCScore:
-    """One OC over some runs: the model's kind ("-": none), segments, eps_td and R^2 of the
-    model and of the characteristic curve on the same samples, the CV eps_td, the samples the
-    evaluation's alarm rule flags, and the samples modelled and outside the envelope."""
+    """One OC (or the rundown) over some runs: the model's kind ("-": none), segments, eps_td and
+    R^2 of the model (every sample, one without a prediction a miss) and of the characteristic
+    curve on the same samples, the CV eps_td, the samples the evaluation's alarm rule flags, the
+    samples modelled and outside the envelope, and the share of samples predicted."""
 
     name: str
     kind: str
@@ -347,6 +354,7 @@ class OCScore:
     samples: int
     outside: int
     guarded: int = 0  # samples the curve guard predicted with the characteristic curve
+    coverage: float = float("nan")  # the share of the OC's samples predicted
 
     @property
     def outside_share(self) -> str:
@@ -366,14 +374,15 @@ def oc_scores(bundle: Bundle, schedule: Schedule, preds: list[SegmentPrediction]
     out = []
     for j, e in enumerate(score_segments(bundle.ocs, schedule, preds)):
         res = bundle.oc(e.name)
-        pairs = [(p.measured, p.predicted) for p in preds if p.oc == j]
-        curve_pairs = [(p.measured, b) for p, b in zip(preds, base) if p.oc == j]
+        pairs = scored_pairs([p for p in preds if p.oc in pooled(schedule, j)])
+        curve_pairs = [(p.measured, b) for p, b in zip(preds, base) if p.oc in pooled(schedule, j)]
         out.append(OCScore(
             e.name, res.kind if res else "-", e.n_segments, e.eps,
             pooled_r2(pairs) if pairs else float("nan"),
             pooled_eps(curve_pairs) if curve_pairs else float("nan"),
             pooled_r2(curve_pairs) if curve_pairs else float("nan"),
-            res.cv_eps if res else float("nan"), e.alarm_samples, e.samples, e.outside, e.guarded))
+            res.cv_eps if res else float("nan"), e.alarm_samples, e.predicted, e.outside, e.guarded,
+            e.coverage))
     return out
 
 
@@ -382,20 +391,22 @@ def _score_blocks(bundle: Bundle, schedule: Schedule, target: str, preds: list[S
     """The bar charts and the table of eps_td and R^2 per OC over ``preds`` (the model's) and
     ``base`` (the characteristic curve's on the same samples), their runs named ``word``."""
     scores = oc_scores(bundle, schedule, preds, base)
-    rows = [[s.name, s.kind, str(s.segments), _f(s.eps), _f(s.r2), _f(s.curve_eps), _f(s.curve_r2),
-             _f(s.cv_eps), str(s.alarm_samples), s.outside_share, s.guarded_share] for s in scores]
+    rows = [[s.name, s.kind, str(s.segments), _f(s.eps), _f(s.r2), _pct(s.coverage), _f(s.curve_eps),
+             _f(s.curve_r2), _f(s.cv_eps), str(s.alarm_samples), s.outside_share, s.guarded_share]
+            for s in scores]
     return [
-        Figure.of(score_figure(schedule.names, [(f"{word} eps_td", [s.eps for s in scores],
+        Figure.of(score_figure(schedule.segments, [(f"{word} eps_td", [s.eps for s in scores],
                                                  [s.curve_eps for s in scores], None),
                                                 (f"{word} R\u00b2", [s.r2 for s in scores],
                                                  [s.curve_r2 for s in scores], R2_FLOOR)]),
                   f"{target}, {word} runs: per OC, the model (blue) and the characteristic curve (grey) "
                   "over the same samples: relative error eps_td (lower is better) and R\u00b2 (1 is a "
                   f"perfect fit; below {R2_FLOOR:g} cut, its value written)"),
-        Table(["OC", "model", "segments", f"{word} eps_td", f"{word} R\u00b2", "curve eps_td",
+        Table(["OC", "model", "segments", f"{word} eps_td", f"{word} R\u00b2", "coverage", "curve eps_td",
                "curve R\u00b2", "CV eps_td", "alarm samples", "outside the envelope", "on the curve"], rows,
-              f"{target}: the {word} runs' OC segments, pooled (free run from the OC switch, seeded "
-              "from the measured past, as the node runs it); outside the envelope: the share of samples "
+              f"{target}: the {word} runs' OC segments and rundowns, pooled (free run from the OC switch, "
+              "seeded from the measured past, as the node runs it; every sample scored, one without a "
+              "prediction a miss; coverage: the share predicted); outside the envelope: the share of samples "
               "beyond the region the training runs covered (predicted with the inputs held at its "
               "edge, the band widened); on the curve: the share the curve guard predicted with the "
               "characteristic curve (where, so far in the OC visit, the model erred more)"),
@@ -417,7 +428,7 @@ def validation_panel(bundle: Bundle, runs: RunSet, schedule: Schedule, target: s
     blocks: list[Block] = [Paragraph(_provenance_text(runs.labels, kinds))]
     for kind in (k for k in PROVENANCES if k in kinds):
         blocks += _score_blocks(bundle, schedule, target, *scores.of(kind), TABLE_WORDS[kind])
-    seg_fig = segments_figure(schedule.names, scores.preds, target, run_colours(len(runs.runs)))
+    seg_fig = segments_figure(schedule.models, scores.preds, target, run_colours(len(runs.runs)))
     if seg_fig is not None:
         blocks.append(Figure.of(seg_fig, f"{target} measured (solid) and predicted (dashed) per OC, "
                                 "from each OC switch; a colour per run, as in panels I and II"))

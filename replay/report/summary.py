@@ -115,7 +115,7 @@ def summary_blocks(bundle: Bundle, runs: RunSet, schedule: Schedule, target: str
     head, line = verdict(target, sets, everything, episodes)
     alarms = Counter(e.oc for e in episodes)
     rows, marks = [], []
-    for j, oc in enumerate(schedule.names):
+    for j, oc in enumerate(schedule.segments):  # (the rundown last)
         res = bundle.oc(oc)
         if (res is None or res.model is None) and not any(s[j].segments for _, _, s in sets):
             continue

@@ -310,7 +310,7 @@ def switches_from_schedule(speed: Series, schedule: Schedule) -> OcSwitches:
 
     A fresh detector per run (gaps >= RUN_GAP); one switch per change of (oc, phase).
     """
-    names = np.array([""] + list(schedule.names), dtype=str)
+    names = np.array([""] + list(schedule.segments), dtype=str)
     phases = np.array([Phase.from_code(c).value for c in range(len(Phase))], dtype=str)
     starts = np.concatenate([[0], np.flatnonzero(np.diff(speed.t) >= RUN_GAP) + 1, [len(speed.t)]])
     oc_parts, ph_parts = [], []
