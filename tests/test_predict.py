@@ -520,8 +520,9 @@ def test_a_plan_beyond_the_training_speeds_is_marked_said_once_and_exits_3(model
 
 
 def test_a_plan_held_at_a_speed_no_oc_has_is_marked_said_once_and_exits_3(model, tmp_path, capsys):
-    """A plan held at 1,500 rpm (before: a warning "found no OC", empty rows, exit 0): the plateau's
-    samples are marked 'no_oc', the ramps are not; one line says it and that no OC was found."""
+    """A plan held at 1,500 rpm from light-off (the start, the first OC's transition, never
+    reaching its plateau): the hold's samples are marked 'no_oc' and left blank, the ramps are
+    the start's and the rundown's, not marked; one line says it and that no OC was found."""
     prof = _plan_csv(tmp_path / "low.csv", [(0, 0), (10, 0), (20, 1500), (240, 1500), (250, 0)])
     out = tmp_path / "low.out.csv"
     assert main(["predict", "--model", str(model), "--profile", str(prof), "--out", str(out)]) == 3
@@ -535,7 +536,26 @@ def test_a_plan_held_at_a_speed_no_oc_has_is_marked_said_once_and_exits_3(model,
     assert {r["outside"] for r in rows if float(r["nB"]) == 1500.0} == {"no_oc"}
     ramp = [r for r in rows if 100.0 < float(r["nB"]) < 1400.0]
     assert ramp and all(r["outside"] == "" for r in ramp)
-    assert not any(r["yB"] for r in rows)
+    assert not any(r["yB"] for r in rows if r["outside"] == "no_oc")
+
+
+def test_a_hold_between_two_plateaus_is_marked_no_oc_and_left_blank(model, tmp_path, capsys):
+    """A plan that reaches the first OC, then holds 60 s at a speed between two OCs' plateaus
+    (a transition held): the hold is 'no_oc' and blank, the OC's plateau is predicted and not
+    marked."""
+    bundle = load_model(model)
+    first, second = bundle.schedule.ocs[0].speed, bundle.schedule.ocs[1].speed
+    mid = 0.5 * (first + second)
+    prof = _plan_csv(tmp_path / "mid.csv", [(0, 0), (30, first), (150, first), (160, mid), (220, mid),
+                                            (240, 0)])
+    out = tmp_path / "mid.out.csv"
+    assert main(["predict", "--model", str(model), "--profile", str(prof), "--out", str(out)]) == 3
+    _, rows = _read(out)
+    held = [r for r in rows if float(r["nB"]) == mid]
+    assert held and {r["outside"] for r in held} == {"no_oc"} and not any(r["yB"] for r in held)
+    plateau = [r for r in rows if float(r["nB"]) == first]
+    assert {r["outside"] for r in plateau} == {""} and all(r["yB"] for r in plateau[-200:])
+    assert "'no_oc'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("text, message", [
@@ -564,18 +584,18 @@ def test_the_library_refuses_a_negative_or_non_finite_planned_speed(model, bad, 
 
 
 def test_marks_leave_ramps_and_an_oc_plateau_found_late_alone():
-    """Synthetic: a plateau whose OC the node finds after a few samples is not marked; one in no
-    OC is; ramps are not; a speed above the range is 'beyond' whatever the OC."""
+    """Synthetic: a plateau whose OC the node finds after a few samples is not marked; one where
+    the node is steady in no OC is; ramps are not; a speed above the range is 'beyond' whatever the OC."""
     from node.training.prediction_reach import BEYOND, NO_OC, SpeedRange, plan_marks
 
     ramp = np.linspace(0.0, 3000.0, 200)
     speed = np.r_[ramp, np.full(400, 3000.0), np.linspace(3000.0, 1500.0, 100), np.full(400, 1500.0),
                   np.full(300, 12000.0)]
-    oc = np.full(speed.size, -1)
-    oc[210:600] = 0  # the OC at 3,000 rpm, found 10 samples into its plateau
-    oc[1100:] = 1  # an OC in force while the speed is beyond the range
-    marks = plan_marks(speed, oc, np.zeros(speed.size, int), SpeedRange(0.0, 10000.0, "test"), 0.02, 300.0,
-                       5.0)
+    steady = np.zeros(speed.size, dtype=bool)
+    steady[210:600] = True  # the OC at 3,000 rpm, found 10 samples into its plateau
+    steady[1100:] = True  # an OC in force while the speed is beyond the range
+    marks = plan_marks(speed, steady, np.zeros(speed.size, int), SpeedRange(0.0, 10000.0, "test"), 0.02,
+                       300.0, 5.0)
     assert (marks[:699] == 0).all()  # (sample 699: the ramp reaches 1,500 rpm, the plateau)
     assert (marks[700:1100][speed[700:1100] == 1500.0] == NO_OC).all()
     assert (marks[1100:] == BEYOND).all()

@@ -152,10 +152,16 @@ def predict_segments(results: list[OCResult], runs: list[Run], schedule: Schedul
             pred = shifted(pred, res.plateau.shift(v[0], v[1]))
         if res.settle is not None:  # on the target as measured (NaN in a gap), as the node
             pred = res.settle.moved(runs[s.run].column(target)[s.start:s.stop], pred)
+        # as the node: no prediction (nor guard) before every input has been seen in the run
+        k0 = min(max(0, first_seen(runs[s.run], res.inputs) - s.start), s.stop - s.start)
+        if k0:
+            pred = np.concatenate([np.full(k0, np.nan), pred[k0:]])
         used = None
         if guard is not None:
             y, speed = seen[s.run]
-            pred, used = guard_segment(guard, y[s.start:s.stop], pred, speed[s.start:s.stop])
+            guarded, on = guard_segment(guard, y[s.start + k0:s.stop], pred[k0:], speed[s.start + k0:s.stop])
+            pred = np.concatenate([pred[:k0], guarded])
+            used = np.concatenate([np.zeros(k0, dtype=bool), on])
         out.append(SegmentPrediction(s.run, s.oc, runs[s.run].t[s.start:s.stop], traj.seg_y, pred, env,
                                      used))
     return out

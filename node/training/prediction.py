@@ -85,7 +85,7 @@ from node.runtime.runcurve import hold_last
 from node.sysid.metrics import pooled_eps
 from node.training.dataset import Segment, segment_runs, time_order
 from node.training.prediction_aids import INTERVAL_LEVEL, AmplitudeBound, InputFill, IntervalWidths
-from node.training.prediction_reach import SpeedRange, finite_speeds, plan_marks, reach_note
+from node.training.prediction_reach import NO_OC, SpeedRange, finite_speeds, plan_marks, reach_note
 from node.training.runs import Run
 
 log = logging.getLogger(__name__)
@@ -216,8 +216,9 @@ class Prediction:
     among them, are from its training region: at most 1 inside, above 1 outside; NaN: no model
     or none known), as in the node's monitor messages; marks (K,) where the plan leaves what the
     model knows (``node.training.prediction_reach``: 0 inside, ``BEYOND`` the training runs'
-    speeds, ``NO_OC`` held at a speed no OC has); speeds: the training runs' speed range (None:
-    not known).
+    speeds, ``NO_OC`` held where the node is steady in no OC: not predicted); speeds: the
+    training runs' speed range (None: not known); steady (K,) bool where the node was steady
+    on an OC's plateau.
     """
 
     t: np.ndarray
@@ -246,6 +247,7 @@ class Prediction:
     envelope: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0)))
     marks: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=np.int8))
     speeds: SpeedRange | None = None
+    steady: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def speed(self) -> np.ndarray:
@@ -291,7 +293,8 @@ class Prediction:
         """One line on where the plan leaves what the model knows (``marks``), or that the node
         found no OC in it; None: neither."""
         marks = self.marks if self.marks.shape == self.t.shape else np.zeros(self.t.size, dtype=np.int8)
-        return reach_note(self.t, marks, self.predicted, self.oc, self.speeds, self.switch)
+        steady = self.steady if self.steady.shape == self.t.shape else self.oc >= 0
+        return reach_note(self.t, marks, self.predicted, steady, self.speeds, self.switch)
 
     def outside(self) -> np.ndarray:
         """(K, n) bool: samples where a target's model was outside its training region
@@ -376,7 +379,7 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
     keys = {monitor_key(_BED, tg): j for j, tg in enumerate(targets)}
     history = HistoryTracker(OCDetector(sched, m.config).off_level, m.config.history_cooling, engine)
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "run", "inputs", "oc", "pred", "raw", "code",
-                                                          "upper", "hist", "env")}
+                                                          "upper", "hist", "env", "steady")}
     filled: dict[str, list[int]] = {}  # samples filled, of them from the OC's own curve
     for r, run in enumerate(runs):
         cols = []
@@ -414,21 +417,23 @@ def predict_runs(model: Bundle | Model, runs: list[Run], engine: EngineState | N
         parts["t"].append(t)
         parts["run"].append(np.full(t.size, r))
         parts["inputs"].append(X)
-        for key, arr in zip(("pred", "raw", "code", "upper", "oc", "env"), step):
+        for key, arr in zip(("pred", "raw", "code", "upper", "oc", "env", "steady"), step):
             parts[key].append(arr)
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     pred, oc, upper = cat["pred"], cat["oc"], cat["upper"]
+    marks = plan_marks(cat["inputs"][:, need.index(sched.switch)], cat["steady"], cat["run"], speeds,
+                       sched.tolerance, OCDetector(sched, m.config).off_level, m.config.detector_settle_s)
+    pred[marks == NO_OC] = _NAN  # a hold no OC has: a transition's model is no model of it
     lo, hi = _interval(pred, oc, upper, widths)
     how = {c: fill.describe(c) for c in sorted(filled)} if fill is not None else {}
     own_share = {c: filled[c][1] / max(filled[c][0], 1) for c in sorted(filled)}
     rule = bound.describe() if bound is not None else "amplitudes >= 0 (a model of the 1x vector: its " \
         "modulus); not bounded above (no training runs at hand)"
-    marks = plan_marks(cat["inputs"][:, need.index(sched.switch)], oc, cat["run"], speeds, sched.tolerance,
-                       OCDetector(sched, m.config).off_level, m.config.detector_settle_s)
     return Prediction(cat["t"], cat["run"], sched.switch, (*need, *slow), cat["inputs"],
                       tuple(sorted(filled)), oc, sched.names, targets, pred, cat["hist"],
                       engine or EngineState(), cat["raw"], cat["code"], upper, lo, hi,
-                      how, own_share, rule, widths.describe(), label, widths.level, cat["env"], marks, speeds)
+                      how, own_share, rule, widths.describe(), label, widths.level, cat["env"], marks, speeds,
+                      cat["steady"])
 
 
 def _interval(pred: np.ndarray, oc: np.ndarray, upper: np.ndarray,
@@ -458,10 +463,10 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
                fleet: list[tuple[np.ndarray, np.ndarray] | None], seed: Seed,
                sched: Schedule, bound: AmplitudeBound | None, mean_modulus: bool = True,
                own: np.ndarray | None = None
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Feed one run through the node sample by sample: (predicted within the bounds (K, n), the
     node's own (K, n), how each was bounded (K, n), the bound (K, n), oc index (K,), the node's
-    envelope (K, n)).
+    envelope (K, n), steady on the OC's plateau (K,) bool).
 
     Chained, a model of the 1x vector never has a measured level to anchor on (the target is
     never measured), so it predicts the runs' mean vector, whose modulus is below the mean
@@ -477,6 +482,7 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
     upper = np.full((K, n), _NAN)
     env = np.full((K, n), _NAN)
     oc = np.full(K, -1, dtype=np.int64)
+    steady = np.zeros(K, dtype=bool)
     index = {name: j for j, name in enumerate(sched.names)}
     speed = X[:, need.index(sched.switch)]
     level = np.column_stack([np.interp(np.nan_to_num(speed), *f) if f is not None else np.full(K, _NAN)
@@ -503,6 +509,7 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
             j = keys[key]
             if msg["oc"] is not None:  # (the rundown, no plateau OC: -1, as outside every OC)
                 oc[k] = index.get(msg["oc"], -1)
+                steady[k] = msg["phase"] == "steady"
             p = msg["predicted"] if oc[k] >= 0 else None  # a plan's prediction: the OCs' (no interval else)
             ph = msg.get("predicted_phase")
             e = msg.get("envelope")
@@ -527,7 +534,7 @@ def _step_node(core: NodeCore, keys: dict[str, int], t: np.ndarray, X: np.ndarra
                 fed[j] = v if p is not None else float(level[k, j])
                 if not mean_modulus:
                     fed_ph[j] = _NAN if ph is None or p is None else ph
-    return pred, raw, code, upper, oc, env
+    return pred, raw, code, upper, oc, env, steady
 
 
 def predict_profile(model: Bundle | Model, profile: Profile, engine: EngineState | None = None,

@@ -9,10 +9,13 @@ column, ``MARK_WORDS``):
   where no OC is in force nothing is predicted.
 * ``NO_OC``: the plan holds a speed (a plateau: the speed within a quarter of the schedule's
   tolerance band for the OC detector's settle time) with the engine running, and the node
-  finds no OC anywhere on that plateau: nothing is predicted there.
+  is steady in no OC anywhere on that plateau (a hold in the start from light-off, or between
+  two OCs' plateaus): nothing is predicted there, a transition's model being no model of a
+  hold.
 
-Ramps between OCs are in no OC by design and are not marked. ``reach_note`` says in one line
-which samples are marked, or that the node found no OC in the whole plan.
+Ramps (the start's, those between OCs, the rundown) are transitions by design and are not
+marked. ``reach_note`` says in one line which samples are marked, or that the node was steady in
+no OC in the whole plan.
 """
 
 from __future__ import annotations
@@ -105,12 +108,12 @@ def _spans(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
 
 
-def plan_marks(speed: np.ndarray, oc: np.ndarray, run: np.ndarray, speeds: SpeedRange | None,
+def plan_marks(speed: np.ndarray, steady: np.ndarray, run: np.ndarray, speeds: SpeedRange | None,
                tolerance: float, off: float, settle_s: float) -> np.ndarray:
     """(K,) int8 marks of predicted samples: ``BEYOND`` where ``speeds`` (None: not known, no
     such mark) says the switch ``speed`` (K,) rpm is beyond the training runs'; else ``NO_OC``
     on each plateau (``plateaus``, over ``settle_s``, in each engine ``run`` (K,)) above ``off`` rpm
-    where the node was in no OC (``oc`` (K,) -1) on any sample; else ``INSIDE``."""
+    where the node was steady in an OC (``steady`` (K,) bool) on no sample; else ``INSIDE``."""
     s = np.asarray(speed, float)
     marks = np.zeros(s.size, dtype=np.int8)
     n = max(1, int(round(settle_s * FS)))
@@ -118,7 +121,7 @@ def plan_marks(speed: np.ndarray, oc: np.ndarray, run: np.ndarray, speeds: Speed
         mine = np.flatnonzero(run == r)
         for lo, hi in plateaus(s[mine], tolerance, n):
             at = mine[lo:hi]
-            if (oc[at] < 0).all() and np.nanmedian(s[at]) > off:
+            if not steady[at].any() and np.nanmedian(s[at]) > off:
                 marks[at] = NO_OC
     if speeds is not None:
         marks[speeds.beyond(s, off)] = BEYOND
@@ -133,11 +136,12 @@ def _times(t: np.ndarray, mask: np.ndarray) -> str:
     return f"t {', '.join(words)} s{more}"
 
 
-def reach_note(t: np.ndarray, marks: np.ndarray, predicted: np.ndarray, oc: np.ndarray,
+def reach_note(t: np.ndarray, marks: np.ndarray, predicted: np.ndarray, steady: np.ndarray,
                speeds: SpeedRange | None, switch: str) -> str | None:
     """One line on where a plan leaves what the model knows (None: nowhere): how many samples
     are marked (``plan_marks``; t (K,) s, predicted (K, n)) as what and when, and whether the
-    node found no OC in the whole plan; ``speeds`` and ``switch`` name the range."""
+    node was steady in no OC (``steady`` (K,) bool) in the whole plan; ``speeds`` and ``switch``
+    name the range."""
     parts = []
     beyond = marks == BEYOND
     if beyond.any() and speeds is not None:
@@ -153,7 +157,7 @@ def reach_note(t: np.ndarray, marks: np.ndarray, predicted: np.ndarray, oc: np.n
     if parts:
         head = (f"the plan leaves what the model knows on {int((marks != INSIDE).sum()):,} of {t.size:,} "
                 f"samples (column outside): {'; '.join(parts)}")
-    if not (oc >= 0).any():
+    if not steady.any():
         lost = ("the node found no OC of the schedule anywhere in the plan: nothing is predicted (does it "
                 "hold each plateau for some seconds, within the schedule's tolerance?)")
         head = f"{head}; {lost}" if head else lost
