@@ -21,7 +21,7 @@ from node.models.config import RuntimeConfig
 from node.models.envelope import OUTSIDE
 from node.models.ocmodel import Trajectory
 from node.models.result import OCResult
-from node.runtime.chirp import CHIRP_RATE, add_chirp_rate
+from node.runtime.chirp import CHIRP_RATE, add_chirp_rate, chirp_rate_column
 from node.runtime.guard import guard_of, guard_segment
 from node.runtime.history import HISTORY_CHANNELS
 from node.runtime.runcurve import RUN_CURVE, add_run_curve, hold_last
@@ -305,6 +305,92 @@ def curve_eps(curve: tuple[np.ndarray, np.ndarray], runs: list[Run], preds: list
     the segments of ``preds`` (the same samples as the model's, see ``curve_predictions``); nan
     where none."""
     base = curve_predictions(curve, runs, preds, schedule.switch, target)
+    return baseline_segment_eps(schedule, preds, base)
+
+
+DIRECTION_RPM_S = 10.0  # a sample is on a rising (falling) speed above (below) +- this rate, rpm/s
+
+
+@dataclass(frozen=True)
+class DirectionCurves:
+    """The characteristic curve by direction: the training runs' mean target per switch speed
+    over their samples on a rising speed (``up``), on a falling one (``down``), and over every
+    sample (``every``: for a steady sample, and where a direction's curve has no bin within
+    ``reach`` rpm). The direction is the chirp rate's (``node.runtime.chirp``, causal, 1 s)
+    beyond ``DIRECTION_RPM_S``: a run-up and a coast-down differ (the tracker's lag, the bow).
+
+    >>> speed = np.r_[np.linspace(0.0, 1000.0, 400), np.linspace(1000.0, 0.0, 400)]
+    >>> y = np.r_[np.full(400, 1.0), np.full(400, 3.0)]
+    >>> run = Run(np.arange(800) / FS, np.column_stack([speed, y]), ("nB", "yB"), "bed1", None)
+    >>> c = DirectionCurves.fit([run], "nB", "yB")
+    >>> c.predict(np.array([500.0, 500.0, 500.0]), np.array([100.0, -100.0, 0.0])).round(2).tolist()
+    [1.0, 3.0, 2.0]
+    """
+
+    up: CharacteristicCurve | None
+    down: CharacteristicCurve | None
+    every: CharacteristicCurve
+    reach: float = 100.0
+
+    @classmethod
+    def fit(cls, runs: list[Run], switch: str, target: str, bin_width: float = 25.0) -> DirectionCurves:
+        """From training ``runs`` holding ``switch`` and ``target``."""
+        speed, y, rate = [], [], []
+        for r in runs:
+            a = run_arrays(r, target, [switch])
+            speed.append(a.U[:, 0])
+            y.append(np.where(a.valid, a.y, np.nan))
+            rate.append(chirp_rate_column(r.column(switch)))
+        s, v, d = np.concatenate(speed), np.concatenate(y), np.concatenate(rate)
+
+        def curve(mask: np.ndarray) -> CharacteristicCurve | None:
+            ok = mask & np.isfinite(v) & np.isfinite(s)
+            return CharacteristicCurve(bin_width).fit(s[ok], v[ok]) if ok.sum() >= 2 else None
+
+        with np.errstate(invalid="ignore"):
+            up, down = curve(d > DIRECTION_RPM_S), curve(d < -DIRECTION_RPM_S)
+        every = curve(np.ones(s.size, dtype=bool))
+        if every is None:
+            raise OrdervibError(f"no finite ({switch}, {target}) pairs to fit a characteristic curve")
+        return cls(up, down, every, 4 * bin_width)
+
+    def predict(self, speed: np.ndarray, rate: np.ndarray) -> np.ndarray:
+        """The curve of each sample's direction at its speed: speed, rate (K,) rpm, rpm/s -> (K,)."""
+        s = np.asarray(speed, float)
+        out = self.every.predict(s)
+        with np.errstate(invalid="ignore"):
+            for c, mine in ((self.up, rate > DIRECTION_RPM_S), (self.down, rate < -DIRECTION_RPM_S)):
+                if c is None:
+                    continue
+                use = mine & (_gap(c.centres_, s) <= self.reach)
+                out = np.where(use, c.predict(s), out)
+        return out
+
+    def over(self, runs: list[Run], preds: list[SegmentPrediction], switch: str) -> list[np.ndarray]:
+        """The curve by direction over each prediction's segment (the samples of ``preds``, of
+        ``runs``): one (K,) array per prediction."""
+        rates = [chirp_rate_column(r.column(switch)) for r in runs]
+        speeds = [hold_last(r.column(switch)) for r in runs]
+        out = []
+        for p in preds:
+            k0 = int(np.searchsorted(runs[p.run].t, p.t[0]))
+            part = slice(k0, k0 + p.t.size)
+            out.append(self.predict(speeds[p.run][part], rates[p.run][part]))
+        return out
+
+
+def _gap(centres: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """(K,) rpm from each ``speed`` (K,) to the nearest of the sorted ``centres`` (B,), B >= 1."""
+    i = np.searchsorted(centres, speed)
+    below = centres[np.clip(i - 1, 0, centres.size - 1)]
+    above = centres[np.clip(i, 0, centres.size - 1)]
+    return np.minimum(np.abs(speed - below), np.abs(above - speed))
+
+
+def baseline_segment_eps(schedule: Schedule, preds: list[SegmentPrediction], base: list[np.ndarray]
+                         ) -> list[float]:
+    """Per segment (``Schedule.segments``: the first OC's with its start's) the eps_td of a
+    baseline ``base`` (one (K,) array per prediction of ``preds``) over the measured samples."""
     out = []
     for j in range(len(schedule.segments)):
         mine = [(p.measured, b) for p, b in zip(preds, base) if p.oc in pooled(schedule, j)]
