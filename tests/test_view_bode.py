@@ -96,3 +96,28 @@ def test_a_recording_without_ramps_keeps_every_sample():
 def test_a_bad_speed_band_is_one_line(bad):
     with pytest.raises(ValueError, match="want LO,HI in rpm"):
         speed_band(bad)
+
+
+def test_the_bode_covers_the_whole_speed_range_and_its_labels_cover_no_data():
+    """A short last ramp (9,000 to 9,400 rpm, under the analysis' 10 % of top speed) and the
+    plateaus are drawn; every critical's label sits in the strip above the highest amplitude."""
+    speed, _ = _run(0.0)
+    top = int(np.argmax(speed))
+    short = np.linspace(9000.0, 9400.0, 160)
+    speed = np.concatenate([speed[:top], short, np.full(1200, 9400.0), short[::-1], speed[top:]])
+    r = speed / NC
+    z = 10.0 * r ** 2 / (1 - r ** 2 + 2j * ZETA * r)
+    fig = bode_figure(_vectors([(speed, z)]), "t", "nB", "yB", "mm/s")
+    amp_ax = fig.axes[0]
+    xs = np.concatenate([np.asarray(ln.get_xdata(), float) for ln in amp_ax.get_lines()])
+    assert xs.max() >= 9400.0 - 1e-9  # the top plateau and the short ramps are there
+    ys = np.concatenate([np.asarray(ln.get_ydata(), float) for ln in amp_ax.get_lines()])
+    top_frac = np.nanmax(ys) / amp_ax.get_ylim()[1]  # the highest datum, in axes fractions
+    labels = [t for t in amp_ax.texts if "AF" in t.get_text()]
+    assert labels
+    fig.canvas.draw()
+    inv = amp_ax.transAxes.inverted()
+    for t in labels:
+        box = t.get_window_extent()
+        (x0, y0), _ = inv.transform([[box.x0, box.y0], [box.x1, box.y1]])
+        assert y0 > top_frac  # the label's lower edge above every datum

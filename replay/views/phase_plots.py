@@ -12,7 +12,9 @@
   run (continuous through a resonance's roll of about 180 degrees; left out where the
   amplitude is within the noise, ``PHASE_FLOOR``), optionally slow-roll
   compensated (each run's mean vector in a low speed band subtracted: the runout or bow),
-  each resonance found (``transient.analyse``) marked with its critical speed and AF. The
+  each resonance found (``transient.analyse``, on the ramps the node analyses) marked with its
+  critical speed and AF, written in a strip above the data. The whole speed range is drawn:
+  ramps too short for the analysis as traces, the plateaus as faint dots. The
   prediction is left to the polar plot and the Rerun view (a model predicts the plateaus'
   level, not a Bode). A recording without ramps: every sample as markers, predicted too.
 
@@ -32,9 +34,10 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.projections.polar import PolarAxes
 from matplotlib.ticker import MaxNLocator
+from matplotlib.transforms import blended_transform_factory
 
 from node.contract.vector import order_lags
-from node.runtime.transient import Span, analyse, find_transitions
+from node.runtime.transient import Critical, Span, analyse, find_transitions
 from replay.views.view_data import Vectors
 
 DPI = 100
@@ -122,10 +125,15 @@ def speed_band(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def _ramps(v: Vectors, r: int) -> list[tuple[Span, np.ndarray]]:
-    """Run r's ramps (``find_transitions`` on its switch speed) with their rows of v."""
+SHORT_SPAN = 0.02  # the Bode draws ramps down to this share of their top speed (the analysis: 0.1)
+LABEL_ROOM = 1.6  # the amplitude axis reaches this many times the largest amplitude: labels above
+
+
+def _ramps(v: Vectors, r: int, min_span: float = 0.1) -> list[tuple[Span, np.ndarray]]:
+    """Run r's ramps (``find_transitions`` on its switch speed, each covering at least
+    ``min_span`` of its top speed) with their rows of v."""
     rows = np.flatnonzero(v.run == r)
-    return [(sp, rows[sp.start:sp.stop]) for sp in find_transitions(v.speed[rows])]
+    return [(sp, rows[sp.start:sp.stop]) for sp in find_transitions(v.speed[rows], min_span=min_span)]
 
 
 def _nice_step(span: float, most: int) -> float:
@@ -192,17 +200,20 @@ def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str,
     """
     ok = np.isfinite(v.amplitude) & np.isfinite(v.speed)  # a Bode of the amplitude alone where no phase
     runs = [int(r) for r in np.unique(v.run[ok])]
-    ramps = {r: _ramps(v, r) for r in runs}
+    ramps = {r: _ramps(v, r, SHORT_SPAN) for r in runs}
     if not any(ramps.values()):
         return _bode_markers(v, runs, title, switch, target, unit)
     fig = Figure(figsize=(11.0, 8.0))
     amp_ax, ph_ax = fig.subplots(2, 1, sharex=True)
-    marked = 0
+    found: list[tuple[Critical, str]] = []
+    top_all = 0.0
     for k, r in enumerate(runs):
         color = f"C{k % 10}"
         last: float | None = None
         traces = [_compensated(v, idx, slow_roll) for _, idx in ramps[r]]
         top = max((float(np.nanmax(amp, initial=0.0)) for amp, _ in traces), default=0.0)
+        top_all = max(top_all, top)
+        analysed = {(sp.start, sp.stop) for sp, _ in _ramps(v, r)}  # the node's ramps: criticals marked
         for n, ((sp, idx), (amp, ph)) in enumerate(zip(ramps[r], traces)):
             ph = np.where(amp >= PHASE_FLOOR * top, ph, np.nan)  # a vector lost in the noise has no phase
             style = "-" if sp.direction == "up" else "--"
@@ -211,9 +222,13 @@ def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str,
             ph_ax.plot(v.speed[idx], lag, style, lw=0.8, color=color)
             if np.isfinite(lag).any():
                 last = float(lag[np.isfinite(lag)][-1])
-            marked += _mark_criticals(amp_ax, v, idx, color, tracker_tau, text=k == 0)
+            if (sp.start, sp.stop) in analysed:
+                found += [(c, color if k == 0 else "") for c in _criticals(v, idx, tracker_tau)]
+        rows = np.flatnonzero((v.run == r) & ok)  # the plateaus too: the whole speed range, as dots
+        amp_ax.plot(v.speed[rows], v.amplitude[rows], ".", ms=1.0, alpha=0.35, color=color)
+    marked = _mark_criticals(amp_ax, found, top_all)
     amp_ax.set_ylabel(f"{target} amplitude ({unit})")
-    amp_ax.set_ylim(bottom=0.0)
+    amp_ax.set_ylim(0.0, LABEL_ROOM * top_all if top_all > 0 else None)
     ph_ax.set_ylabel(f"{target} phase lag (°, unwrapped)")
     ph_ax.set_xlabel(f"{switch} (rpm)")
     for ax in (amp_ax, ph_ax):
@@ -229,24 +244,35 @@ def bode_figure(v: Vectors, title: str, switch: str, target: str, unit: str,
     return fig
 
 
-def _mark_criticals(ax: Axes, v: Vectors, idx: np.ndarray, color: str, tracker_tau: float, text: bool) -> int:
-    """The resonances ``transient.analyse`` finds in one ramp's rows, marked on the amplitude
-    axis (with speed and AF written where ``text``); how many."""
+def _criticals(v: Vectors, idx: np.ndarray, tracker_tau: float) -> list[Critical]:
+    """The resonances ``transient.analyse`` finds in one ramp's rows (none: too few samples)."""
     amp, ph = v.amplitude[idx], v.phase[idx]
     if np.isfinite(amp).sum() < 10:
-        return 0
+        return []
     try:
-        found = analyse(v.speed[idx], amp, ph if np.isfinite(ph).any() else None,
-                        tracker_tau=tracker_tau).criticals
+        return list(analyse(v.speed[idx], amp, ph if np.isfinite(ph).any() else None,
+                            tracker_tau=tracker_tau).criticals)
     except ValueError:  # too few samples with speed and amplitude
-        return 0
-    for c in found:
-        ax.plot([c.speed], [c.amplitude], "v", ms=6, color=color, mec="black", mew=0.5)
-        if text:  # staggered, so that neighbours' labels do not overlap
-            rise = 6 + 26 * (len(ax.texts) % 3)
-            ax.annotate(f"{c.speed:,.0f} rpm\nAF {c.af:.1f}", (c.speed, c.amplitude), fontsize=9,
-                        xytext=(4, rise), textcoords="offset points",
-                        arrowprops={"arrowstyle": "-", "lw": 0.5, "color": "gray"} if rise > 6 else None)
+        return []
+
+
+def _mark_criticals(ax: Axes, found: list[tuple[Critical, str]], top: float) -> int:
+    """Each critical of ``found`` marked on the amplitude axis in its run's colour; those of the
+    first run (colour given) written with speed and AF in the strip above the data (the axis
+    reaches ``LABEL_ROOM`` x ``top``), a thin line down to the marker, staggered in two rows
+    where neighbours would touch: no label covers a trace. How many were marked."""
+    strip = blended_transform_factory(ax.transData, ax.transAxes)
+    span = max((c.speed for c, _ in found), default=1.0) - min((c.speed for c, _ in found), default=0.0)
+    last_x, row = -math.inf, 0
+    for c, color in sorted(found, key=lambda f: f[0].speed):
+        ax.plot([c.speed], [c.amplitude], "v", ms=6, color=color or "gray", mec="black", mew=0.5)
+        if not color or top <= 0:
+            continue
+        row = 1 - row if c.speed - last_x < 0.08 * max(span, 1.0) else 0
+        last_x = c.speed
+        ax.annotate(f"{c.speed:,.0f} rpm\nAF {c.af:.1f}", (c.speed, c.amplitude), fontsize=9,
+                    xytext=(c.speed, 0.97 - 0.09 * row), textcoords=strip, ha="center", va="top",
+                    arrowprops={"arrowstyle": "-", "lw": 0.5, "color": "gray"})
     return len(found)
 
 
