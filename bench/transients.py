@@ -2,19 +2,21 @@
 (the targets: each critical within 1 %, each AF within 20 %).
 
     python -m bench transients [--seeds 1,2,3,4,5] [--runs 2] [--plateau-scale 1]
-        [--noise-scale 1] [--tracker drawn|fixed] [--lag estimated|truth]
+        [--noise-scale 1] [--tracker drawn|fixed] [--lag estimated|truth] [--schedule ramps|passoff]
         [--workdir W] [--rows all|fail|none]
 
 Per engine (one simulator seed: its own modes, scattered about the nominal ones): ``--runs``
-runs of a schedule made for ramps (idle, 6500, 9800, 6500 rpm of nB, then the decel to idle
-and the rundown), recorded by the simulator (``harness.make.simulate``) and read back
-(``read_runs``). The ramps are found on nB (``find_transitions``); per ramp and target (yA on
-nA, yB on nB, yC on nC: each order on its own shaft's speed, the speed its truth is in) the
-node's ``node.runtime.transient.analyse`` with the tracker's lag the node estimates from the
-engine's own runs (``node.training.transients.tracker_lag``, as ``train`` does: the lag is not
-given; ``--lag truth`` passes the truth JSON's instead), the amplitude and the phase as recorded
-(noise, dropouts, quantisation). ``--tracker drawn`` (default): each engine's tracker lags by its
-own time constant, 0.5-2 s (``simulate --tracker drawn``); the estimate is printed beside it.
+runs of a schedule made for ramps (idle, 6500, 9800, 6500 rpm of nB, then the decel to idle and
+the rundown; ``--schedule passoff``: the simulator's pass-off test, 12 OCs whose ramps between
+plateaus span 400-900 rpm, some ending on a critical), recorded by the simulator
+(``harness.make.simulate``) and read back (``read_runs``). The ramps are found on nB
+(``find_transitions``); per ramp and target (yA on nA, yB on nB, yC on nC: each order on its own
+shaft's speed, the speed its truth is in) the node's ``node.runtime.transient.analyse`` with the
+tracker's lag the node estimates from the engine's own runs
+(``node.training.transients.tracker_lag``, as ``train`` does: the lag is not given; ``--lag
+truth`` passes the truth JSON's instead), the amplitude and the phase as recorded (noise,
+dropouts, quantisation). ``--tracker drawn`` (default): each engine's tracker lags by its own
+time constant, 0.5-2 s (``simulate --tracker drawn``); the estimate is printed beside it.
 
 The truth: every crossing of a critical the simulator made (``criticals`` of each run: the
 mode's critical at the metal temperature of that moment, its damping, the steady 1x amplitude
@@ -96,19 +98,24 @@ def _covered(crossing: dict, lo: float, hi: float) -> bool:
 
 
 def engine_rows(seed: int, work: Path, runs: int, plateau_scale: float, noise_scale: float,
-                tracker: str = "drawn", lag: str = "estimated") -> tuple[list[dict], dict]:
+                tracker: str = "drawn", lag: str = "estimated", schedule: str = "ramps"
+                ) -> tuple[list[dict], dict]:
     """Simulate (unless present), read and analyse one engine; one dict per truth crossing
-    counted or critical found, and the engine's lag (estimate, truth, crossings)."""
-    sched = work / "transients.schedule.toml"
-    if not sched.exists():
-        sched.write_text(SCHEDULE)
-    rec = work / f"engine{seed}.{tracker}.mcap"
+    counted or critical found, and the engine's lag (estimate, truth, crossings). schedule:
+    "ramps" (``SCHEDULE``) or "passoff" (the simulator's built-in pass-off test)."""
+    rec = work / f"engine{seed}.{tracker}.{schedule}.mcap"
+    if schedule == "ramps":
+        sched = work / "transients.schedule.toml"
+        if not sched.exists():
+            sched.write_text(SCHEDULE)
+    else:
+        sched = rec.with_suffix(".schedule.toml")  # the simulator writes its own
     truth_path = rec.with_suffix(".truth.json")
     truth = json.loads(truth_path.read_text()) if rec.exists() and truth_path.exists() else None
     if (truth is None or "rotor" not in truth or len(truth["runs"]) != runs
             or truth.get("noise_scale") != noise_scale):
         log.info("simulating engine %d", seed)
-        truth = make.simulate(rec, runs=runs, seed=seed, schedule=str(sched),
+        truth = make.simulate(rec, runs=runs, seed=seed, schedule=str(sched) if schedule == "ramps" else None,
                               plateau_scale=plateau_scale, noise_scale=noise_scale, tracker=tracker)
     recorded = read_runs(rec)
     true_tau = float(truth["rotor"]["tracker_s"])  # scoring only (and --lag truth)
@@ -185,6 +192,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="the simulated order tracker's lag: drawn per engine in 0.5-2 s (default) or 1 s")
     ap.add_argument("--lag", choices=("estimated", "truth"), default="estimated",
                     help="the lag undone: estimated from the engine's runs (default) or the truth's")
+    ap.add_argument("--schedule", choices=("ramps", "passoff"), default="ramps",
+                    help="ramps made for the criticals (default) or the simulator's pass-off test (12 OCs, "
+                         "ramps between plateaus of a few hundred rpm)")
     ap.add_argument("--workdir", help="keep the recordings here (default: a new temp folder)")
     ap.add_argument("--rows", choices=("all", "fail", "none"), default="all",
                     help="which crossings to list (default all)")
@@ -204,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.workdir or tmp)
         per = [engine_rows(s, work, args.runs, args.plateau_scale, args.noise_scale, args.tracker,
-                           args.lag) for s in seeds]
+                           args.lag, args.schedule) for s in seeds]
     rows = [row for r, _ in per for row in r]
     lags = [lag for _, lag in per]
     counted = [r for r in rows if not r.get("spurious")]

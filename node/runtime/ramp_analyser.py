@@ -12,7 +12,7 @@ from collections import deque
 import numpy as np
 
 from node.contract import FS
-from node.runtime.transient import Transient, analyse, filled
+from node.runtime.transient import MIN_SPAN, Transient, analyse, filled
 
 
 class RampAnalyser:
@@ -41,7 +41,7 @@ class RampAnalyser:
     [('up', 6000)]
     """
 
-    def __init__(self, fs: float = FS, min_rate: float = 20.0, min_span: float = 0.1,
+    def __init__(self, fs: float = FS, min_rate: float = 20.0, min_span: float = MIN_SPAN,
                  smooth_s: float = 1.0, gap_s: float = 1.0, pad_s: float = 2.0, max_s: float = 900.0,
                  **analysis: float | complex | None) -> None:
         self.fs = fs

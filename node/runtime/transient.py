@@ -178,8 +178,11 @@ def smoothed(x: np.ndarray, n: int) -> np.ndarray:
     return _moving_average(filled(x), n)
 
 
+MIN_SPAN = 0.03  # a ramp analysed covers at least this share of its top speed (9,000 to 9,300 rpm)
+
+
 def find_transitions(speed: np.ndarray, fs: float = FS, min_rate: float = 20.0,
-                     min_span: float = 0.1, smooth_s: float = 1.0, gap_s: float = 1.0,
+                     min_span: float = MIN_SPAN, smooth_s: float = 1.0, gap_s: float = 1.0,
                      pad_s: float = 2.0) -> list[Span]:
     """The ramps of a run: where the speed keeps moving one way faster than ``min_rate`` rpm/s.
 

@@ -37,7 +37,7 @@ from matplotlib.ticker import MaxNLocator
 from matplotlib.transforms import blended_transform_factory
 
 from node.contract.vector import order_lags
-from node.runtime.transient import Critical, Span, analyse, find_transitions
+from node.runtime.transient import MIN_SPAN, Critical, Span, analyse, find_transitions
 from replay.views.view_data import Vectors
 
 DPI = 100
@@ -125,11 +125,11 @@ def speed_band(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-SHORT_SPAN = 0.02  # the Bode draws ramps down to this share of their top speed (the analysis: 0.1)
+SHORT_SPAN = 0.02  # the Bode draws ramps down to this share of their top speed (the analysis: MIN_SPAN)
 LABEL_ROOM = 1.6  # the amplitude axis reaches this many times the largest amplitude: labels above
 
 
-def _ramps(v: Vectors, r: int, min_span: float = 0.1) -> list[tuple[Span, np.ndarray]]:
+def _ramps(v: Vectors, r: int, min_span: float = MIN_SPAN) -> list[tuple[Span, np.ndarray]]:
     """Run r's ramps (``find_transitions`` on its switch speed, each covering at least
     ``min_span`` of its top speed) with their rows of v."""
     rows = np.flatnonzero(v.run == r)
