@@ -7,7 +7,7 @@ a critical speed alone cannot tell from the critical) and distorts it (the peak 
 broader, the phase roll skewed: second order in tau, the same on a run-up and a coast-down).
 ``crossing_lag`` fits, in the time domain, the modes found in one ramp together with tau:
 
-    y(t) = L_tau[ sum_m (A_m r_m^2 + B_m r_m) / (1 - r_m^2 + 2j zeta_m r_m) + c0 + c1 N ] (N)
+    y(t) = L_tau[ sum_m (A_m r_m^2 + B_m r_m) / (1 - r_m^2 + 2j zeta_m r_m) + c0 + c1 N (+ c2 N^2) ] (N)
            + e0 exp(-t / tau)
 
 (r_m = N(t) / Nc_m; times N for a velocity; L_tau the first-order lag started from rest, e0
@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -83,12 +84,16 @@ def _lag_columns(cols: np.ndarray, tau: float, fs: float) -> np.ndarray:
     return np.column_stack([lfilter([1.0 - a], [1.0, -a], cols, axis=0), a ** np.arange(k)])
 
 
-def _basis(speed: np.ndarray, modes: Sequence[tuple[float, float]], velocity: bool) -> np.ndarray:
-    """The steady response's columns (K, 2 + 2m) at speeds (K,): background c0 + c1 N and each
-    mode's (r^2, r) / (1 - r^2 + 2j zeta r); times N / mean N for a velocity."""
+def _basis(speed: np.ndarray, modes: Sequence[tuple[float, float]], velocity: bool,
+           background: int = 2) -> np.ndarray:
+    """The steady response's columns (K, background + 2m) at speeds (K,): a polynomial
+    background c0 + c1 x (+ c2 x^2 with ``background`` 3; x the speed centred and scaled over
+    the window) and each mode's (r^2, r) / (1 - r^2 + 2j zeta r); times N / mean N for a
+    velocity."""
     mid = float(np.mean(speed))
     span = float(np.ptp(speed)) or 1.0
-    cols = [np.ones(len(speed)), (speed - mid) / span]
+    x = (speed - mid) / span
+    cols = [x**k for k in range(background)]
     for nc, zeta in modes:
         r = speed / nc
         d = 1.0 - r**2 + 2j * zeta * r
@@ -102,19 +107,59 @@ def crossing_lag(speed: np.ndarray, vector: np.ndarray, modes: Sequence[tuple[fl
                  tau_start: Sequence[float] = (1.0, 3.0)) -> LagFit | None:
     """Tau fitted with the modes (start values [(Nc rpm, zeta)]) to one window of a ramp:
     speed (K,) rpm (gaps filled, smoothed), vector (K,) the tracked complex 1x vector (NaN
-    where missing). None: too few samples or no fit."""
+    where missing). None: too few samples or no fit.
+
+    Two backgrounds are fitted, straight and quadratic in the speed, and the one of the lower
+    BIC kept: the tail of a mode outside the window (a coast-down starting just below a higher
+    critical) bends the background, and a straight one then traded the bend for the lag (a
+    coast-down's tau near 0 where the tracker lagged 1.85 s); where nothing bends it, the
+    quadratic's extra freedom only blurs tau. The BIC's figures are rounded to ``RESOLUTION``
+    (relative) before they are compared, so that rounding cannot flip the choice."""
     ok = np.isfinite(vector)
     if ok.sum() < MIN_SAMPLES or not np.isfinite(speed).all() or not modes:
         return None
+    fits = [f for bg in BACKGROUNDS if (f := _fit(speed, vector, ok, modes, velocity, bg, fs, tau_start))]
+    if not fits:
+        return None
+    best, k = min(fits, key=lambda f: _bic(f[0].cost, len(f[0].fun), f[1]))
+    n = len(best.fun)
+    if n <= k:
+        return None
+    s2 = 2.0 * best.cost / (n - k)
+    jtj = best.jac.T @ best.jac
+    try:
+        se = math.sqrt(float(np.linalg.inv(jtj)[-1, -1]) * s2)
+    except (np.linalg.LinAlgError, ValueError):
+        se = math.inf
+    m = len(modes)
+    return LagFit(float(best.x[-1]), se if math.isfinite(se) else math.inf,
+                  tuple(float(best.x[2 * j]) for j in range(m)), direction, int(ok.sum()))
+
+
+BACKGROUNDS = (2, 3)  # the backgrounds tried: straight, quadratic (complex columns)
+RESOLUTION = 1e-6  # relative: BIC figures compared at this resolution (ties: the straight one)
+
+
+def _bic(cost: float, n: int, k: int) -> float:
+    """BIC of a least-squares fit (cost: half the residuals' sum of squares; n residuals, k
+    parameters), rounded to ``RESOLUTION``."""
+    if n <= k or cost <= 0.0:
+        return -math.inf if cost <= 0.0 else math.inf
+    b = n * math.log(2.0 * cost / n) + k * math.log(n)
+    q = RESOLUTION * max(abs(b), 1.0)
+    return round(b / q) * q
+
+
+def _fit(speed: np.ndarray, vector: np.ndarray, ok: np.ndarray, modes: Sequence[tuple[float, float]],
+         velocity: bool, background: int, fs: float, tau_start: Sequence[float]) -> tuple[Any, int] | None:
+    """The variable-projection fit of (Nc, zeta per mode, tau) with ``background`` columns:
+    scipy's result and the parameters counted (real; None: no fit)."""
     v = vector[ok]
     m = len(modes)
 
-    def design(p: np.ndarray) -> np.ndarray:
-        b = _basis(speed, [(p[2 * j], p[2 * j + 1]) for j in range(m)], velocity)
-        return _lag_columns(b, p[-1], fs)[ok]
-
     def resid(p: np.ndarray) -> np.ndarray:
-        d = design(p)
+        b = _basis(speed, [(p[2 * j], p[2 * j + 1]) for j in range(m)], velocity, background)
+        d = _lag_columns(b, p[-1], fs)[ok]
         coef, *_ = np.linalg.lstsq(d, v, rcond=None)
         e = d @ coef - v
         return np.concatenate([e.real, e.imag])
@@ -135,17 +180,7 @@ def crossing_lag(speed: np.ndarray, vector: np.ndarray, modes: Sequence[tuple[fl
             best = fit
     if best is None:
         return None
-    n, p = len(best.fun), 2 * m + 1 + 2 * (2 * m + 3)
-    if n <= p:
-        return None
-    s2 = 2.0 * best.cost / (n - p)
-    jtj = best.jac.T @ best.jac
-    try:
-        se = math.sqrt(float(np.linalg.inv(jtj)[-1, -1]) * s2)
-    except (np.linalg.LinAlgError, ValueError):
-        se = math.inf
-    return LagFit(float(best.x[-1]), se if math.isfinite(se) else math.inf,
-                  tuple(float(best.x[2 * j]) for j in range(m)), direction, int(ok.sum()))
+    return best, 2 * m + 1 + 2 * (2 * m + background + 1)
 
 
 def _groups(found: Sequence[Critical]) -> list[list[Critical]]:
