@@ -267,6 +267,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         if o["rcond_grid"]:
             grid["rcond"] = _rconds(o["rcond_grid"])
     targets = resolve_targets(o["target"], runs)
+    schedule.check_targets(targets)
     config = RuntimeConfig()
     use_prom = o["prom"] or method == "prom"
     use_history = o["history"] or use_prom  # (the engine history's cooling)
