@@ -28,6 +28,7 @@ BENCHMARKS = {
     "plans": "bench.plans",
     "transients": "bench.transients",
     "transient-fleet": "bench.transient_fleet",
+    "verdict": "bench.verdict",
 }
 
 

@@ -29,6 +29,11 @@ level before the switch, faded in after the switch; one with a settle anchor
 (``node.models.settle``), from 15 s after the switch, by a share of what it missed over the 2 s
 before. A predicted 1x vector moves with it, along its own direction.
 
+Where the schedule holds acceptance limits for the target, each message carries ``limit`` (the
+limit in force, ``limit_in_force``) and ``over_limit``, and the run's ``RunVerdict``
+(``node.runtime.verdict``) steps on it: at an OC switch and at the run's end (the engine stopped,
+the next run, ``end_verdict``) ``verdicts`` holds its ``monitor/verdict`` message.
+
 Each sample also steps the target's ``TransientWatch`` (``node.runtime.transient_watch``): at
 the end of a transition (a run-up, a coast-down, a ramp between plateaus; a run's last one at
 the next run or the end of the stream, ``end_transient``) ``transient`` holds its
