@@ -29,6 +29,7 @@ BENCHMARKS = {
     "transients": "bench.transients",
     "transient-fleet": "bench.transient_fleet",
     "whole-run": "bench.whole_run",
+    "verdict": "bench.verdict",
 }
 
 

@@ -90,8 +90,8 @@ def test_the_contract_names_every_enumerated_value() -> None:
     assert not missing, f"docs/contract.md does not name the value(s) {missing}"
 
 
-def test_a_limit_table_is_accepted_and_ignored_as_the_contract_says(tmp_path: Path) -> None:
-    """docs/contract.md section 4: the parser of 0.1.0 reads switch, tolerance and [[oc]] only."""
+def test_a_limit_table_is_read_and_kept_as_the_contract_says(tmp_path: Path) -> None:
+    """docs/contract.md section 4: [[limit]] tables are read, checked and kept in the bundle's schedule."""
     from node.contract import load_schedule
 
     plain = 'switch = "nB"\ntolerance = 0.02\n[[oc]]\nname = "OC3"\nspeed = 4700.0\n'
@@ -99,6 +99,7 @@ def test_a_limit_table_is_accepted_and_ignored_as_the_contract_says(tmp_path: Pa
     (tmp_path / "plain.toml").write_text(plain, encoding="utf-8")
     (tmp_path / "limit.toml").write_text(plain + limit, encoding="utf-8")
     with_limit = load_schedule(tmp_path / "limit.toml")
-    assert with_limit == load_schedule(tmp_path / "plain.toml")
-    assert "limit" not in with_limit.to_dict()
-    assert "Not yet in ordervib 0.1.0:** the schedule parser" in CONTRACT.read_text(encoding="utf-8")
+    assert with_limit != load_schedule(tmp_path / "plain.toml")
+    assert with_limit.to_dict()["limit"] == [{"target": "yB", "max": 12.0, "from_speed": 7000.0,
+                                              "to_speed": 9900.0}]
+    assert "Not yet in ordervib 0.1.0:** the schedule parser" not in CONTRACT.read_text(encoding="utf-8")

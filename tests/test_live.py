@@ -274,9 +274,12 @@ def test_three_targets_live_equal_replay_for_each_target(tmp_path, monkeypatch):
     monkeypatch.setattr(TransientWatch, "message_of", spy)
     chans = ["--channels", "nB,yA,yB,yC,tF,yA_ph,yB_ph,yC_ph", "--plateau-scale", "0.05", "--quiet"]
     train, test = str(tmp_path / "train.mcap"), str(tmp_path / "test.mcap")
-    assert main(["simulate", "--runs", "2", "--seed", "7", "--out", train, *chans]) == 0
-    assert main(["simulate", "--runs", "3", "--skip", "2", "--seed", "7", "--out", test, *chans]) == 0
-    assert main(["train", train, "--schedule", str(tmp_path / "train.schedule.toml"),
+    assert main(["simulate", "--runs", "3", "--seed", "7", "--out", train, *chans]) == 0  # (3: a forecast)
+    assert main(["simulate", "--runs", "4", "--skip", "3", "--seed", "7", "--out", test, *chans]) == 0
+    schedule = tmp_path / "train.schedule.toml"  # with acceptance limits: limit, over_limit and verdicts
+    schedule.write_text(schedule.read_text() + '[[limit]]\ntarget = "yB"\nmax = 15.0\nfrom_speed = 7000.0\n'
+                        '[[limit]]\ntarget = "yA"\nmax = 2.0\noc = "OC7"\n')
+    assert main(["train", train, "--schedule", str(schedule),
                  "--out", str(tmp_path / "m"), "--method", "lasso", "--inputs", "nB,tF", "--quiet",
                  "--workers", "1"]) == 0
     model = load_model(tmp_path / "m")
@@ -299,21 +302,26 @@ def test_three_targets_live_equal_replay_for_each_target(tmp_path, monkeypatch):
     def by_target(path: Path) -> dict[str, list[bytes]]:
         out: dict[str, list[bytes]] = {}
         for m in iter_messages(path):
-            if "/monitor/y" in m.topic or m.topic.endswith("/monitor/transient"):
+            if "/monitor/y" in m.topic or m.topic.endswith(("/monitor/transient", "/monitor/verdict")):
                 out.setdefault(m.topic, []).append(bytes(m.payload))
         return out
     live, offline = by_target(tmp_path / "node.mcap"), by_target(tmp_path / "offline.mcap")
     transients = "testbed/bed1/monitor/transient"
-    assert sorted(live) == [f"testbed/bed1/monitor/{t}" for t in ("transient", "yA", "yB", "yC")]
+    verdicts = "testbed/bed1/monitor/verdict"
+    assert sorted(live) == [f"testbed/bed1/monitor/{t}" for t in ("transient", "verdict", "yA", "yB", "yC")]
     assert live[transients] == offline[transients]  # byte for byte, in the same order
+    assert live[verdicts] == offline[verdicts]
+    assert {orjson.loads(m)["target"] for m in live[verdicts]} == {"yA", "yB"}
+    assert any(orjson.loads(m)["forecast"] for m in live[verdicts])
     assert {orjson.loads(m)["target"] for m in live[transients]} == {"yA", "yB", "yC"}
     assert sum(len(orjson.loads(m)["criticals"]) for m in live[transients]) >= 3
     for topic in live:
-        if topic == transients:
+        if topic in (transients, verdicts):
             continue
         assert len(live[topic]) > 500
         assert live[topic] == offline[topic], topic
         assert any(b'"measured_phase":' in m for m in live[topic])  # the phase is used
+        assert all((b'"over_limit":' in m) == (not topic.endswith("yC")) for m in live[topic])
 
 
 def test_two_nodes_with_disjoint_bed_patterns_share_a_fleet(setup, tmp_path):

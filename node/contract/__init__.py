@@ -44,6 +44,7 @@ from node.contract.keys import (
     sensor_subscription,
     topic_kind,
     transient_key,
+    verdict_key,
 )
 from node.contract.messages import (
     Flag,
@@ -55,8 +56,10 @@ from node.contract.messages import (
     Reason,
     Refused,
     SensorSample,
+    Status,
     TransientCritical,
     TransientMessage,
+    VerdictMessage,
     json_schema,
 )
 from node.contract.payload import check_sample, decode_sample, decode_samples, log_time_ns, log_times_ns
@@ -71,9 +74,11 @@ __all__ = [
     "is_phase_channel", "liveliness_key", "monitor_key", "monitor_subscription", "node_health_key", "oc_key",
     "off_speed", "parse_monitor_key",
     "parse_sensor_key", "phase_channel", "run_starts", "sensor_key", "sensor_subscription",
-    "topic_kind", "transient_key", "Flag", "HealthMessage", "MonitorMessage", "NodeHealthMessage",
+    "topic_kind", "transient_key", "verdict_key", "VerdictMessage", "Flag", "HealthMessage",
+    "MonitorMessage", "NodeHealthMessage",
     "OCMessage", "Phase", "Reason", "Refused",
-    "SensorSample", "TransientCritical", "TransientMessage", "json_schema", "check_sample", "decode_sample",
+    "SensorSample", "Status", "TransientCritical", "TransientMessage", "json_schema", "check_sample",
+    "decode_sample",
     "decode_samples", "log_time_ns", "log_times_ns",
     "OrdervibError", "OperatingCondition", "RUNDOWN", "Schedule", "load_schedule",
 ]

@@ -156,7 +156,8 @@ def is_name(chunk: str) -> bool:
 OC_TOPIC = "oc"  # monitor/<OC_TOPIC>: OC switches
 HEALTH_TOPIC = "health"  # monitor/<HEALTH_TOPIC>: the bed's health
 TRANSIENT_TOPIC = "transient"  # monitor/<TRANSIENT_TOPIC>: each analysed transition's criticals
-RESERVED_NAMES = frozenset({OC_TOPIC, HEALTH_TOPIC, TRANSIENT_TOPIC})  # never a target's name
+VERDICT_TOPIC = "verdict"  # monitor/<VERDICT_TOPIC>: the pass-off verdict per limited target
+RESERVED_NAMES = frozenset({OC_TOPIC, HEALTH_TOPIC, TRANSIENT_TOPIC, VERDICT_TOPIC})  # never a target's name
 
 _SENSOR_RE = re.compile(rf"{PREFIX}/({_NAME})/sensor/({_NAME})\Z")
 _MONITOR_RE = re.compile(rf"{PREFIX}/({_NAME})/monitor/({_NAME})\Z")
@@ -172,12 +173,13 @@ class TopicKind(StrEnum):
     OC = "oc"
     HEALTH = "health"
     TRANSIENT = "transient"  # monitor/transient: one message per target and transition analysed
+    VERDICT = "verdict"  # monitor/verdict: one message per limited target at each OC switch and run end
     NODE_HEALTH = "node-health"  # ordervib/node/<id>/health: a node's own counters
     OTHER = "other"
 
 
 _RESERVED_KINDS = {OC_TOPIC: TopicKind.OC, HEALTH_TOPIC: TopicKind.HEALTH,
-                   TRANSIENT_TOPIC: TopicKind.TRANSIENT}
+                   TRANSIENT_TOPIC: TopicKind.TRANSIENT, VERDICT_TOPIC: TopicKind.VERDICT}
 
 
 def sensor_key(bed: str, channel: str) -> str:
@@ -207,6 +209,15 @@ def transient_key(bed: str) -> str:
     ('testbed/b1/monitor/transient', <TopicKind.TRANSIENT: 'transient'>)
     """
     return monitor_key(bed, TRANSIENT_TOPIC)
+
+
+def verdict_key(bed: str) -> str:
+    """Key of a bed's verdict messages (every limited target's, each names its ``target``).
+
+    >>> verdict_key("b1"), topic_kind(verdict_key("b1"))
+    ('testbed/b1/monitor/verdict', <TopicKind.VERDICT: 'verdict'>)
+    """
+    return monitor_key(bed, VERDICT_TOPIC)
 
 
 def phase_channel(order: str) -> str:

@@ -56,6 +56,14 @@ class Phase(StrEnum):
         return _PHASES[code]
 
 
+class Status(StrEnum):
+    """A verdict's ``status``: the pass-off verdict of a target in a run so far."""
+
+    PASS = "pass"  # the run ended and no sample was over its limit
+    FAIL = "fail"  # a sample was over its limit
+    PENDING = "pending"  # the run goes on, no sample over its limit so far
+
+
 class Refused(StrEnum):
     """Why the node refused a message (the keys of a health message's ``refused``): a refused
     message creates no state, no topic and no MCAP channel; it is counted, nothing more."""
@@ -106,6 +114,11 @@ class MonitorMessage(TypedDict):
     vector_score: NotRequired[Annotated[float | None,
                                         "the vector rule: change of the 1x vector on this plateau over "
                                         "its alarm level (alarm beyond 1)"]]
+    limit: NotRequired[Annotated[float | None, "where the schedule holds limits for the target: the "
+                                               "acceptance limit in force at this sample's speed or OC "
+                                               "(the target's unit); null where none applies"]]
+    over_limit: NotRequired[Annotated[bool, "where the schedule holds limits for the target: measured "
+                                            "is above limit (independent of flag)"]]
 
 
 class OCMessage(TypedDict):
@@ -159,6 +172,39 @@ class TransientMessage(TypedDict):
                                      "from and to (an OC or a speed band)"]]
     rate: NotRequired[Annotated[float, "mean speed rate, rpm/s of the switch channel"]]
     speed_channel: NotRequired[Annotated[str, "the speed channel the 1x vector was analysed on"]]
+
+
+class SegmentForecast(TypedDict):
+    """The forecast of one remaining segment of the run (an item of a verdict's ``forecast``)."""
+
+    oc: Annotated[str, "the segment: an OC (its transition and plateau) or rundown"]
+    peak: Annotated[float | None, "the predicted peak of the target in it (the target's unit); null: "
+                                  "the training runs lack the segment"]
+    peak_lo: Annotated[float | None, "the lower end of the predicted peak's 90 % interval"]
+    peak_hi: Annotated[float | None, "the upper end of the predicted peak's 90 % interval"]
+    p_exceed: Annotated[float | None, "the probability that the target exceeds its limit in the "
+                                      "segment; null: no limit applies there"]
+
+
+class VerdictMessage(TypedDict):
+    """``testbed/<bed>/monitor/verdict``: one message per limited target at each OC switch and at
+    the end of a run: the pass-off verdict so far and the forecast of the rest of the run."""
+
+    t: Annotated[float, "time of the switch or the run's end, s (the sensor clock)"]
+    target: Annotated[str, "the limited target"]
+    run: Annotated[float, "the run's start time (light-off), s (the sensor clock)"]
+    status: Annotated[Status, "pass (at the end of a run never over its limits), fail (once a sample "
+                              "was over its limit) or pending (while the run goes on)"]
+    margin: Annotated[float | None, "the smallest limit minus measured value so far (the target's unit); "
+                                    "null: no sample had a limit yet"]
+    margin_oc: Annotated[str | None, "the segment where the smallest margin fell"]
+    margin_speed: Annotated[float | None, "the switch speed where it fell, rpm"]
+    p_fail: Annotated[float | None, "the forecast probability that the rest of the run exceeds a limit "
+                                    "(0 at its end); null: the model keeps no training peaks"]
+    forecast: Annotated[list[SegmentForecast], "one object per remaining segment of the schedule, the "
+                                               "segment just entered first; empty at the end of a run"]
+    first_exceedance: NotRequired[Annotated[str | None, "the segment where the first exceedance is "
+                                                        "expected, when p_fail is at least 0.5"]]
 
 
 # the fields a bed's health and the node's own share: the serving node and its recording
@@ -254,7 +300,7 @@ class NodeHealthMessage(TypedDict):
 MESSAGE_TYPES: dict[TopicKind, type] = {
     TopicKind.SENSOR: SensorSample, TopicKind.MONITOR: MonitorMessage,
     TopicKind.OC: OCMessage, TopicKind.HEALTH: HealthMessage, TopicKind.NODE_HEALTH: NodeHealthMessage,
-    TopicKind.TRANSIENT: TransientMessage,
+    TopicKind.TRANSIENT: TransientMessage, TopicKind.VERDICT: VerdictMessage,
 }
 
 

@@ -36,6 +36,7 @@ from node.contract.errors import OrdervibError
 from node.contract.schedule import Schedule
 from node.models.config import BEFORE_GUARD, V1_SETTINGS, RuntimeConfig, SettingError
 from node.models.envelope import Envelope
+from node.models.forecast import PeakTable
 from node.models.kinds import model_from_arrays
 from node.models.ocmodel import RUN_CURVE
 from node.models.plateau import PlateauShift
@@ -80,6 +81,7 @@ class Bundle:
     curve: tuple[np.ndarray, np.ndarray] | None = None  # characteristic curve (speeds, means)
     checks: dict = field(default_factory=dict)  # model-free checks, e.g. {"flatline_samples": 80}
     transients: FleetTransients | None = None  # the fleet's criticals per transition (None: not kept)
+    forecast: PeakTable | None = None  # the training runs' peaks per segment (None: not kept, no forecast)
 
     @property
     def history_s(self) -> float:
@@ -154,6 +156,8 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike) -> Path:
     }
     if bundle.transients is not None:  # (older versions ignore it: their node has no transient topic)
         manifest["transients"] = bundle.transients.manifest()
+    if bundle.forecast is not None:  # (older versions ignore it: their node has no verdict)
+        manifest["forecast"] = bundle.forecast.manifest()
     (out / MANIFEST).write_text(json.dumps(manifest, indent=1))
     return out
 
@@ -353,9 +357,12 @@ def _load_one(root: Path, manifest: dict) -> Bundle:
         transients = None  # bundles before them kept none: no expected speed, no transient alarm
         if manifest.get("transients") is not None:
             transients = FleetTransients.from_manifest(manifest["transients"])
+        forecast = None  # bundles before it kept none (or of another version): no forecast
+        if manifest.get("forecast") is not None:
+            forecast = PeakTable.from_manifest(manifest["forecast"], schedule.segments)
         return Bundle(manifest["method"], manifest["target"], schedule, ocs,
                       config, manifest.get("training", {}), curve,
-                      _checks(manifest.get("checks", {})), transients)
+                      _checks(manifest.get("checks", {})), transients, forecast)
     except (KeyError, TypeError, ValueError) as exc:
         raise OrdervibError(f"{root}: malformed bundle ({exc!r})") from None
 

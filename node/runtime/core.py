@@ -25,6 +25,7 @@ by ``forget`` (the live node's expiry of silent beds); its engine history is kep
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -46,9 +47,11 @@ from node.contract import (
     parse_sensor_key,
     sensor_key,
     transient_key,
+    verdict_key,
 )
 from node.contract.payload import decode_list
 from node.models.bundle import Bundle, Model, as_model
+from node.models.forecast import MIN_RUNS
 from node.runtime.alarms import EpisodeLog
 from node.runtime.align import SMALL_BATCH, AlignedSample, Aligner
 from node.runtime.clock import ClockPolicy
@@ -59,6 +62,8 @@ from node.runtime.transient_watch import PendingTransient
 Output = tuple[str, dict]  # (key expression, JSON-ready message)
 Route = tuple[str, str]  # (bed, channel) of an admitted sensor key
 Row = tuple[str, int, int, bytes]  # a recorded message: key, log time ns, publish time ns, JSON bytes
+
+log = logging.getLogger(__name__)
 
 MAX_BEDS = 256  # beds tracked at once at most, by default (ordervib run --max-beds)
 MAX_CHANNELS = 64  # channels of a bed at most, by default, the model's among them (--max-channels)
@@ -192,6 +197,12 @@ class NodeCore:
         if max_beds < 1 or max_channels < 1:
             raise ValueError(f"max_beds and max_channels must be >= 1, got {max_beds}, {max_channels}")
         self.model = as_model(model)
+        unforecast = [b.target for b in self.model.bundles if b.schedule.limits_of(b.target)
+                      and (b.forecast is None or len(b.forecast.peak) < MIN_RUNS)]
+        if unforecast:  # said once: a bundle trained before the verdict's forecast kept no peaks
+            log.warning("the model keeps no training peaks for %s (trained before the forecast, or on "
+                        "fewer than %d runs): its verdicts carry no forecast", ", ".join(unforecast),
+                        MIN_RUNS)
         self._admits = bed_matcher(beds)  # ValueError for a bad pattern
         self.max_beds = max_beds
         self.max_channels = max_channels
@@ -372,8 +383,11 @@ class NodeCore:
         for name, bed in self.beds.items():
             out += self._run(name, bed.aligner.end())
             ended: list[Output] = []
-            for p in bed.pipelines:  # each target's last transition
+            for p in bed.pipelines:  # each target's last transition and the verdict of its run
                 self._transient(transient_key(name), p.end_transient(), ended)
+                verdict = p.end_verdict()
+                if verdict is not None:
+                    ended.append((verdict_key(name), verdict))
             out += ended
             self.published += len(ended)
         return out
@@ -512,5 +526,8 @@ class NodeCore:
                 out.append((key, msg))
                 if pipe.transient is not None:  # the end of a transition: its criticals
                     self._transient(transient_key(name), pipe.transient, out)
+                if pipe.verdicts:  # an OC switch or a run's end: the verdict of a limited target
+                    key_v = verdict_key(name)
+                    out += [(key_v, v) for v in pipe.verdicts]
         self.published += len(out)
         return out

@@ -29,6 +29,11 @@ level before the switch, faded in after the switch; one with a settle anchor
 (``node.models.settle``), from 15 s after the switch, by a share of what it missed over the 2 s
 before. A predicted 1x vector moves with it, along its own direction.
 
+Where the schedule holds acceptance limits for the target, each message carries ``limit`` (the
+limit in force, ``limit_in_force``) and ``over_limit``, and the run's ``RunVerdict``
+(``node.runtime.verdict``) steps on it: at an OC switch and at the run's end (the engine stopped,
+the next run, ``end_verdict``) ``verdicts`` holds its ``monitor/verdict`` message.
+
 Each sample also steps the target's ``TransientWatch`` (``node.runtime.transient_watch``): at
 the end of a transition (a run-up, a coast-down, a ramp between plateaus; a run's last one at
 the next run or the end of the stream, ``end_transient``) ``transient`` holds its
@@ -43,11 +48,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from node.contract import FS, Flag, Phase, Reason, phase_channel
+from node.contract.schedule import limit_in_force
 from node.contract.vector import NAN_VECTOR, lag_degrees, order_vector, order_vectors
 from node.models.average import AverageRuntime, predicts_vector
 from node.models.bundle import Bundle
 from node.models.curve import CurveRuntime
 from node.models.envelope import HELD, OUTSIDE, Envelope
+from node.models.forecast import MIN_RUNS, Forecaster
 from node.models.ocmodel import OCRuntime
 from node.models.plateau import PlateauShift
 from node.models.settle import AT as SETTLE_AT
@@ -63,6 +70,7 @@ from node.runtime.plateaus import RunPlateaus
 from node.runtime.rows import RecentRows
 from node.runtime.runcurve import RUN_CURVE, RunCurve
 from node.runtime.transient_watch import PendingTransient, TransientWatch
+from node.runtime.verdict import RunVerdict
 
 _NAN = float("nan")
 _PHASE = {p: p.value for p in Phase}  # each phase's string (an enum's .value is a slow descriptor)
@@ -140,6 +148,14 @@ class MonitorPipeline:
         self._plateau_vector = bool(shifts) and shifts[0].vector  # (a bundle's shifts are of one kind)
         self._uses_phase = bool(self._vector) or vector_models or self._plateau_vector
         phase = (self._phase_ch,) if self._uses_phase else ()
+        # the acceptance limits on the target (contract section 4): limit and over_limit per sample
+        self._limits = bundle.schedule.limits_of(self.target)
+        # and the verdict of the run (node.runtime.verdict): its messages of the last sample, if any
+        table = bundle.forecast
+        forecaster = Forecaster(table) if table is not None and len(table.peak) >= MIN_RUNS else None
+        self._verdict = (RunVerdict(self.target, bundle.schedule.segments, forecaster) if self._limits
+                         else None)
+        self.verdicts: list[dict] = []
         # the transitions: on the speed and phase the fleet's were analysed on (an older bundle:
         # the switch speed, and the phase where the other rules read it)
         self._transient = TransientWatch(self.target, bundle.schedule, bundle.transients)
@@ -178,6 +194,8 @@ class MonitorPipeline:
 
     def step(self, sample: AlignedSample) -> tuple[dict, dict | None]:
         self.transient = None
+        if self.verdicts:
+            self.verdicts = []
         if sample.new_run:
             self._new_run()
         values = sample.values
@@ -215,6 +233,18 @@ class MonitorPipeline:
                    "measured": _num(measured), "predicted": None, "residual": None, "flag": _NO_MODEL,
                    "score": None, "band": None, "model": None, "reason": None,
                    "run_scale": None, "envelope": None}
+        verdict = self._verdict
+        if verdict is not None:
+            speed = vals[self.switch]
+            name = None if oc is None else self._names[oc]
+            lim = msg["limit"] = limit_in_force(self._limits, speed, name)
+            msg["over_limit"] = lim is not None and measured > lim
+            verdict.step(sample.t, name, speed, measured, lim)
+            if oc_msg is not None and oc_msg["oc"] != oc_msg["previous"]:  # an OC switch: the verdict
+                stopped = oc_msg["oc"] is None and speed < self.detector.off_level  # the run's end
+                v = verdict.end(sample.t) if stopped else verdict.switch(sample.t, oc_msg["oc"])
+                if v is not None:
+                    self.verdicts.append(v)
         active = self._active
         if active is not None:
             self._predict(active, vals, measured, msg, z)
@@ -237,6 +267,10 @@ class MonitorPipeline:
         if ended is not None:
             self.transient = ended
         return msg, oc_msg
+
+    def end_verdict(self) -> dict | None:
+        """The stream ended: the verdict of the run going on (None: none, or no limits)."""
+        return self._verdict.end() if self._verdict is not None else None
 
     def end_transient(self) -> dict | PendingTransient | None:
         """The stream ended: the transition in progress analysed, its message (None: none)."""
@@ -339,6 +373,9 @@ class MonitorPipeline:
         if not self._follows:
             self.detector.reset()
         self.transient = self._transient.end()  # the last run's last transition (its coast-down)
+        ended = self.end_verdict()  # the last run's verdict, if it did not stop
+        if ended is not None:
+            self.verdicts.append(ended)
         self._hist.clear()
         self._last = dict.fromkeys(self.channels, _NAN)
         for rule in (self._flat, self._jump, *self._vector, self._runscale, self._curve, self._chirp,

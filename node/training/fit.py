@@ -243,6 +243,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
     from node.runtime.chirp import add_chirp_rate
     from node.training.calibrate import CV_UNDERCOVERAGE, FALSE_ALARMS_PER_HOUR, calibrate_checks
     from node.training.dataset import label_runs
+    from node.training.forecast import peak_table
     from node.training.train import (
         CURVE_CANDIDATES,
         DEFAULT_GRIDS,
@@ -267,6 +268,7 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         if o["rcond_grid"]:
             grid["rcond"] = _rconds(o["rcond_grid"])
     targets = resolve_targets(o["target"], runs)
+    schedule.check_targets(targets)
     config = RuntimeConfig()
     use_prom = o["prom"] or method == "prom"
     use_history = o["history"] or use_prom  # (the engine history's cooling)
@@ -312,7 +314,10 @@ def train_model(runs: list[Run], schedule: Schedule, o: dict, workers: int | Non
         checks["residual_cv_undercoverage"] = under  # recorded: the residual thresholds assume it
         settings = dataclasses.replace(transient_settings(runs, schedule, target), **lag)
         transients = fleet_transients(runs, schedule, target, settings)
-        bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks, transients))
+        # the training runs' peaks per segment, for the verdict's forecast (a limited target's)
+        peaks = peak_table(runs, schedule, target, labels) if schedule.limits_of(target) else None
+        bundles.append(Bundle(method, target, schedule, results, config, {}, curve, checks, transients,
+                              peaks))
         trained.append((target, results))
     if use_history:  # said once the model stands (a failure: one line)
         log.log(*cooling_note(config.history_cooling))
