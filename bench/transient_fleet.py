@@ -2,18 +2,18 @@
 and the stiffness losses it finds, for a choice of k sigma and floor.
 
     python -m bench transient-fleet [--seeds 1,2,3] [--train 4] [--held-out 2]
-        [--plateau-scale 1] [--k 4] [--floor 2.5] [--schedule ramps|builtin] [--workdir W]
+        [--plateau-scale 1] [--k 4] [--floor 2.5] [--schedule ramps|builtin] [--size 1] [--workdir W]
 
 Per engine (one simulator seed): ``--train`` runs learn the fleet's transients of yA, yB and yC
 (``node.training.transients.fleet_transients``: the node's own per-sample analysis); the next
 ``--held-out`` runs (the same engine, its history carried on) are healthy and never trained on;
-one more run carries the simulator's stiffness fault (yB's 0.95 mode 10 % softer from a drawn
-onset, ``simulate --fault stiffness``). Each run goes through the node's ``TransientWatch``
-against the fleet, as the node publishes ``monitor/transient``. Counted: transient alarms on the
-held-out runs (per hour of run) and on the fault run before its onset, and whether the fault run
-raises one on yB after its onset (found), with the delay. Beside them the largest |shift| of a
-matched critical on healthy runs, the margin the floor and k leave.
-"""
+one more run carries the simulator's stiffness fault (yB's shaft 10 % softer in stiffness from a drawn
+onset, ``simulate --fault stiffness``; ``--size 2``: 20 % softer, every critical about 10.6 %
+lower). Each run goes through the node's ``TransientWatch`` against the fleet, as the node
+publishes ``monitor/transient``. Counted: transient alarms on the held-out runs (per hour of
+run) and on the fault run before its onset, and whether the fault run raises one on yB after its
+onset (found), with the delay. Beside them the largest |shift| of a matched critical on healthy
+runs, the margin the floor and k leave. """
 
 from __future__ import annotations
 
@@ -40,16 +40,17 @@ CHANNELS = "nA,nB,nC,yA,yB,yC,yA_ph,yB_ph,yC_ph"
 
 
 def engine(seed: int, work: Path, n_train: int, n_held: int, plateau_scale: float, k: float,
-           floor: float, schedule: Path | None) -> dict:
+           floor: float, schedule: Path | None, size: float = 1.0) -> dict:
     """One engine's figures (see the module docstring)."""
-    train, test = work / f"e{seed}.train.mcap", work / f"e{seed}.test.mcap"
+    tag = "" if size == 1.0 else f".size{size:g}"
+    train, test = work / f"e{seed}.train.mcap", work / f"e{seed}.test{tag}.mcap"
     sched = {} if schedule is None else {"schedule": str(schedule)}
     if not train.exists():
         make.simulate(train, runs=n_train, seed=seed, plateau_scale=plateau_scale, channels=CHANNELS,
                       **sched)
     if not test.exists():
         make.simulate(test, runs=n_train + n_held + 1, skip=n_train, seed=seed, fault="stiffness",
-                      plateau_scale=plateau_scale, channels=CHANNELS, **sched)
+                      fault_size=size, plateau_scale=plateau_scale, channels=CHANNELS, **sched)
     truth = json.loads(test.with_suffix(".truth.json").read_text())
     sch = load_schedule(str(train.with_suffix(".schedule.toml")))
     train_runs, test_runs = read_runs(train), read_runs(test)
@@ -99,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--schedule", choices=("ramps", "builtin"), default="ramps",
                     help="ramps: bench transients' (idle, 6500, 9800, 6500 rpm, through the criticals; "
                          "default); builtin: the simulator's 12 OCs (short ramps between them)")
+    ap.add_argument("--size", type=float, default=1.0,
+                    help="the stiffness fault's size: 1 a 10 %% stiffness loss (default), 2 a 20 %% loss")
     ap.add_argument("--workdir", help="keep the recordings here (default: a new temp folder)")
     args = ap.parse_args(argv)
     try:
@@ -107,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--seeds must be integers separated by commas, got {args.seeds!r}")
     if not seeds or min(seeds) < 0 or not 2 <= args.train <= 20 or not 1 <= args.held_out <= 20:
         ap.error("--seeds must be >= 0, --train in 2..20, --held-out in 1..20")
+    if not 0.1 <= args.size < 10.0:
+        ap.error("--size must be in [0.1, 10)")
     if args.workdir is not None and not Path(args.workdir).is_dir():
         ap.error(f"--workdir {args.workdir} is not a folder")
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
@@ -116,15 +121,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.schedule == "ramps":
             sched = work / "ramps.schedule.toml"
             sched.write_text(SCHEDULE)
-        rows = [engine(s, work, args.train, args.held_out, args.plateau_scale, args.k, args.floor, sched)
-                for s in seeds]
+        rows = [engine(s, work, args.train, args.held_out, args.plateau_scale, args.k, args.floor, sched,
+                       args.size) for s in seeds]
     print_table(["engine", "held-out h", "messages", "false alarms", "before onset", "max |shift| %",
                  "stiffness found", "delay s", "its shift %"],
                 [[str(r["engine"]), f"{r['hours']:.2f}", str(r["messages"]), str(r["alarms"]),
                   str(r["before"]), f"{r['max_shift']:.2f}", "yes" if r["found"] is not None else "no",
                   "-" if r["found"] is None else f"{r['found']:.0f}",
                   "-" if r["fault_shift"] is None else f"{r['fault_shift']:+.2f}"] for r in rows],
-                title=f"transient rule: k = {args.k:g} sigma, floor {args.floor:g} %")
+                title=f"transient rule: k = {args.k:g} sigma, floor {args.floor:g} %; stiffness loss "
+                      f"{10 * args.size:g} %")
     for r in rows:
         for d in r["detail"]:
             print(f"  engine {r['engine']}: alarm {d}")

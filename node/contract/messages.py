@@ -148,6 +148,9 @@ class TransientCritical(TypedDict):
     shift_rpm: NotRequired[Annotated[float | None, "speed - expected_speed, rpm"]]
     limit: NotRequired[Annotated[float | None, "the |shift| beyond which the critical is an alarm, %"]]
     expected_af: NotRequired[Annotated[float | None, "the fleet's mean AF of this resonance"]]
+    af_rise: NotRequired[Annotated[float | None, "(af - expected_af) / expected_af, %: a rise is lost "
+                                                 "damping"]]
+    af_limit: NotRequired[Annotated[float | None, "the af_rise beyond which the critical is an alarm, %"]]
     af_method: NotRequired[Annotated[str, "how af was read: modal fit (with phase) or half-power "
                                           "(amplitude only)"]]
     zeta: NotRequired[Annotated[float, "the damping ratio af implies"]]

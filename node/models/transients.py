@@ -37,7 +37,10 @@ from typing import Any
 TRANSIENTS_VERSION = 1
 K_SIGMA = 4.0  # an alarm beyond this many fleet sigmas (see docs/transients.md: the calibration)
 FLOOR_PCT = 2.5  # ... and never within this many % of the fleet's mean
-MATCH_PCT = 8.0  # a critical matches a fleet resonance within this many % of its mean
+MATCH_PCT = 8.0  # a critical matches a resonance within this many % of its mean (times the common ratio)
+MAX_COMMON_PCT = 25.0  # the common ratio of a transition's criticals to the fleet's: at most this far from 1
+MATCH_RESOLUTION = 1e-9  # the matching's figures are compared rounded to this
+AF_FLOOR_PCT = 40.0  # an AF's rise over the fleet's mean is an alarm beyond k sigma and never within this
 JOIN_PCT = 3.0  # training: criticals of a kind within this many % of a group's mean are one resonance
 MIN_SEEN = 2  # a resonance seen in fewer transitions of its kind raises nothing
 BAND_PCT = 5.0  # a speed that is no OC's plateau is labelled by a band this wide, % of the top plateau
@@ -183,6 +186,68 @@ class FleetTransients:
         spread = 100.0 * res.shaft.std / res.shaft.mean * math.sqrt(1.0 + 1.0 / n)
         return max(self.settings.k_sigma * spread, self.settings.floor_pct)
 
+    def match(self, kind: str, speeds: Sequence[float]) -> list[Resonance | None]:
+        """The fleet resonance each critical of one transition matches (``speeds`` rpm of the
+        shaft analysed, ascending; None: none), by mode order under one common ratio.
+
+        A stiffness change moves every critical by about the same ratio (a 20 % loss about
+        10.6 %), beyond ``match_pct`` of its own resonance and maybe nearer another one's. So
+        the criticals are matched in ascending order, each resonance at most once, under the
+        ratio g (found speed over fleet mean) that makes the most of them agree: each within
+        ``match_pct`` of g times its resonance, ``1 + g`` within ``MAX_COMMON_PCT`` of 1. A
+        ratio beyond ``match_pct`` needs two criticals or more to agree on it (one critical far
+        from every resonance stays new); ties go to the ratio nearer 1. The figures are compared
+        rounded (``MATCH_RESOLUTION``), so rounding cannot flip a choice.
+
+        >>> s = lambda x: FleetStat(x, 10.0, 4)
+        >>> k = Kind(4, (Resonance(s(4500.0), s(4500.0), s(6.0)), Resonance(s(8200.0), s(8200.0), s(15.0))))
+        >>> fleet = FleetTransients(TransientSettings(), {"down A->B": k})
+        >>> [r.shaft.mean if r else None for r in fleet.match("down A->B", [4010.0, 7320.0])]  # 10.8 % low
+        [4500.0, 8200.0]
+        >>> [r.shaft.mean if r else None for r in fleet.match("down A->B", [7320.0])]  # one alone: new
+        [None]
+        >>> [r.shaft.mean if r else None for r in fleet.match("down A->B", [4480.0, 8230.0])]
+        [4500.0, 8200.0]
+        """
+        k = self.kinds.get(kind)
+        n = len(speeds)
+        if k is None or not k.resonances or not n:
+            return [None] * n
+        res = k.resonances
+        tol = math.log1p(self.settings.match_pct / 100.0)
+        wide = math.log1p(MAX_COMMON_PCT / 100.0)
+        logs = [[math.log(c / r.shaft.mean) if c > 0 else math.inf for r in res] for c in speeds]
+        ratios = sorted({0.0, *(x for row in logs for x in row if abs(x) <= wide)}, key=abs)
+        best: tuple[float, float, list[int | None]] | None = None
+        for g in ratios:
+            pairs = _ordered_pairs(logs, g, tol)
+            if len(pairs) < 2 and abs(g) > tol:
+                continue
+            fit = math.fsum(abs(logs[i][j] - g) for i, j in pairs)
+            key = (_rounded(-len(pairs) + fit / (2.0 * tol * (n + 1))), _rounded(abs(g)))
+            if best is None or key < best[:2]:
+                out: list[int | None] = [None] * n
+                for i, j in pairs:
+                    out[i] = j
+                best = (*key, out)
+        assert best is not None  # g = 0 is always tried
+        return [None if j is None else res[j] for j in best[2]]
+
+    def shifted(self, res: Resonance, speed: float, transitions: int) -> tuple[float, float | None]:
+        """A critical at ``speed`` (rpm of the shaft analysed) matched to ``res`` in a kind of
+        ``transitions``: its shift in % and the limit (``limit``)."""
+        return 100.0 * (speed - res.shaft.mean) / res.shaft.mean, self.limit(res, transitions)
+
+    def af_rise(self, res: Resonance, af: float, transitions: int) -> tuple[float, float | None]:
+        """An AF ``af`` of a critical matched to ``res``: its rise over the fleet's mean AF in %
+        and the rise beyond which it is an alarm (lost damping: ``k_sigma`` times the fleet's
+        spread, never below ``AF_FLOOR_PCT``; None: the resonance raises none)."""
+        if self.limit(res, transitions) is None or not res.af.mean > 0 or not math.isfinite(af):
+            return math.nan, None
+        n = res.af.count
+        spread = 100.0 * res.af.std / res.af.mean * math.sqrt(1.0 + 1.0 / n)
+        return 100.0 * (af - res.af.mean) / res.af.mean, max(self.settings.k_sigma * spread, AF_FLOOR_PCT)
+
     def compare(self, kind: str, speed: float) -> tuple[Resonance | None, float | None, float | None]:
         """The fleet resonance a critical at ``speed`` (rpm of the shaft analysed) in a transition
         of ``kind`` matches (None: none within ``match_pct``), its shift in % and the limit."""
@@ -233,6 +298,37 @@ class FleetTransients:
                 res.append(Resonance(speed, shaft, FleetStat.from_dict(r.get("af"))))
             out[str(name)] = Kind(n, tuple(sorted(res, key=lambda x: x.shaft.mean)))
         return cls(settings, out)
+
+
+def _ordered_pairs(logs: list[list[float]], g: float, tol: float) -> list[tuple[int, int]]:
+    """The most (critical i, resonance j) pairs, both ascending, each |logs[i][j] - g| <= tol,
+    fewest misfit among equals (a longest common subsequence by dynamic programming)."""
+    n, m = len(logs), len(logs[0]) if logs else 0
+    # best[i][j]: (pairs, -misfit) over criticals i.. and resonances j..
+    best = [[(0, 0.0)] * (m + 1) for _ in range(n + 1)]
+    for i in range(n - 1, -1, -1):
+        for j in range(m - 1, -1, -1):
+            cands = [best[i + 1][j], best[i][j + 1]]
+            d = abs(logs[i][j] - g)
+            if d <= tol:
+                p, f = best[i + 1][j + 1]
+                cands.append((p + 1, f - d))
+            best[i][j] = max(cands)
+    out, i, j = [], 0, 0
+    while i < n and j < m:
+        d = abs(logs[i][j] - g)
+        if d <= tol and best[i][j] == (best[i + 1][j + 1][0] + 1, best[i + 1][j + 1][1] - d):
+            out.append((i, j))
+            i, j = i + 1, j + 1
+        elif best[i][j] == best[i + 1][j]:
+            i += 1
+        else:
+            j += 1
+    return out
+
+
+def _rounded(x: float) -> float:
+    return round(x / MATCH_RESOLUTION) * MATCH_RESOLUTION
 
 
 def speed_label(speed: float, plateaus: Sequence[tuple[str, float]]) -> str:

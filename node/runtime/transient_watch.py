@@ -145,34 +145,33 @@ class TransientWatch:
             first, last = tr.from_speed, tr.to_speed
         kind = transition_kind(tr.direction, first, last, self._plateaus)
         fleet = self.fleet
-        # each fleet resonance answers the critical nearest to it (others near it are new ones)
-        match: dict[int, tuple[Resonance, float, float | None]] = {}
+        # the fleet's resonances matched by mode order under one common ratio (FleetTransients.match)
+        ascending = sorted(range(len(tr.criticals)), key=lambda i: tr.criticals[i].speed)
+        matched: dict[int, Resonance] = {}
         if fleet is not None:
-            best: dict[int, int] = {}
-            for i, c in enumerate(tr.criticals):
-                res, shift, limit = fleet.compare(kind, c.speed)
-                if res is not None and shift is not None:
-                    j = best.get(id(res))
-                    if j is None or abs(shift) < abs(match[j][1]):
-                        if j is not None:
-                            del match[j]
-                        best[id(res)] = i
-                        match[i] = (res, shift, limit)
+            for i, res in zip(ascending, fleet.match(kind, [tr.criticals[i].speed for i in ascending])):
+                if res is not None:
+                    matched[i] = res
+        n_kind = fleet.kinds[kind].transitions if fleet is not None and kind in fleet.kinds else 0
         alarm = False
         crits = []
         for i, c in enumerate(tr.criticals):
             speed = to_switch(c.speed)
-            expected = shift = limit = expected_af = None
-            if i in match:
-                res, shift, limit = match[i]
+            expected = shift = limit = expected_af = af_rise = af_limit = None
+            if fleet is not None and i in matched:
+                res = matched[i]
+                shift, limit = fleet.shifted(res, c.speed, n_kind)
+                rise, af_limit = fleet.af_rise(res, c.af, n_kind)
+                af_rise = _num(rise)
                 expected, expected_af = res.speed.mean, res.af.mean
-                alarm = alarm or (limit is not None and abs(shift) > limit)
+                alarm = (alarm or (limit is not None and abs(shift) > limit)
+                         or (af_limit is not None and af_rise is not None and af_rise > af_limit))
             crits.append({"speed": _num(speed), "amplitude": _num(c.amplitude),
                           "phase_change": _num(c.phase_change), "af": _num(c.af),
                           "expected_speed": expected, "shift": shift,
                           "shift_rpm": None if expected is None else _num(speed - expected), "limit": limit,
-                          "expected_af": expected_af, "af_method": c.af_method, "zeta": _num(c.zeta),
-                          "shaft_speed": _num(c.speed)})
+                          "expected_af": expected_af, "af_rise": af_rise, "af_limit": af_limit,
+                          "af_method": c.af_method, "zeta": _num(c.zeta), "shaft_speed": _num(c.speed)})
         dur = (t[-1] - t[0]) if len(t) > 1 else math.nan
         flag = Flag.NO_MODEL if fleet is None else Flag.ALARM if alarm else Flag.OK
         return {"t": float(t[-1]), "target": self.target, "direction": tr.direction,
