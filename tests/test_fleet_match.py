@@ -28,17 +28,18 @@ def _fleet(speeds: list[float], af: float = 12.0) -> FleetTransients:
 
 @st.composite
 def _modes(draw) -> list[float]:
-    """2-4 modes, each at least 15 % above the one below."""
+    """2-4 modes, each at least 40 % above the one below (modes spaced by about the shift's own
+    ratio are ambiguous under a common ratio: the ratio nearer 1 wins)."""
     n = draw(st.integers(2, 4))
     x = draw(st.floats(1500.0, 5000.0))
     out = [x]
     for _ in range(n - 1):
-        out.append(out[-1] * draw(st.floats(1.15, 1.8)))
+        out.append(out[-1] * draw(st.floats(1.4, 1.8)))
     return out
 
 
 @settings(max_examples=150, deadline=None)
-@given(_modes(), st.floats(0.80, 1.20), st.data())
+@given(_modes(), st.floats(0.88, 1.12), st.data())  # up to a 20 % stiffness loss or gain
 def test_a_uniform_shift_is_matched_to_the_right_modes_in_order(modes, ratio, data):
     fleet = _fleet(modes)
     first = data.draw(st.integers(0, len(modes) - 2))

@@ -196,7 +196,8 @@ class FleetTransients:
         ratio g (found speed over fleet mean) that makes the most of them agree: each within
         ``match_pct`` of g times its resonance, ``1 + g`` within ``MAX_COMMON_PCT`` of 1. A
         ratio beyond ``match_pct`` needs two criticals or more to agree on it (one critical far
-        from every resonance stays new); ties go to the ratio nearer 1. The figures are compared
+        from every resonance stays new); ties go to the ratio nearer 1 (modes spaced by about the
+        ratio itself are ambiguous: the nearer ratio wins). The figures are compared
         rounded (``MATCH_RESOLUTION``), so rounding cannot flip a choice.
 
         >>> s = lambda x: FleetStat(x, 10.0, 4)
