@@ -7,8 +7,9 @@ messages with ``expected_speed`` and ``shift`` null and flag ``no-model``, never
 
 The kind of a transition (``transition_kind``) is its direction and where it starts and ends: an
 OC whose plateau speed lies within ``KIND_NEAR`` of the speed, else a band of ``BAND_PCT`` % of
-the schedule's top plateau speed (idle, off). A critical found in a transition matches the fleet
-resonance of the same kind nearest to it in speed, within ``match_pct`` %. Its shift, (speed -
+the schedule's top plateau speed (idle, off). The criticals found in a transition match the
+fleet resonances of the same kind by mode order under one common ratio (``FleetTransients.match``),
+each within ``match_pct`` % of its resonance times that ratio. Its shift, (speed -
 mean) / mean in %, is an alarm beyond ``limit``: ``k_sigma`` times the fleet's standard deviation
 in %, widened by sqrt(1 + 1 / n) for a mean of n transitions, and never below ``floor_pct``
 (few runs underestimate a spread; the floor also covers what the fleet's runs never showed,
