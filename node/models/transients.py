@@ -195,19 +195,24 @@ class FleetTransients:
         10.6 %), beyond ``match_pct`` of its own resonance and maybe nearer another one's. So
         the criticals are matched in ascending order, each resonance at most once, under the
         ratio g (found speed over fleet mean) that makes the most of them agree: each within
-        ``match_pct`` of g times its resonance, ``1 + g`` within ``MAX_COMMON_PCT`` of 1. A
-        ratio beyond ``match_pct`` needs two criticals or more to agree on it (one critical far
-        from every resonance stays new); ties go to the ratio nearer 1 (modes spaced by about the
-        ratio itself are ambiguous: the nearer ratio wins). The figures are compared
-        rounded (``MATCH_RESOLUTION``), so rounding cannot flip a choice.
+        ``match_pct`` of g times its resonance, g within ``MAX_COMMON_PCT`` of 1. A ratio beyond
+        ``match_pct`` needs two criticals or more to agree on it; ties go to the ratio nearer 1
+        (modes spaced by about the ratio itself are ambiguous: the nearer ratio wins). Then a
+        critical still new, where the transition missed a resonance it crosses as a rule (seen
+        in most transitions of its kind: ``limit`` not None) within ``MAX_COMMON_PCT`` and
+        between the same matched neighbours, is that resonance shifted (most ramps between
+        plateaus cross one mode: no common ratio to agree on). The figures are compared rounded
+        (``MATCH_RESOLUTION``), so rounding cannot flip a choice.
 
         >>> s = lambda x: FleetStat(x, 10.0, 4)
         >>> k = Kind(4, (Resonance(s(4500.0), s(4500.0), s(6.0)), Resonance(s(8200.0), s(8200.0), s(15.0))))
         >>> fleet = FleetTransients(TransientSettings(), {"down A->B": k})
         >>> [r.shaft.mean if r else None for r in fleet.match("down A->B", [4010.0, 7320.0])]  # 10.8 % low
         [4500.0, 8200.0]
-        >>> [r.shaft.mean if r else None for r in fleet.match("down A->B", [7320.0])]  # one alone: new
-        [None]
+        >>> [r.shaft.mean if r else None for r in fleet.match("down A->B", [7320.0])]  # 8,200 missed
+        [8200.0]
+        >>> [r.shaft.mean if r else None for r in fleet.match("down A->B", [4480.0, 6100.0])]  # new
+        [4500.0, None]
         >>> [r.shaft.mean if r else None for r in fleet.match("down A->B", [4480.0, 8230.0])]
         [4500.0, 8200.0]
         """
@@ -233,7 +238,19 @@ class FleetTransients:
                     out[i] = j
                 best = (*key, out)
         assert best is not None  # g = 0 is always tried
-        return [None if j is None else res[j] for j in best[2]]
+        out = best[2]
+        # a critical left new where the transition missed a resonance it crosses as a rule (seen
+        # in most transitions of its kind), in between the same matched neighbours: that one shifted
+        for i in range(n):
+            if out[i] is not None:
+                continue
+            lo = max((j for j in out[:i] if j is not None), default=-1)
+            hi = min((j for j in out[i + 1:] if j is not None), default=len(res))
+            free = [j for j in range(lo + 1, hi) if j not in out and abs(logs[i][j]) <= wide
+                    and self.limit(res[j], k.transitions) is not None]
+            if free:
+                out[i] = min(free, key=lambda j: (_rounded(abs(logs[i][j])), j))
+        return [None if j is None else res[j] for j in out]
 
     def shifted(self, res: Resonance, speed: float, transitions: int) -> tuple[float, float | None]:
         """A critical at ``speed`` (rpm of the shaft analysed) matched to ``res`` in a kind of
