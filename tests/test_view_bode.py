@@ -117,7 +117,8 @@ def test_the_bode_covers_the_whole_speed_range_and_its_labels_cover_no_data():
     assert labels
     fig.canvas.draw()
     inv = amp_ax.transAxes.inverted()
-    for t in labels:
-        box = t.get_window_extent()
+    boxes = [t.get_window_extent() for t in labels]
+    for box in boxes:
         (x0, y0), _ = inv.transform([[box.x0, box.y0], [box.x1, box.y1]])
         assert y0 > top_frac  # the label's lower edge above every datum
+    assert not any(a.overlaps(b) for i, a in enumerate(boxes) for b in boxes[i + 1:])  # nor each other

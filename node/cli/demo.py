@@ -107,8 +107,10 @@ def run(args: argparse.Namespace) -> int:
     log.info("%s", fault_summary(node.core.alarm_log.episodes, rec_test.with_suffix(".truth.json")))
     rrd = out / "node.rrd"
     log.info("[5/5] Rerun file %s, the polar and Bode PNGs of the 1x vector", rrd)
+    fleet = load_model(model)["yB"].transients
+    lag = fleet.settings.tracker_s if fleet is not None else 0.0  # the lag training estimated
     if cli(["view", str(node_rec), "--save", str(rrd), "--schedule", str(schedule), "--plots", str(out),
-            "--quiet"]) != 0:
+            "--tracker-s", repr(lag), "--quiet"]) != 0:
         return 2
     print(f"done in {time.perf_counter() - t0:.0f} s")
     print(f"node recording (MCAP): {node_rec.resolve()}")

@@ -57,6 +57,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slow-roll", metavar="LO,HI", default=None,
                    help="with --plots: subtract each run's mean 1x vector between LO and HI rpm of the "
                    "switch speed (the runout or bow at slow roll) in the Bode plot")
+    p.add_argument("--tracker-s", type=float, metavar="S", default=0.0,
+                   help="with --plots: the order tracker's lag undone when the Bode plot finds the "
+                   "criticals (s; a model's is in its transients settings; default 0: not undone)")
     p.add_argument("--bed", metavar="NAME", default=None, help="test bed (default: the only one)")
     p.add_argument(
         "--target",
@@ -109,6 +112,13 @@ def _check(args: argparse.Namespace) -> None:
         check_output(args.save, "--save", suffix=".rrd", inputs=[args.recording] if args.recording else [])
     if args.plots is not None and not os.path.isdir(args.plots):
         raise OrdervibError(f"--plots {args.plots} is not a directory")
+    if args.tracker_s != 0.0:
+        from node.models.transients import TRACKER_S_MAX
+
+        if args.plots is None:
+            raise OrdervibError("--tracker-s needs --plots")
+        if not 0.0 <= args.tracker_s <= TRACKER_S_MAX:
+            raise OrdervibError(f"--tracker-s must be in [0, {TRACKER_S_MAX:g}] s, got {args.tracker_s:g}")
     if args.slow_roll is not None:
         from replay.views.phase_plots import speed_band
 
@@ -129,7 +139,7 @@ def _png_paths(args: argparse.Namespace, data: ViewData) -> list[str]:
 
 
 def _write_plots(data: ViewData, vectors: Vectors, paths: list[str],
-                 slow_roll: tuple[float, float] | None = None) -> str:
+                 slow_roll: tuple[float, float] | None = None, tracker_s: float = 0.0) -> str:
     """The polar and Bode plots to paths, each replaced only by a complete file; the summary line."""
     import numpy as np
 
@@ -137,7 +147,7 @@ def _write_plots(data: ViewData, vectors: Vectors, paths: list[str],
 
     title = f"{data.bed} {data.target}: 1x vector"
     figures = (polar_figure(vectors, title, data.switch, data.target_unit),
-               bode_figure(vectors, title, data.switch, data.target, data.target_unit, slow_roll))
+               bode_figure(vectors, title, data.switch, data.target, data.target_unit, slow_roll, tracker_s))
     for fig, path in zip(figures, paths):
         with replacing(path) as part:
             save_png(fig, part)
@@ -268,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plots is not None:
         vectors = _vectors(data)
         paths = _png_paths(args, data)
-        line = _write_plots(data, vectors, paths, args.slow_roll)
+        line = _write_plots(data, vectors, paths, args.slow_roll, args.tracker_s)
         if not args.quiet:
             print(line)
         if args.save is None:

@@ -126,6 +126,9 @@ def speed_band(text: str) -> tuple[float, float]:
 
 
 SHORT_SPAN = 0.02  # the Bode draws ramps down to this share of their top speed (the analysis: MIN_SPAN)
+LABEL_WIDTH = 0.1  # a critical's label, as a share of the speed axis (another row where closer)
+LABEL_ROWS = 2  # rows of labels in the strip above the data
+SAME_MODE = 0.02  # criticals of the first run within this share of a labelled one: marked, not written
 LABEL_ROOM = 1.6  # the amplitude axis reaches this many times the largest amplitude: labels above
 
 
@@ -259,19 +262,25 @@ def _criticals(v: Vectors, idx: np.ndarray, tracker_tau: float) -> list[Critical
 def _mark_criticals(ax: Axes, found: list[tuple[Critical, str]], top: float) -> int:
     """Each critical of ``found`` marked on the amplitude axis in its run's colour; those of the
     first run (colour given) written with speed and AF in the strip above the data (the axis
-    reaches ``LABEL_ROOM`` x ``top``), a thin line down to the marker, staggered in two rows
-    where neighbours would touch: no label covers a trace. How many were marked."""
+    reaches ``LABEL_ROOM`` x ``top``), a thin line down to the marker, one label per mode (none
+    within ``SAME_MODE`` of one written), in up to ``LABEL_ROWS`` rows where neighbours would
+    touch: no label covers a trace or another. How many were marked."""
     strip = blended_transform_factory(ax.transData, ax.transAxes)
-    span = max((c.speed for c, _ in found), default=1.0) - min((c.speed for c, _ in found), default=0.0)
-    last_x, row = -math.inf, 0
+    lo, hi = ax.get_xlim()
+    room = LABEL_WIDTH * (hi - lo)  # labels closer than this go to another row
+    rows = [-math.inf] * LABEL_ROWS  # each row's last label's speed
+    written: list[float] = []
     for c, color in sorted(found, key=lambda f: f[0].speed):
         ax.plot([c.speed], [c.amplitude], "v", ms=6, color=color or "gray", mec="black", mew=0.5)
-        if not color or top <= 0:
+        if not color or top <= 0 or any(abs(c.speed / w - 1.0) <= SAME_MODE for w in written):
             continue
-        row = 1 - row if c.speed - last_x < 0.08 * max(span, 1.0) else 0
-        last_x = c.speed
+        row = next((r for r, x in enumerate(rows) if c.speed - x >= room), None)
+        if row is None:
+            continue  # no room left in the strip: marked, not written
+        rows[row] = c.speed
+        written.append(c.speed)
         ax.annotate(f"{c.speed:,.0f} rpm\nAF {c.af:.1f}", (c.speed, c.amplitude), fontsize=9,
-                    xytext=(c.speed, 0.97 - 0.09 * row), textcoords=strip, ha="center", va="top",
+                    xytext=(c.speed, 0.97 - 0.1 * row), textcoords=strip, ha="center", va="top",
                     arrowprops={"arrowstyle": "-", "lw": 0.5, "color": "gray"})
     return len(found)
 
