@@ -66,6 +66,7 @@ class ReplayReport:
     beds: dict[str, dict[str, Any]] = field(default_factory=dict)
     workers: int = 0
     engines: dict = field(default_factory=dict)  # each bed's engine history at the end (EngineState)
+    verdicts: list[tuple[str, dict]] = field(default_factory=list)  # (key, monitor/verdict message), in order
 
 
 class _Logic:
@@ -74,6 +75,7 @@ class _Logic:
     def __init__(self, bundle: Bundle | Model, encode: bool, engines: dict | None = None,
                  clock: ClockPolicy | None = None) -> None:
         self.core = NodeCore(bundle, engines, clock=clock)
+        self.core.verdict_log = []  # (few: one per limited target at each OC switch and run end)
         self.encode = encode
 
     def _outputs(self, outs) -> list[Encoded]:
@@ -90,6 +92,7 @@ class _Logic:
         c = self.core
         report = {"published": c.published, "malformed": c.malformed, "foreign": c.foreign,
                   "alarm_episodes": c.alarm_log.episodes, "engines": c.engine_states(),
+                  "verdicts": c.verdict_log,
                   "beds": {name: {"received": b.received, "malformed": b.malformed,
                                   "samples": b.aligner.stats.samples, "alarm_samples": b.alarm_samples,
                                   "late": b.aligner.stats.late, "duplicates": b.aligner.stats.duplicates,
@@ -311,7 +314,9 @@ class NodeAlarms:
 
     episodes: ``EpisodeLog`` dicts {"key", "start", "end", "reason"}; samples: every bed's
     samples; per_file: (recording, its episodes, its samples) in the order given; carried: the
-    engine history went on from one recording to the next (else each started cold).
+    engine history went on from one recording to the next (else each started cold); verdicts:
+    the node's ``monitor/verdict`` messages (key, message), in order (none: the model has no
+    limits).
 
     >>> NodeAlarms([{"key": "k", "start": 0.0, "end": 1.0, "reason": "step"}], 144000).line()
     'node alarms (ordervib replay): 1 episode(s) in 60.0 min of data = 1.00 per hour; by rule: step 1'
@@ -321,6 +326,7 @@ class NodeAlarms:
     samples: int
     per_file: list[tuple[str, int, int]] = field(default_factory=list)
     carried: bool = False
+    verdicts: list[tuple[str, dict]] = field(default_factory=list)
 
     @property
     def hours(self) -> float:
@@ -339,7 +345,8 @@ class NodeAlarms:
 
 def node_alarms(recordings: list[str], model: Bundle | Model, workers: int | None = None,
                 carry: bool = False) -> NodeAlarms:
-    """Replay the node over each recording (no output file) and gather its alarm episodes.
+    """Replay the node over each recording (no output file) and gather its alarm episodes and
+    its verdict messages.
 
     carry: each recording starts with the engine histories the previous one ended with (one
     engine's recordings in time order, as a live node's state file carries them); else each
@@ -351,6 +358,7 @@ def node_alarms(recordings: list[str], model: Bundle | Model, workers: int | Non
         engines = r.engines
         samples = sum(b["samples"] for b in r.beds.values())
         out.episodes += r.alarm_episodes
+        out.verdicts += r.verdicts
         out.samples += samples
         out.per_file.append((rec, len(r.alarm_episodes), samples))
     return out

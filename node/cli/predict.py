@@ -1,5 +1,7 @@
 """``ordervib predict``: the expected order amplitudes for a planned speed profile and a stated
-engine history (``node.training.prediction``; the toolbox's panel IV, appendix A.2.4-A.2.5)."""
+engine history (``node.training.prediction``; the toolbox's panel IV, appendix A.2.4-A.2.5);
+with acceptance limits (the schedule given's, else the model's), per planned OC the predicted
+peak and the probability of exceeding its limit (``node.training.prediction_limits``)."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from node.cli.results import Results, add_json_option
 from node.contract.errors import OrdervibError
 
 if TYPE_CHECKING:
+    from node.contract.schedule import Limit, Schedule
     from node.models.bundle import Model
     from node.runtime.history import EngineState
     from node.training.prediction import Prediction, Profile
@@ -34,7 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "optionally any other sensor channel (breakpoints, interpolated linearly to "
                         "40 Hz; a step in t of 5 s or more between two rows with the engine off starts "
                         "a new engine run); or a schedule "
-                        "(.toml): its plateaus in order, each held --plateau-s")
+                        "(.toml): its plateaus in order, each held --plateau-s. The limits: its [[limit]] "
+                        "tables, else the model's schedule's; with limits, per OC the predicted peak and "
+                        "p_exceed, and the CSV's yB_limit and yB_p_exceed")
     p.add_argument("--out", required=True, metavar="OUT.csv",
                    help="the prediction at 40 Hz: history, t, oc, each target with its 90 %% interval "
                         "(yB, yB_lo, yB_hi), the engine-history channels and every input fed to the "
@@ -70,10 +75,12 @@ def run(args: argparse.Namespace) -> int:
     from node.models.bundle import load_model
     from node.runtime.history import HISTORY_CHANNELS
     from node.training.prediction import predict_profile, stated_history, takes_history
+    from node.training.prediction_limits import plan_limits
     from node.training.prediction_setup import prepare_prediction
 
     model = load_model(args.model)
-    profile = _profile(args, model)
+    profile, given = _profile(args, model)
+    limits = plan_limits(given, model.schedule, model.targets)
     engine = _engine(args)
     hours: list[float | None] = list(args.shutdown_hours) if args.shutdown_hours else [None]
     for h in hours:
@@ -115,12 +122,13 @@ def run(args: argparse.Namespace) -> int:
     status = OUTSIDE_STATUS if note is not None else 0
     if note is not None:
         log.warning("%s; exit status %d", note, status)
-    _write(args, preds, status)
+    _write(args, preds, status, limits)
     return status
 
 
-def _profile(args: argparse.Namespace, model: Model) -> Profile:
-    """The planned profile: a schedule's plateaus (.toml) or a CSV (validated, one-line errors)."""
+def _profile(args: argparse.Namespace, model: Model) -> tuple[Profile, Schedule | None]:
+    """The planned profile: a schedule's plateaus (.toml) or a CSV (validated, one-line errors);
+    and the schedule when it is one."""
     from node.training.prediction import schedule_profile
     from node.training.prediction_csv import read_profile
 
@@ -132,8 +140,27 @@ def _profile(args: argparse.Namespace, model: Model) -> Profile:
         if sched.switch != model.schedule.switch:
             raise OrdervibError(f"the schedule's switch {sched.switch!r} is not the model's "
                                 f"{model.schedule.switch!r}")
-        return schedule_profile(sched, args.plateau_s)
-    return read_profile(args.profile, model.schedule.switch)
+        return schedule_profile(sched, args.plateau_s), sched
+    return read_profile(args.profile, model.schedule.switch), None
+
+
+def _limit_table(out: Results, preds: list[Prediction], limits: tuple[Limit, ...]) -> None:
+    """Per stated history, OC and target: the predicted peak with its interval, the limit, p_exceed."""
+    from node.training.prediction_limits import LIMIT_RULE, limits_along, segment_risks
+
+    def f(x: float, fmt: str = ".3f") -> str:
+        return format(x, fmt) if math.isfinite(x) else "-"
+
+    several = len(preds) > 1
+    rows = []
+    for p in preds:
+        for r in segment_risks(p, limits_along(p, limits)):
+            rows.append([*([p.label] if several else []), r.oc, r.target, f(r.peak), f(r.lo), f(r.hi),
+                         f(r.limit, "g"), f(r.p_exceed)])
+    header = [*(["history h"] if several else []), "OC", "target", "peak", "peak_lo", "peak_hi", "limit",
+              "p_exceed"]
+    out.table("limits", header, rows)
+    out.line(f"({LIMIT_RULE})", "limit_rule", LIMIT_RULE)
 
 
 def _engine(args: argparse.Namespace) -> EngineState | None:
@@ -155,9 +182,10 @@ def _engine(args: argparse.Namespace) -> EngineState | None:
     return next(iter(states.values()))
 
 
-def _write(args: argparse.Namespace, preds: list[Prediction], status: int) -> None:
-    """The CSV, the plots, and the result on stdout: the per-OC table and the files written
-    (--json: with the rows marked outside, per mark, and the exit ``status``)."""
+def _write(args: argparse.Namespace, preds: list[Prediction], status: int, limits: tuple[Limit, ...]) -> None:
+    """The CSV, the plots, and the result on stdout: the per-OC table (with limits, the per-OC
+    table of each target's peak and p_exceed) and the files written (--json: with the rows
+    marked outside, per mark, and the exit ``status``)."""
     import numpy as np
 
     from node.training.prediction_csv import write_csv
@@ -165,7 +193,7 @@ def _write(args: argparse.Namespace, preds: list[Prediction], status: int) -> No
 
     with replacing(args.out) as tmp:
         with open(tmp, "w", newline="") as f:
-            rows = write_csv(preds, f)
+            rows = write_csv(preds, f, limits)
     several = len(preds) > 1
     header = ["OC", "samples"] + [f"{tg} {p.label} h" if several else f"mean {tg}"
                                   for p in preds for tg in p.targets]
@@ -176,6 +204,8 @@ def _write(args: argparse.Namespace, preds: list[Prediction], status: int) -> No
             cells.extend(f"{v:.3f}" if np.isfinite(v) else "-" for v in means)
     out = Results(args.json)
     out.table("ocs", header, list(table.values()))
+    if limits:
+        _limit_table(out, preds, limits)
     out.line(f"prediction written to {args.out} ({rows} rows)", "out", args.out)
     marks = np.concatenate([p.marks for p in preds])
     out.value("rows", rows)

@@ -1,7 +1,9 @@
 """``ordervib report``: the engineer's report of pass-off runs as one self-contained HTML file.
 
-A summary first (per target a verdict and a table of the OCs: kind, eps_td of the model and
-the curve per run set, held-out or in-sample by ``node.training.provenance``, outside the
+With acceptance limits in the model's schedule, the pass-off verdict first (per target each
+run's pass or fail, margin, engine, bed and date; the forecasts against what happened). A
+summary (per target a verdict and a table of the OCs: kind, eps_td of the model and the curve
+per run set, held-out or in-sample by ``node.training.provenance``, outside the
 envelope, alarm episodes), then five panels folded in ``<details>`` (``replay.report``): I the
 characteristic curve in context, II the per-OC parameters of every run, III validation
 (measured against predicted, eps_td and R^2 beside the characteristic curve's, the node's
@@ -46,7 +48,7 @@ def _targets(spec: str | None, available: list[str]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from node.mcap import open_recording
+    from node.mcap import open_recording, recorded_engine
     from node.models.bundle import load_model
     from node.training.fit import read_sourced
 
@@ -63,19 +65,20 @@ def run(args: argparse.Namespace) -> int:
     from replay.report.build import build_report
     from replay.report.panels import RunSet
 
-    runs, labels, hashes = [], [], []
+    runs, labels, hashes, engines = [], [], [], []
     for rec in args.recordings:
         found, read, _ = read_sourced([rec], args.quiet)
         runs += found
         labels += [RunSet.label(rec, i) for i in range(len(found))]
         hashes += [read[0]["sha256"]] * len(found)  # whether a run is in-sample: by it and its span
+        engines += [recorded_engine(rec)] * len(found)
     needed = [model.schedule.switch, *targets]
     for i, r in enumerate(runs):
         missing = [c for c in needed if c not in r.channels]
         if missing:
             raise OrdervibError(f"run {labels[i]} has no channel {', '.join(missing)} "
                                 f"(the schedule's switch and the targets are needed)")
-    page = build_report(model, RunSet(runs, labels, hashes), args.recordings, targets, args.model,
+    page = build_report(model, RunSet(runs, labels, hashes, engines), args.recordings, targets, args.model,
                         progress=Progress("report", log))
     with replacing(args.out) as tmp:  # an existing report is replaced only by a complete one
         with open(tmp, "w", encoding="utf-8") as f:

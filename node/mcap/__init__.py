@@ -4,7 +4,8 @@
 - ``writer``: ``RecordingWriter`` (one topic per key expression, JSON payloads) over ``McapWriter``;
 - ``reader``: one walk over the records in file order (``open_recording``), and ``iter_messages``,
   ``iter_messages_fast``, ``read_payloads`` and ``copy_messages`` on it; ``message_time_span``
-  from a finished file's summary (progress); ``warn_unfinished``, the warning for an unfinished file;
+  from a finished file's summary (progress); ``recorded_engine``, its ``ordervib`` metadata
+  record (the engine, bed and date); ``warn_unfinished``, the warning for an unfinished file;
 - ``rotation``: ``RotatingRecorder``, a recording split into successive files.
 """
 
@@ -19,6 +20,7 @@ from node.mcap.reader import (
     message_time_span,
     open_recording,
     read_payloads,
+    recorded_engine,
     recorded_topics,
     warn_unfinished,
 )
@@ -28,6 +30,6 @@ from node.mcap.writer import SCHEMA_NAMES, McapWriter, RecordingWriter, schema_k
 __all__ = [
     "LIBRARY", "MAGIC", "Channel", "Compression", "Opcode", "Schema", "Message", "ReadStats", "Recording",
     "copy_messages", "iter_messages", "iter_messages_fast", "message_time_span", "open_recording",
-    "recorded_topics", "read_payloads", "warn_unfinished",
+    "recorded_engine", "recorded_topics", "read_payloads", "warn_unfinished",
     "RotatingRecorder", "rotated_path", "McapWriter", "RecordingWriter", "SCHEMA_NAMES", "schema_kind",
 ]

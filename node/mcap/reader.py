@@ -331,6 +331,30 @@ def recorded_topics(path: str) -> set[str] | None:
     return None if summary is None else {c.topic for c in summary.channels.values()}
 
 
+ENGINE_RECORD = "ordervib"  # the metadata record naming a recording's engine (docs/contract.md section 3)
+
+
+def recorded_engine(path: str) -> dict[str, str]:
+    """A finished recording's ``ordervib`` metadata record (``engine``, and ``bed`` and ``date``
+    where known), read through its summary's metadata index; {} when it has none, no summary (an
+    unfinished file) or cannot be read (the reading proper reports that)."""
+    from mcap.reader import make_reader
+    from mcap.records import Metadata
+
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None or not any(m.name == ENGINE_RECORD for m in summary.metadata_indexes):
+                return {}
+            for record in reader.iter_metadata():
+                if isinstance(record, Metadata) and record.name == ENGINE_RECORD:
+                    return {str(k): str(v) for k, v in record.metadata.items()}
+    except Exception:  # noqa: BLE001 - any failure here only means: not known
+        return {}
+    return {}
+
+
 def warn_unfinished(logger: logging.Logger, path: str, read: str) -> None:
     """Say that recording ``path`` is unfinished (no footer) and what was read of it: the one
     warning every reader of a recording gives for an unfinished file."""

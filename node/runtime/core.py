@@ -216,6 +216,7 @@ class NodeCore:
         self.defer_transients = defer_transients
         self.pending: list[tuple[str, PendingTransient]] = []  # (key, transition) not yet analysed
         self.alarm_log = EpisodeLog(self.model.config.episode_gap_s)  # alarm episodes, every bed
+        self.verdict_log: list[Output] | None = None  # a list: every verdict message kept (replay's report)
         self._routes: dict[str, Route] = {}  # admitted key -> (bed, channel): the tracked beds' only
         # a bed silent this long on the node's clock (receive times) has its waiting slots emitted
         self.idle_ns = round(self.model.config.align_wait_s * 1e9)
@@ -388,9 +389,15 @@ class NodeCore:
                 verdict = p.end_verdict()
                 if verdict is not None:
                     ended.append((verdict_key(name), verdict))
+                    self._keep_verdicts(ended[-1:])
             out += ended
             self.published += len(ended)
         return out
+
+    def _keep_verdicts(self, outs: list[Output]) -> None:
+        """Verdict messages into ``verdict_log`` when it is kept."""
+        if self.verdict_log is not None:
+            self.verdict_log += outs
 
     def _transient(self, key: str, msg: dict | PendingTransient | None, out: list[Output]) -> None:
         """A transition's message into ``out`` (deferred: into ``pending``)."""
@@ -529,5 +536,6 @@ class NodeCore:
                 if pipe.verdicts:  # an OC switch or a run's end: the verdict of a limited target
                     key_v = verdict_key(name)
                     out += [(key_v, v) for v in pipe.verdicts]
+                    self._keep_verdicts(out[-len(pipe.verdicts):])
         self.published += len(out)
         return out

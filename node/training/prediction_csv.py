@@ -1,5 +1,6 @@
 """The files of a prediction: the planned profile CSV read (``read_profile``), the predicted
-orders written as CSV rows (``write_csv``) to an open text stream."""
+orders written as CSV rows (``write_csv``) to an open text stream; with acceptance limits, each
+target's limit in force and its ``p_exceed`` too (``node.training.prediction_limits``)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,10 @@ from typing import TextIO
 import numpy as np
 
 from node.contract.errors import OrdervibError
+from node.contract.schedule import Limit
 from node.runtime.history import HISTORY_CHANNELS
 from node.training.prediction import Prediction, Profile
+from node.training.prediction_limits import LIMIT_RULE, exceed_probability, limits_along
 from node.training.prediction_reach import MARK_WORDS, finite_speeds
 
 _NAN = math.nan
@@ -73,24 +76,27 @@ def read_profile(path: str, switch: str) -> Profile:
 
 
 # -- output ---------------------------------------------------------------------------------------
-def csv_columns(preds: Sequence[Prediction]) -> list[str]:
+def csv_columns(preds: Sequence[Prediction], limits: Sequence[Limit] = ()) -> list[str]:
     """The columns ``write_csv`` writes: the stated history's label, time, OC, where the plan
     leaves what the model knows (``outside``: empty inside, ``speed`` beyond the training runs'
     speeds, ``no_oc`` held at a speed no OC has; ``node.training.prediction_reach``), each target
     predicted with its interval and its model's envelope (``yB``, ``yB_lo``, ``yB_hi``,
     ``yB_envelope``: the node's monitor-message field, above 1 where the model's inputs, the
     engine history among them, left its training region), the engine-history channels, and
-    every input fed to the node."""
+    every input fed to the node. With ``limits``, each target's limit in force and the
+    probability that the sample exceeds it follow its envelope (``yB_limit``, ``yB_p_exceed``)."""
     p = preds[0]
-    per_target = (c for tg in p.targets for c in (tg, f"{tg}_lo", f"{tg}_hi", f"{tg}_envelope"))
+    extra = ("_limit", "_p_exceed") if limits else ()
+    per_target = (c for tg in p.targets for c in (tg, f"{tg}_lo", f"{tg}_hi", f"{tg}_envelope",
+                                                   *(tg + e for e in extra)))
     return ["history", "t", "oc", "outside", *per_target, *HISTORY_CHANNELS, *p.channels]
 
 
-def csv_notes(preds: Sequence[Prediction]) -> list[str]:
+def csv_notes(preds: Sequence[Prediction], limits: Sequence[Limit] = ()) -> list[str]:
     """The notes ``write_csv`` puts above the header (without their "# "): where the plan leaves
     what the model knows (``Prediction.reach_note``), the bounds and where they acted, where a
-    model left its training region (``Prediction.envelope_notes``), the interval, and how each
-    filled channel was filled."""
+    model left its training region (``Prediction.envelope_notes``), the interval, the limits
+    (when given) and how each filled channel was filled."""
     p = preds[0]
     out = []
     for q in preds:
@@ -106,6 +112,9 @@ def csv_notes(preds: Sequence[Prediction]) -> list[str]:
         at = f" ({q.label} h stood)" if len(preds) > 1 and q.label else ""
         out += [f"envelope{at}: {line}" for line in q.envelope_notes()]
     out.append(f"interval: {', '.join(f'{tg}_lo..{tg}_hi' for tg in p.targets)}: {p.interval_rule}")
+    if limits:
+        out.append("limits: " + "; ".join(f"{lim.target} {lim.where()}: {lim.max:g}" for lim in limits)
+                   + f"; {LIMIT_RULE}")
     for how in dict.fromkeys(p.filled_how.values()):
         mine = [c for c, h in p.filled_how.items() if h == how]
         out.append(f"filled {', '.join(mine)}: {how}")
@@ -117,23 +126,28 @@ def csv_notes(preds: Sequence[Prediction]) -> list[str]:
     return out
 
 
-def write_csv(preds: Sequence[Prediction], f: TextIO) -> int:
+def write_csv(preds: Sequence[Prediction], f: TextIO, limits: Sequence[Limit] = ()) -> int:
     """Rows of each prediction (one per stated history) into ``f``; returns the rows written.
+    limits: the acceptance limits (none: no limit columns, no limit note).
 
     Lines starting with "# " come first (``csv_notes``: read with a CSV reader that skips
     comments, e.g. pandas' ``comment="#"``), then the header (``csv_columns``). ``history``:
     each prediction's label (``ordervib predict``: the hours the engine stood before the
     profile as stated); numbers with 6 significant digits, NaN as an empty cell."""
-    for line in csv_notes(preds):
+    for line in csv_notes(preds, limits):
         f.write(f"# {line}\n")
     w = csv.writer(f, lineterminator="\n")
-    w.writerow(csv_columns(preds))
+    w.writerow(csv_columns(preds, limits))
     n = 0
     for p in preds:
         names = [p.oc_names[i] if i >= 0 else "" for i in p.oc.tolist()]
         marks = [MARK_WORDS[m] for m in p.marks.tolist()] if p.marks.shape == p.t.shape else [""] * p.t.size
         env = p.envelope if p.envelope.shape == p.predicted.shape else np.full(p.predicted.shape, _NAN)
-        band = np.stack([p.predicted, p.lo, p.hi, env], axis=2).reshape(p.t.size, -1)
+        cols = [p.predicted, p.lo, p.hi, env]
+        if limits:
+            limit = limits_along(p, limits)
+            cols += [limit, exceed_probability(p.predicted, p.hi, limit, p.level)]
+        band = np.stack(cols, axis=2).reshape(p.t.size, -1)
         body = np.column_stack([band, p.history, p.inputs])
         for k in range(p.t.size):
             w.writerow([p.label, f"{p.t[k]:.3f}", names[k], marks[k], *map(_g, body[k].tolist())])

@@ -1,9 +1,12 @@
-"""The engineer's report of pass-off runs: a summary, then the five panels, per target, as one
-HTML page.
+"""The engineer's report of pass-off runs: the pass-off verdict (when the schedule has limits),
+a summary, then the five panels, per target, as one HTML page.
 
 ``build_report`` returns the page (``replay.report.document``); ``ordervib report`` checks the
-files and writes it. The summary (``SUMMARY``, ``replay.report.summary``) comes first, open:
-per target a verdict and a table of the OCs. Each panel then has a stable id (``PANELS``), a
+files and writes it. With acceptance limits the page opens with the verdict (``VERDICT``,
+``replay.report.verdict``): per target each run's pass or fail, margin, engine, bed and date,
+and the node's forecasts against what happened. The summary (``SUMMARY``,
+``replay.report.summary``) comes next (first without limits), open: per target a verdict on
+the model and a table of the OCs. Each panel then has a stable id (``PANELS``), a
 heading numbered I-V and a line of what it holds (``GISTS``), folded in a ``<details>``;
 with several targets, each holds one part per target.
 """
@@ -30,6 +33,7 @@ from replay.report.panels import (
 )
 from replay.report.summary import summary_blocks
 from replay.report.transients import transient_panel
+from replay.report.verdict import VERDICT, verdict_blocks
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +108,11 @@ def build_report(model: Model, runs: RunSet, recordings: Sequence[str], targets:
         lambda t: transient_panel(runs.runs, runs.labels, schedule, t, model[t]),
     ]
     panels = [summary]
+    if schedule.limits:
+        log.info("report: the pass-off verdict")
+        opening = [b for t in targets for b in verdict_blocks(model[t], runs, schedule, t, alarms.verdicts)]
+        if opening:
+            panels.insert(0, Panel(VERDICT[0], VERDICT[1], opening, fold=False))
     for (pid, title), make in zip(PANELS, makers):
         log.info("report: %s", title)
         blocks: list[Block] = []

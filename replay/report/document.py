@@ -256,6 +256,9 @@ details > summary { cursor: pointer; }
 details > summary h2 { display: inline; }
 details[open] > summary { margin-bottom: .8em; }
 span.gist { color: #555; margin-left: .6em; }
+#verdict h3 { margin: .6em 0 .2em; font-size: 1.25em; }
+#verdict table { font-size: .85em; margin: .2em 0 .6em; }
+#verdict caption { font-weight: normal; color: #444; }
 #summary h3 { margin: .8em 0 .2em; }
 #summary p { margin: .2em 0 .3em; }
 #summary table { font-size: .8em; margin: .2em 0 .6em; }
@@ -264,6 +267,8 @@ span.gist { color: #555; margin-left: .6em; }
 #summary td:nth-child(2), #summary thead tr:last-child th:nth-child(2) { text-align: left; }
 td.better { background: #e1f3e1; }
 td.worse { background: #fbe1dd; }
+td.pass { background: #c6efc6; font-weight: 600; }
+td.fail { background: #f6c1b8; font-weight: 600; }
 td.alarm { background: #ffe9a8; font-weight: 600; }
 """
 

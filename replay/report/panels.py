@@ -52,7 +52,8 @@ R2_FLOOR = -1.0  # R^2 bars below this are cut (a wild OC would flatten the othe
 class RunSet:
     """The report's runs, in the order read, each with a label (``REC #i``, i from 1 per file)
     and the sha256 of its recording (None: not known), by which, and by its span, a run is told
-    in-sample or held-out (``node.training.provenance``).
+    in-sample or held-out (``node.training.provenance``); engines: each run's recording's
+    ``ordervib`` metadata record (``node.mcap.recorded_engine``: engine, bed, date; None: not read).
 
     >>> RunSet.label("data/engine1_runs.mcap", 0)
     'engine1_runs #1'
@@ -61,6 +62,7 @@ class RunSet:
     runs: list[Run]
     labels: list[str]
     sha256: list[str | None] | None = None
+    engines: list[dict[str, str]] | None = None
 
     @staticmethod
     def label(recording: str, i: int) -> str:
