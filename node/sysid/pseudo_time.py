@@ -20,13 +20,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from node.sysid.delay_dmd import DelayDMD
+from node.sysid.memo import ContentMemo
 from node.sysid.observer import estimate_state
 from node.sysid.parametric import ParametricROM
 from node.sysid.statespace import StateSpace
+
+# a library sample's Delay-DMD, by its signals and delays: leave-one-run-out CV refits the same runs
+_MODELS: ContentMemo[StateSpace] = ContentMemo(256)
 
 
 def upsample(a: np.ndarray, up: int) -> np.ndarray:
@@ -131,15 +136,20 @@ class PseudoTimePROM:
         self.models_: list[StateSpace] = []
         for g in groups:
             pairs = [self.signals(r)[:2] for r in g]
-            est = DelayDMD(delays=self.delays, dt=1.0 / self.up, estimator="ls", warmup=self.delays,
-                           seed_window=0)
             xs, us = [x for x, _ in pairs], [u for _, u in pairs]
-            self.models_.append(est.fit(xs if len(xs) > 1 else xs[0], us if len(us) > 1 else us[0]).model_)
+            self.models_.append(_MODELS.get([np.array([self.delays, self.up]), *xs, *us],
+                                            partial(self._delay_dmd, xs, us)))
         P = np.array([np.atleast_1d(g[0].p) for g in groups], float)
         self.rom_ = ParametricROM(None, n_pairs=self.n_pairs, n_real=self.n_real, weights=self.weights,
                                   match="assignment", block="none", tol=10.0, static=True, clip=True,
                                   verbose=False, fallback="drop").fit_models(self.models_, P)
         return self
+
+    def _delay_dmd(self, xs: list[np.ndarray], us: list[np.ndarray]) -> StateSpace:
+        """The Delay-DMD (least squares, the first ``delays`` samples warm-up) of one library sample."""
+        est = DelayDMD(delays=self.delays, dt=1.0 / self.up, estimator="ls", warmup=self.delays,
+                       seed_window=0)
+        return est.fit(xs if len(xs) > 1 else xs[0], us if len(us) > 1 else us[0]).model_
 
     def predict(self, run: Run) -> np.ndarray:
         """(K - start,) the amplitude over the run's OC segment: the ROM at the run's parameter,
