@@ -14,7 +14,8 @@ held out) and OC, two parametric models over one engine-history parameter at the
   (speed in); the ROM over the runs; its free run demodulated back to the amplitude.
 
 Each chosen per OC by leave-one-run-out CV over the training runs (the parameter, and for the
-pseudo-time model the upsampling factor, the delays, the kept modes and the weights); both
+pseudo-time model the upsampling factor, the delays, the kept modes, the weights and the input:
+the speed, as the text, or the pseudo shaft's imbalance force); both
 seeded on measured past. Prints held-out eps_td per OC (pooled over the held-out runs), their
 CV choices and the means.
 """
@@ -41,6 +42,7 @@ UPS = [4, 8]
 DELAYS = [4, 8, 12]
 MODES = [(1, 0), (2, 1), (3, 1)]  # (n_pairs, n_real); the text's OC6: 3 pairs, 1 real pole
 WEIGHTS = ["linear", "regress"]
+DRIVES = ["speed", "force"]  # the text's input, and the pseudo shaft's imbalance force
 
 
 @dataclass(frozen=True)
@@ -53,10 +55,11 @@ class Setting:
     delays: int
     modes: tuple[int, int]
     weights: str
+    drive: str
 
     def label(self) -> str:
         return (f"{self.name.removeprefix('hist_')} up {self.up} tau {self.delays} "
-                f"{self.modes[0]}c{self.modes[1]}r {self.weights}")
+                f"{self.modes[0]}c{self.modes[1]}r {self.weights} {self.drive}")
 
 
 def _run(s: pe.Seg, name: str) -> Run:
@@ -88,7 +91,7 @@ def _score(model: PseudoTimePROM | None, segs: list[pe.Seg],
 
 def _fit(setting: Setting, by_run: dict[int, list[pe.Seg]], runs: list[int]) -> PseudoTimePROM | None:
     model = PseudoTimePROM(up=setting.up, delays=setting.delays, n_pairs=setting.modes[0],
-                           n_real=setting.modes[1], weights=setting.weights)
+                           n_real=setting.modes[1], weights=setting.weights, drive=setting.drive)
     try:
         with np.errstate(all="ignore"):
             return model.fit([[_run(s, setting.name) for s in by_run[r]] for r in runs])
@@ -100,19 +103,19 @@ def cv_pseudo(train: list[pe.Seg], quick: bool) -> Setting:
     """Leave-one-run-out CV over the training runs: the best pseudo-time setting."""
     by_run = _by_run(train)
     runs = sorted(by_run)
-    best = Setting(float("inf"), "", 0, 0, (0, 0), "")
-    grid = itertools.product(pe.PARAMS, UPS[-1:] if quick else UPS, DELAYS[:2] if quick else DELAYS,
-                             MODES, WEIGHTS)
-    for name, up, delays, modes, weights in grid:
+    best = Setting(float("inf"), "", 0, 0, (0, 0), "", "")
+    grid = itertools.product(pe.PARAMS, UPS[-1:] if quick else UPS, DELAYS[1:2] if quick else DELAYS,
+                             MODES, WEIGHTS, DRIVES)
+    for name, up, delays, modes, weights, drive in grid:
         if not all(np.isfinite(s.p[name]) for s in train):
             continue
-        setting = Setting(0.0, name, up, delays, modes, weights)
+        setting = Setting(0.0, name, up, delays, modes, weights, drive)
         pairs: list[tuple[np.ndarray, np.ndarray]] = []
         for f in runs:
             pairs += _score(_fit(setting, by_run, [r for r in runs if r != f]), by_run[f], name)
         eps = pooled_eps(pairs)
         if eps < best.cv:
-            best = Setting(eps, name, up, delays, modes, weights)
+            best = Setting(eps, name, up, delays, modes, weights, drive)
     return best
 
 

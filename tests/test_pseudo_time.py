@@ -57,3 +57,23 @@ def test_bad_libraries_are_refused_in_one_line() -> None:
     still = Run(np.ones(100), np.zeros(100), 20, np.array([0.0]))
     with pytest.raises(ValueError, match="speed must be positive"):
         PseudoTimePROM().fit([still, still])
+
+
+def test_driven_by_the_imbalance_force_the_amplitude_follows_a_speed_step() -> None:
+    """The order as the response to the pseudo shaft's imbalance force, (speed / mean)^2 (1 + p):
+    a speed step after the OC's start moves the amplitude with it, at the run's own parameter;
+    driven by the speed (the text's input) the model has nothing at the carrier and its free run
+    dies out."""
+    def run(p: float, K: int = 400, start: int = 100) -> Run:
+        speed = np.where(np.arange(K) < start + 20, 4500.0, 5000.0)
+        return Run((1.0 + p) * (speed / 4800.0) ** 2, speed, start, np.array([p]))
+
+    truth = run(0.25).amplitude[100:]
+    err = {}
+    for drive in ("force", "speed"):
+        model = PseudoTimePROM(up=4, delays=4, n_pairs=1, n_real=0, drive=drive).fit(
+            [run(p) for p in (0.0, 0.5, 1.0)])
+        err[drive] = _rms(model.predict(run(0.25)) - truth) / truth.max()
+    assert err["force"] < 0.04 and err["speed"] > 0.5, err
+    with pytest.raises(ValueError, match="drive"):
+        PseudoTimePROM(drive="rpm").fit([run(0.0), run(1.0)])

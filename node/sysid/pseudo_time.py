@@ -30,6 +30,7 @@ from node.sysid.observer import estimate_state
 from node.sysid.parametric import ParametricROM
 from node.sysid.statespace import StateSpace
 
+DRIVES = ("speed", "force")
 # a library sample's Delay-DMD, by its signals and delays: leave-one-run-out CV refits the same runs
 _MODELS: ContentMemo[StateSpace] = ContentMemo(256)
 
@@ -92,6 +93,11 @@ class PseudoTimePROM:
         n_pairs, n_real: the pole pairs and real poles the ROM keeps.
         weights: the ROM's weights (``"linear"``, ``"regress"``, ...).
         seed: pseudo-time samples of measured past the state is fitted on.
+        drive: the model's input: ``"speed"`` (the text's: the speed / its training mean), or
+            ``"force"``, the imbalance force of the pseudo shaft, (speed / mean)^2 cos phi: a
+            linear model driven by the speed alone has nothing at the carrier to sustain the
+            signal, and its free run decays over a long segment; driven by the force, the order
+            is the structure's response to it, resonances and all.
 
     Learned: ``rom_`` (the :class:`ParametricROM`, built from the runs' models), ``models_``
     (their Delay-DMD models), ``ref_`` (the mean training speed).
@@ -107,7 +113,7 @@ class PseudoTimePROM:
     """
 
     def __init__(self, up: int = 8, delays: int = 8, cycles: int = 8, n_pairs: int = 3, n_real: int = 1,
-                 weights: str = "linear", seed: int = 80) -> None:
+                 weights: str = "linear", seed: int = 80, drive: str = "speed") -> None:
         self.up = up
         self.delays = delays
         self.cycles = cycles
@@ -115,18 +121,22 @@ class PseudoTimePROM:
         self.n_real = n_real
         self.weights = weights
         self.seed = seed
+        self.drive = drive
 
     def signals(self, run: Run) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The run's pseudo-time signal x (K up, 1), input (K up, 1) (speed / ref) and carrier angle."""
+        """The run's pseudo-time signal x (K up, 1), input (K up, 1) (``drive``) and carrier angle."""
         angle = phase(run.speed, self.up, self.ref_, self.cycles)
         x = modulate(run.amplitude, angle, self.up)
-        return x[:, None], upsample(run.speed / self.ref_, self.up)[:, None], angle
+        u = upsample(run.speed / self.ref_, self.up)
+        return x[:, None], (u if self.drive == "speed" else u ** 2 * np.cos(angle))[:, None], angle
 
     def fit(self, library: Sequence[Run | Sequence[Run]]) -> PseudoTimePROM:
         """A Delay-DMD per library sample (a run, or several segments of one run: the first's
         parameter) on its pseudo-time signal (the past warms the delays), the ROM over the samples'
         parameters (the fitted models as its library; no validation: a free run from rest is not
         how the model is used). Returns self."""
+        if self.drive not in DRIVES:
+            raise ValueError(f"drive must be one of {DRIVES}, got {self.drive!r}")
         groups = [[entry] if isinstance(entry, Run) else list(entry) for entry in library]
         if len(groups) < 2 or any(not g for g in groups):
             raise ValueError(f"need at least 2 library samples of one or more runs, got {len(groups)}")
