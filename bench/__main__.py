@@ -11,6 +11,7 @@ BENCHMARKS = {
     "prom-engine": "bench.prom_engine",
     "prom-table": "bench.prom_table",
     "prom-family": "bench.prom_family",
+    "prom-pseudo": "bench.prom_pseudo",
     "faults": "bench.faults",
     "generalise": "bench.generalise",
     "read-speed": "bench.read_speed",

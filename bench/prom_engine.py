@@ -216,8 +216,9 @@ def predict_prom(rom: StudyROM, s: Seg, names: tuple[str, ...], scaling: InputSc
 
 def build_rom(key: tuple, runs: list[int], params: np.ndarray, levels: int, modes: tuple[int, int],
               scheme: str, rule: str) -> StudyROM | None:
+    # residues as identified: the samples handed to fit are keys of models fitted beforehand, no data
     rom = StudyROM(Prefit((*key, levels)), n_pairs=modes[0], n_real=modes[1], scheme=scheme, tol=TOL,
-                   weights="auto" if params.shape[1] > 1 else "linear", validate="none")
+                   weights="auto" if params.shape[1] > 1 else "linear", validate="none", residues="model")
     rom.rule = rule
     if rule == "interp" and any(np.ptp(params[np.arange(len(params)) != i], axis=0).min() == 0
                                 for i in range(len(params))):

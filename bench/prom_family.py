@@ -6,7 +6,8 @@ the judged parameter, and warns when it falls back.
 
 Cases ``first`` .. ``first + cases - 1`` (seeded; kind and noise cycle with the seed). Prints the
 distribution per class (crossing / veering / neither) and noise level and the pass fractions
-beside the targets.
+beside the targets, apart for the seeds the validation's rules were chosen on
+(``harness.prom_family.TUNED``) and the held-out ones.
 """
 
 from __future__ import annotations
@@ -66,11 +67,23 @@ def main(argv: list[str] | None = None) -> int:
     print_table(["class", "noise", "cases", "median eps_td", "median rom/direct", "90th pct rom/direct",
                  "fallbacks", "not worse than nearest", "within 2x or 0.05 of direct", "fallbacks warned"],
                 rows, markdown=True, title="Per class and noise level")
-    f = pf.fractions(results)
     targets = [pf.TARGET_NEAREST, pf.TARGET_DIRECT, 1.0]
-    print_table(["rule", "pass fraction", "target"],
-                [[k, f"{v:.1%}", f">= {t:.0%}"] for (k, v), t in zip(f.items(), targets)],
-                markdown=True, title=f"All {len(results)} cases")
+    tuned = [r for r in results if r.case.seed in pf.TUNED]
+    held = [r for r in results if r.case.seed not in pf.TUNED]
+    span = f"{pf.TUNED.start}-{pf.TUNED.stop - 1}"
+    parts = [(f"All {len(results)} cases", results)] + \
+        ([(f"Seeds {span} ({len(tuned)}: the rules were chosen on these)", tuned),
+          (f"The other {len(held)} seeds (held out)", held)] if tuned and held else [])
+    for title, sub in parts:
+        f = pf.fractions(sub)
+        counts = [sum(r.not_worse for r in sub), sum(r.near_direct for r in sub), sum(r.honest for r in sub)]
+        print_table(["rule", "pass fraction", "target"],
+                    [[k, f"{v:.1%} ({c}/{len(sub)})", f">= {t:.0%}"]
+                     for (k, v), c, t in zip(f.items(), counts, targets)], markdown=True, title=title)
+    if not held:
+        print(f"\n(every seed here is one the rules were chosen on: {span})")
+    elif not tuned:
+        print(f"\n(every seed here is held out: the rules were chosen on {span})")
     print(f"\nTotal benchmark time: {time.perf_counter() - t0:.0f} s")
     return 0
 

@@ -39,6 +39,7 @@ NOISES = (0.0, 0.01, 0.02)
 # the targets (issue text): no worse than the nearest sample's model in >= 97 % of cases; within
 # 2x a direct fit or 0.05 eps_td of it in >= 90 %; every fallback warned
 TARGET_NEAREST, TARGET_DIRECT = 0.97, 0.90
+TUNED = range(0, 40)  # the seeds the validation's rules were chosen on; the others are held out
 
 
 @dataclass(frozen=True)

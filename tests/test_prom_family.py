@@ -9,8 +9,8 @@ import pytest
 from harness import prom_family as pf
 
 # seeds of all three classes and noise levels whose cases run in a few seconds each (the
-# veering blocks' joint fits of some 3-4 DOF cases take a minute)
-SEEDS = [8, 10, 14, 15, 16, 17, 21, 22, 23]
+# veering blocks' joint fits of some 3-4 DOF cases take a minute); 34 and 39 fall back
+SEEDS = [17, 34, 36, 38, 39]
 
 
 @pytest.fixture(scope="module")

@@ -52,7 +52,7 @@ from node.sysid.validation import as_matrix
 
 log = logging.getLogger(__name__)
 
-SCHEMES = ("modal", "direct")
+SCHEMES = ("modal", "inverse", "direct", "auto")
 WEIGHTS = ("auto", "lagrange", "linear", "rbf", "regress", "mean")
 # version of ``to_arrays`` (1: no groups nor fallback modes; 2: groups interpolated per sample; still read)
 FORMAT = 3
@@ -353,12 +353,16 @@ class ParametricROM(BaseEstimator):
             samples of the modes' peak gains ||R||_F / (1 - |z|) (the H2 norm ||R||^2 / (1 - |z|^2)
             ranks broadband modes fitted to noise above lightly damped physical ones).
         n_real: dominant real poles (0 < z < 1) kept besides.
-        scheme: what is interpolated, in the ZOH-equivalent s-plane. ``"modal"`` (default):
-            w^2 = |s|^2, 2 zeta w = -2 Re s and R_s w; ``"direct"``: the poles s and residues
-            R_s themselves, the text's eq. 6.10. Modal is the default because a stiffness-like
-            parameter moves w^2 linearly while w, the pole and the residue (~ 1 / w) follow its
-            square root. On the axially loaded beam (``python -m bench parametric``, models at
-            p = 0, 3, 4, Lagrange weights) eps_td at p = 2 is 5.9e-3 against 1.6e-1 for eq. 6.10.
+        scheme: what is interpolated, in the ZOH-equivalent s-plane. ``"modal"``: w^2 = |s|^2,
+            2 zeta w = -2 Re s and R_s w; ``"inverse"``: 1 / w^2, 2 zeta w / w^2 and R_s / w;
+            ``"direct"``: the poles s and residues R_s themselves, the text's eq. 6.10;
+            ``"auto"`` (default): modal or inverse, chosen by ``validate`` (modal without it).
+            A stiffness-like parameter moves w^2 linearly while w, the pole and the residue
+            (~ 1 / w) follow its square root; a mass-like one moves 1 / w^2 linearly (and with
+            Rayleigh damping 2 zeta w / w^2; R_s / w stays). On the axially loaded beam
+            (``python -m bench parametric``, models at p = 0, 3, 4, Lagrange weights) eps_td at
+            p = 2 is 5.9e-3 for modal against 1.6e-1 for eq. 6.10. Veering groups' blocks are in
+            modal variables unless ``"direct"``.
         weights: ``"lagrange"`` (polynomial through the samples, one parameter), ``"linear"``
             (piecewise linear, one parameter, linear beyond the ends), ``"rbf"`` (thin-plate
             spline with a linear term over range-scaled parameters, any number of them);
@@ -414,14 +418,17 @@ class ParametricROM(BaseEstimator):
             identification errors). ``"none"``: no groups (every track one-to-one).
             ``"auto"`` (default): chosen by ``validate`` (joint without it).
         validate: ``"loo"`` (default): ``fit`` chooses the settings left ``"auto"`` (``match``,
-            ``block``, ``weights``) and how many of the ``n_pairs`` pairs to keep (1 to
-            ``n_pairs``) by leave-one-sample-out on its data (:mod:`node.sysid.prom_loo`): each
-            interior sample (inside the others' range, or hull for several parameters) rebuilt
-            from the others' models and its free run from rest under that sample's inputs scored
-            (eps_td) against that sample's outputs; the lowest mean score wins (within 2 %: the
-            earlier candidate, the settings without validation first). When it does not beat
-            the nearest other sample's model, scored the same way, ``at`` returns the nearest
-            sample's fitted model (``fallback_``) with one :class:`ParametricFallbackWarning`.
+            ``block``, ``weights``, ``scheme``) and how many of the ``n_pairs`` pairs to keep (1 to
+            ``n_pairs``) by leave-one-sample-out on its data (:mod:`node.sysid.prom_loo`): when
+            some sample is interior (inside the others' range, or hull for several parameters),
+            each sample is rebuilt from the others' models (interpolated to an interior one,
+            extrapolated to one at the edge, which weighs 0.3) and its free run from rest under
+            that sample's inputs scored against that sample's outputs (eps_td capped at 1,
+            ``prom_loo.score``); the lowest weighted mean score
+            wins (within 2 %: the earlier candidate, the settings without validation first). When
+            it does not beat the nearest other sample's model, scored the same way, ``at``
+            returns the nearest sample's fitted model (``fallback_``) with one
+            :class:`ParametricFallbackWarning`.
             Without an interior sample (two samples, or none inside the others' hull),
             ``fit_models`` (models, no data) or ``"none"``: the settings as given, ``"auto"``
             as noted and all ``n_pairs``. Either way ``validation_`` says how it decided. A
@@ -470,7 +477,9 @@ class ParametricROM(BaseEstimator):
     (True, True)
     """
 
-    def __init__(self, base_estimator: Any, n_pairs: int = 4, n_real: int = 0, scheme: str = "modal",
+    choice_: Candidate  # set by fit / fit_models / from_arrays
+
+    def __init__(self, base_estimator: Any, n_pairs: int = 4, n_real: int = 0, scheme: str = "auto",
                  weights: str = "auto", mac_weight: float = 1.0, tol: float = 0.5,
                  static: bool = False, clip: bool = False, verbose: bool = True,
                  match: str = "auto", veer_gap: float = 0.1, fallback: str = "nearest",
@@ -558,7 +567,7 @@ class ParametricROM(BaseEstimator):
         best = val.best()
         assert best is not None
         means = val.mean_scores()
-        near = float(np.mean(val.nearest))
+        near = val.nearest_score()
         chosen = None
         for c in val.ranking():  # the best setting that builds from all samples
             if not (means[c] < LOO_MARGIN * near):
@@ -591,7 +600,8 @@ class ParametricROM(BaseEstimator):
         """The settings without validation: the given ones, ``"auto"`` as before validation."""
         return Candidate("continuation" if self.match == "auto" else self.match,
                          "joint" if self.block == "auto" else self.block, int(self.n_pairs),
-                         ("lagrange" if q == 1 else "rbf") if self.weights == "auto" else self.weights)
+                         ("lagrange" if q == 1 else "rbf") if self.weights == "auto" else self.weights,
+                         "modal" if self.scheme == "auto" else self.scheme)
 
     def _candidates(self, q: int) -> list[Candidate]:
         """The settings leave-one-sample-out chooses among, the default first: match and block
@@ -602,12 +612,29 @@ class ParametricROM(BaseEstimator):
         weights = (["lagrange", "linear"] if q == 1 else ["rbf", "regress"]) if self.weights == "auto" \
             else [self.weights]
         pairs = list(range(int(self.n_pairs), 0, -1)) or [0]
+        schemes = ["modal", "inverse"] if self.scheme == "auto" else [self.scheme]
         out = []
         for match in matches:
             blocks = ["none"] if match == "assignment" and self.block == "auto" else \
                 (["joint", "none"] if self.block == "auto" else [self.block])
-            out += [Candidate(match, block, k, w) for block in blocks for k in pairs for w in weights]
+            out += [Candidate(match, block, k, w, sc) for block in blocks for k in pairs for w in weights
+                    for sc in schemes]
         return [first] + [c for c in out if c != first]
+
+    def _modal_blocks(self) -> bool:
+        """Veering groups' blocks in modal variables (A'^2, A' B'), else direct (A', B'): the
+        constructor's scheme, so that the candidates of one build differ only in ``_interpolate``."""
+        return self.scheme != "direct"
+
+    def model_for(self, p: Any, cand: Candidate) -> StateSpace:
+        """The model at ``p`` with ``cand``'s weights and scheme on this build (its match, block
+        and pairs): what leave-one-sample-out scores."""
+        keep = self.choice_
+        self.choice_ = replace(keep, weights=cand.weights, scheme=cand.scheme)
+        try:
+            return self.at_weights(self.weights_for(p)).model_
+        finally:
+            self.choice_ = keep
 
     def _fold(self, cand: Candidate, models: list[StateSpace], P: np.ndarray,
               data: list[Data]) -> ParametricROM:
@@ -678,7 +705,7 @@ class ParametricROM(BaseEstimator):
         if data is not None and self.residues == "data":
             self._refit_residues(data, [f.R for f in found])
         self._joints = [fit_joint(self._s[:, cols], self._R[:, cols], P, self._scale, b.X, b.Y, b.C,
-                                  self.scheme == "modal") if cand.block == "joint" else None
+                                  self._modal_blocks()) if cand.block == "joint" else None
                         for cols, b in zip(self._groups, self._blocks)]
         self._set_discrete()
         if warn:
@@ -709,7 +736,7 @@ class ParametricROM(BaseEstimator):
             self.D_[i] = got[1]
         before = np.concatenate(copied, axis=1)
         for g, cols in enumerate(self._groups):
-            block = _common_basis(self._s[:, cols], self._R[:, cols], self.scheme == "modal")
+            block = _common_basis(self._s[:, cols], self._R[:, cols], self._modal_blocks())
             if block is None:
                 self._R[:, cols] = before[:, cols]
             else:
@@ -747,7 +774,7 @@ class ParametricROM(BaseEstimator):
 
     def _warn_fallback(self, best: tuple[Candidate, float]) -> None:
         """The one warning of a ROM whose ``at`` returns the nearest sample's model."""
-        near = float(np.mean(self.validation_.nearest))
+        near = self.validation_.nearest_score()
         held = ", ".join(str(i) for i in self.validation_.held_out)
         why = (f"no setting beats {LOO_MARGIN:g} x the nearest sample's model by leave-one-sample-out on "
                f"sample(s) {held} (best {best[0].label()}: eps_td {best[1]:.3g}, nearest sample's model "
@@ -810,7 +837,7 @@ class ParametricROM(BaseEstimator):
                 link[child, grp] = _set_cost(sets[0], sets[1], self.mac_weight)
             block = _common_basis(np.array([modes[i].s[track[i, grp]] for i in range(n)]),
                                   np.array([modes[i].R[track[i, grp]] for i in range(n)]),
-                                  self.scheme == "modal")
+                                  self._modal_blocks())
             if block is None:  # no common basis: the group is unreliable
                 unaligned += grp
             else:
@@ -936,7 +963,15 @@ class ParametricROM(BaseEstimator):
         s, R = self._s, self._R
         k = self._n_pairs_kept
         tiny = 1e-9 / self.dt_
-        if self.scheme == "modal":
+        scheme = self.choice_.scheme
+        if scheme == "inverse":  # 1 / w^2, 2 zeta w / w^2 and R_s / w: a mass-like parameter
+            w0 = np.abs(s)
+            w2 = 1.0 / np.maximum(w @ (1.0 / w0 ** 2), (self.dt_ / np.pi) ** 2)  # below Nyquist
+            c = np.maximum(w2 * (w @ (-2.0 * s.real / w0 ** 2)), 2 * tiny)
+            wd = np.sqrt(np.maximum(w2 - c ** 2 / 4, tiny ** 2))
+            si = np.where(np.arange(s.shape[1]) < k, -c / 2 + 1j * wd, -c / 2 + 0j)
+            Ri = np.einsum("i,ijpm->jpm", w, R / w0[:, :, None, None]) * np.sqrt(w2)[:, None, None]
+        elif scheme == "modal":
             w0 = np.abs(s)
             w2 = np.maximum(w @ w0 ** 2, tiny ** 2)
             c = np.maximum(w @ (-2.0 * s.real), 2 * tiny)  # 2 zeta w
@@ -960,7 +995,7 @@ class ParametricROM(BaseEstimator):
         realisation interpolated (the poles from the interpolated characteristic polynomial);
         diagonalised; the modes in the order of ``guess`` (their one-to-one interpolation),
         Re s < 0 (``clip``: within lo..hi)."""
-        modal = self.scheme == "modal"
+        modal = self._modal_blocks()
         if joint is not None:  # the weights reproduce linear functions: w @ params_ is p
             s, R = joint_modes(*joint.at(w @ self.params_))
         else:
@@ -1056,6 +1091,8 @@ class ParametricROM(BaseEstimator):
         out: dict[str, np.ndarray] = {}
         if self.choice_.weights != self._default_choice(self.params_.shape[1]).weights:
             out["rom_weights"] = np.array([WEIGHTS.index(self.choice_.weights)])
+        if self.choice_.scheme != self._default_choice(self.params_.shape[1]).scheme:
+            out["rom_scheme"] = np.array([SCHEMES.index(self.choice_.scheme)])
         if self.fallback_:
             lib = self._library
             if len({ss.A.shape for ss in lib}) > 1:
@@ -1115,7 +1152,7 @@ class ParametricROM(BaseEstimator):
             rom._fb_pair = np.asarray(arrays["rom_fb_pair"], bool)
         rom._groups = [[int(j) for j in np.where(group == g)[0]]
                        for g in range(int(group.max(initial=-1)) + 1)]
-        blocks = [_common_basis(rom._s[:, cols], rom._R[:, cols], rom.scheme == "modal")
+        blocks = [_common_basis(rom._s[:, cols], rom._R[:, cols], rom._modal_blocks())
                   for cols in rom._groups]
         if any(b is None for b in blocks):
             raise ValueError("parametric model arrays hold a group without a common basis")
@@ -1138,6 +1175,8 @@ class ParametricROM(BaseEstimator):
         rom.choice_ = rom._default_choice(rom.params_.shape[1])
         if "rom_weights" in arrays:
             rom.choice_ = replace(rom.choice_, weights=WEIGHTS[int(np.asarray(arrays["rom_weights"])[0])])
+        if "rom_scheme" in arrays:
+            rom.choice_ = replace(rom.choice_, scheme=SCHEMES[int(np.asarray(arrays["rom_scheme"])[0])])
         rom.choice_ = replace(rom.choice_, n_pairs=rom._n_pairs_kept)
         rom.validation_ = Validation("restored from arrays", rom.choice_)
         rom.fallback_ = "rom_library_A" in arrays
