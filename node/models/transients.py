@@ -268,16 +268,13 @@ class FleetTransients:
         return 100.0 * (af - res.af.mean) / res.af.mean, max(self.settings.k_sigma * spread, AF_FLOOR_PCT)
 
     def compare(self, kind: str, speed: float) -> tuple[Resonance | None, float | None, float | None]:
-        """The fleet resonance a critical at ``speed`` (rpm of the shaft analysed) in a transition
-        of ``kind`` matches (None: none within ``match_pct``), its shift in % and the limit."""
-        k = self.kinds.get(kind)
-        if k is None or not k.resonances:
+        """One critical at ``speed`` (rpm of the shaft analysed) alone in a transition of ``kind``:
+        the fleet resonance it matches (``match``; None: none), its shift in % and the limit."""
+        res = self.match(kind, [speed])[0]
+        if res is None:
             return None, None, None
-        best = min(k.resonances, key=lambda r: abs(speed - r.shaft.mean))
-        shift = 100.0 * (speed - best.shaft.mean) / best.shaft.mean
-        if abs(shift) > self.settings.match_pct:
-            return None, None, None
-        return best, shift, self.limit(best, k.transitions)
+        shift, limit = self.shifted(res, speed, self.kinds[kind].transitions)
+        return res, shift, limit
 
     def manifest(self) -> dict[str, Any]:
         """The bundle manifest's ``transients`` object."""
